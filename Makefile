@@ -1,0 +1,98 @@
+# AMazING mobile-node manager. `make run` starts everything locally; `make test` proves it.
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+
+PYTHON_BOOT ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMPS := .make
+ASSETS := var/assets
+
+# Test services: real PostgreSQL and Redis on this machine (see tests/ensure_services.sh).
+TEST_DATABASE_URL ?= postgres://postgres@127.0.0.1:5432/amazing
+TEST_REDIS_URL ?= redis://127.0.0.1:6379/14
+TEST_ENV := DJANGO_DEBUG=1 AMAZING_TEST_REQUIRE_POSTGRES=1 DATABASE_URL=$(TEST_DATABASE_URL) REDIS_URL=$(TEST_REDIS_URL) \
+	CELERY_BROKER_URL=$(TEST_REDIS_URL)
+
+.PHONY: help setup run test ci lint format bench firmware clean system-deps services
+
+help:
+	@echo "make run    - set up and start the whole system locally (simulated robot)"
+	@echo "make test   - set up and run every test suite against PostgreSQL and Redis"
+	@echo "make lint   - ruff, mypy and compose validation"
+	@echo "make bench  - benchmarks (results go to docs/performance.md)"
+	@echo "make firmware - cross-compile the robot firmware"
+	@echo "make clean  - remove the virtualenv, assets and local data"
+
+$(STAMPS):
+	@mkdir -p $(STAMPS)
+
+# Python packages: reinstalled when pyproject.toml changes.
+$(STAMPS)/venv: pyproject.toml | $(STAMPS)
+	@test -x $(PY) || $(PYTHON_BOOT) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[portal,basestation,dev]'
+	@touch $@
+
+# Front-end packages from npm, copied to where Django's staticfiles finds them.
+$(STAMPS)/assets: package.json package-lock.json | $(STAMPS)
+	npm ci --no-audit --no-fund --loglevel=error
+	rm -rf $(ASSETS)/vendor
+	mkdir -p $(ASSETS)/vendor/pico $(ASSETS)/vendor/chart.js $(ASSETS)/vendor/swagger-ui-dist
+	cp node_modules/@picocss/pico/css/pico.min.css $(ASSETS)/vendor/pico/
+	cp node_modules/chart.js/dist/chart.umd.js $(ASSETS)/vendor/chart.js/
+	cp node_modules/swagger-ui-dist/{swagger-ui-bundle.js,swagger-ui-standalone-preset.js,swagger-ui.css,favicon-32x32.png} \
+		$(ASSETS)/vendor/swagger-ui-dist/
+	@touch $@
+
+# Debian packages the tests need: Chromium for browser tests, docker-compose to validate the
+# compose file, the AVR toolchain and Arduino core for the firmware.
+APT_NEEDS := /usr/bin/chromium:chromium /usr/bin/docker-compose:docker-compose \
+	/usr/bin/avr-gcc:gcc-avr /usr/share/arduino/Arduino.mk:arduino-mk \
+	/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h:arduino-core-avr \
+	/usr/lib/avr/include/avr/io.h:avr-libc
+system-deps:
+	@missing=""; for need in $(APT_NEEDS); do \
+		test -e "$${need%%:*}" || missing="$$missing $${need##*:}"; done; \
+	if [ -n "$$missing" ]; then \
+		echo "installing Debian packages:$$missing"; \
+		if [ "$$(id -u)" != 0 ]; then echo "need root to install:$$missing" >&2; exit 1; fi; \
+		DEBIAN_FRONTEND=noninteractive apt-get update -qq && \
+		DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	fi
+
+setup: $(STAMPS)/venv $(STAMPS)/assets
+
+run: setup
+	$(PY) -m portal.launcher
+
+services:
+	@bash tests/ensure_services.sh $(TEST_DATABASE_URL) $(TEST_REDIS_URL)
+
+test: setup system-deps services
+	$(TEST_ENV) $(PY) -m pytest
+	@if [ -f firmware/Makefile ]; then $(MAKE) --no-print-directory -C firmware test hex size-check; fi
+
+lint: setup system-deps
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation
+	docker-compose -f docker-compose.yml config --quiet
+	DJANGO_DEBUG=1 $(PY) manage.py makemigrations --check --dry-run
+	DJANGO_DEBUG=1 $(PY) -W error manage.py spectacular --validate --fail-on-warn --file /dev/null
+
+format: setup
+	$(VENV)/bin/ruff check --fix .
+	$(VENV)/bin/ruff format .
+
+ci: lint test
+
+firmware: system-deps
+	$(MAKE) -C firmware hex size-check
+
+bench: setup services
+	$(TEST_ENV) $(PY) -m bench
+
+clean:
+	rm -rf $(VENV) $(STAMPS) node_modules var .mypy_cache .ruff_cache .pytest_cache .hypothesis
+	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware clean; fi

@@ -1,0 +1,59 @@
+"""Create the demo users and the testbed's resources, once.
+
+Passwords are random and printed only when the users are created; run ``changepassword``
+to set new ones later.
+"""
+
+from __future__ import annotations
+
+import secrets
+from typing import Any
+
+from django.conf import settings
+from django.core.management.base import BaseCommand
+from django.db import transaction
+
+from bookings.choices import ResourceKind
+from bookings.models import Resource
+from portal.accounts.models import User
+
+FIXED_NODES = 24
+
+
+class Command(BaseCommand):
+    help = "Create an admin, an experimenter, the mobile node and the 24 fixed nodes (idempotent)."
+
+    def handle(self, *args: Any, **options: Any) -> None:
+        with transaction.atomic():
+            Resource.objects.get_or_create(
+                name="mobile-1",
+                defaults={
+                    "kind": ResourceKind.MOBILE,
+                    "description": "Rail robot around the roof of IT building 1",
+                    "agent_url": settings.AGENT_URL,
+                    "max_velocity_mps": 2.0,
+                    "max_accel_mps2": 1.0,
+                },
+            )
+            for i in range(1, FIXED_NODES + 1):
+                Resource.objects.get_or_create(
+                    name=f"node-{i:02d}",
+                    defaults={"kind": ResourceKind.FIXED, "description": f"Fixed node {i}"},
+                )
+            created = []
+            for username, staff in (("admin", True), ("experimenter", False)):
+                if User.objects.filter(username=username).exists():
+                    continue
+                password = secrets.token_urlsafe(12)
+                User.objects.create_user(
+                    username=username,
+                    email=f"{username}@example.org",
+                    password=password,
+                    is_staff=staff,
+                    is_superuser=staff,
+                )
+                created.append((username, password))
+        for username, password in created:
+            self.stdout.write(f"demo user created: {username} / password: {password}")
+        if not created:
+            self.stdout.write("demo users already exist (passwords were printed when created)")

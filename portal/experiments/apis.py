@@ -1,0 +1,199 @@
+from __future__ import annotations
+
+import csv
+from collections.abc import Iterator
+from typing import Any
+
+from django.http import StreamingHttpResponse
+from django.shortcuts import get_object_or_404
+from drf_spectacular.utils import OpenApiParameter, extend_schema
+from rest_framework import serializers, status
+from rest_framework.request import Request
+from rest_framework.response import Response
+from rest_framework.views import APIView
+
+from portal.experiments.models import Experiment, Run
+from portal.experiments.selectors import (
+    SAMPLE_EXPORT_FIELDS,
+    experiments_visible,
+    run_sample_rows,
+    run_samples,
+    runs_visible,
+)
+from portal.experiments.services import experiment_create, experiment_update
+
+
+class SegmentSerializer(serializers.Serializer):
+    velocity_mps = serializers.FloatField(min_value=0)
+    direction = serializers.ChoiceField(choices=["cw", "ccw"])
+    duration_s = serializers.FloatField(min_value=0.001)
+
+
+class ExperimentOutput(serializers.ModelSerializer):
+    segments = SegmentSerializer(many=True)
+    duration_s = serializers.FloatField(read_only=True)
+    owner = serializers.CharField(source="owner.username")
+
+    class Meta:
+        model = Experiment
+        fields = ["id", "title", "segments", "duration_s", "owner", "created_at", "updated_at"]
+
+
+class ExperimentInput(serializers.Serializer):
+    title = serializers.CharField(max_length=200)
+    # Checked by the service, which knows the robots' limits and names the segment at fault.
+    segments = serializers.JSONField()
+
+
+class ExperimentListApi(APIView):
+    @extend_schema(responses=ExperimentOutput(many=True))
+    def get(self, request: Request) -> Response:
+        qs = experiments_visible(user=request.user)  # type: ignore[arg-type]
+        return Response(ExperimentOutput(qs, many=True).data)
+
+    @extend_schema(request=ExperimentInput, responses={201: ExperimentOutput})
+    def post(self, request: Request) -> Response:
+        data = _valid(ExperimentInput, request.data)
+        experiment = experiment_create(owner=request.user, **data)  # type: ignore[arg-type]
+        return Response(ExperimentOutput(experiment).data, status=status.HTTP_201_CREATED)
+
+
+class ExperimentDetailApi(APIView):
+    def _get(self, request: Request, pk: int) -> Experiment:
+        return get_object_or_404(experiments_visible(user=request.user), pk=pk)  # type: ignore[arg-type]
+
+    @extend_schema(responses=ExperimentOutput)
+    def get(self, request: Request, pk: int) -> Response:
+        return Response(ExperimentOutput(self._get(request, pk)).data)
+
+    @extend_schema(request=ExperimentInput, responses=ExperimentOutput)
+    def put(self, request: Request, pk: int) -> Response:
+        experiment = self._get(request, pk)
+        data = _valid(ExperimentInput, request.data)
+        return Response(ExperimentOutput(experiment_update(experiment=experiment, **data)).data)
+
+
+def _valid(serializer_class: type[serializers.Serializer], data: Any) -> dict[str, Any]:
+    serializer = serializer_class(data=data)
+    serializer.is_valid(raise_exception=True)
+    return dict(serializer.validated_data)
+
+
+class RunEventOutput(serializers.Serializer):
+    from_state = serializers.CharField()
+    to_state = serializers.CharField()
+    at = serializers.DateTimeField()
+    reason = serializers.CharField()
+
+
+class RunOutput(serializers.ModelSerializer):
+    reservation = serializers.IntegerField(source="reservation_id")
+    resource = serializers.CharField(source="reservation.resource.name")
+    owner = serializers.CharField(source="reservation.owner.username")
+    segments = SegmentSerializer(many=True)
+    sample_count = serializers.SerializerMethodField()
+    events = RunEventOutput(many=True)
+
+    class Meta:
+        model = Run
+        fields = [
+            "id",
+            "title",
+            "reservation",
+            "resource",
+            "owner",
+            "experiment",
+            "segments",
+            "start_at",
+            "end_at",
+            "state",
+            "reason",
+            "last_seq",
+            "sample_count",
+            "agent_sample_count",
+            "events",
+        ]
+
+    def get_sample_count(self, run: Run) -> int:
+        return run.samples.count()
+
+
+class RunListApi(APIView):
+    @extend_schema(responses=RunOutput(many=True))
+    def get(self, request: Request) -> Response:
+        qs = runs_visible(user=request.user).prefetch_related("events")  # type: ignore[arg-type]
+        state = request.query_params.get("state")
+        if state:
+            qs = qs.filter(state=state)
+        return Response(RunOutput(qs[:200], many=True).data)
+
+
+class RunDetailApi(APIView):
+    @extend_schema(responses=RunOutput)
+    def get(self, request: Request, pk: int) -> Response:
+        run = get_object_or_404(runs_visible(user=request.user), pk=pk)  # type: ignore[arg-type]
+        return Response(RunOutput(run).data)
+
+
+class SampleOutput(serializers.Serializer):
+    seq = serializers.IntegerField()
+    t = serializers.DateTimeField()
+    segment = serializers.IntegerField(allow_null=True)
+    commanded_velocity_mps = serializers.FloatField()
+    velocity_mps = serializers.FloatField()
+    direction = serializers.CharField()
+    battery_v = serializers.FloatField()
+    track_m = serializers.FloatField()
+
+
+class SamplesQuery(serializers.Serializer):
+    after = serializers.IntegerField(min_value=0, default=0)
+    limit = serializers.IntegerField(min_value=1, max_value=10000, default=1000)
+
+
+class RunSamplesApi(APIView):
+    @extend_schema(
+        parameters=[
+            OpenApiParameter("after", int, description="Return samples with seq greater than this."),
+            OpenApiParameter("limit", int, description="At most this many (≤ 10 000)."),
+        ],
+        responses=SampleOutput(many=True),
+    )
+    def get(self, request: Request, pk: int) -> Response:
+        run = get_object_or_404(runs_visible(user=request.user), pk=pk)  # type: ignore[arg-type]
+        query = _valid(SamplesQuery, request.query_params)
+        rows = list(run_samples(run=run, after_seq=query["after"], limit=query["limit"]))
+        return Response(
+            {
+                "run": run.pk,
+                "state": run.state,
+                "samples": SampleOutput(rows, many=True).data,
+                "last_seq": rows[-1].seq if rows else query["after"],
+            }
+        )
+
+
+class _Echo:
+    def write(self, value: str) -> str:
+        return value
+
+
+def samples_csv_response(run: Run) -> StreamingHttpResponse:
+    """All samples of a run as CSV, streamed (never built in memory)."""
+
+    def rows() -> Iterator[str]:
+        writer = csv.writer(_Echo())
+        yield writer.writerow(SAMPLE_EXPORT_FIELDS)
+        for row in run_sample_rows(run=run):
+            yield writer.writerow([v.isoformat() if hasattr(v, "isoformat") else v for v in row])
+
+    response = StreamingHttpResponse(rows(), content_type="text/csv; charset=utf-8")
+    response["Content-Disposition"] = f'attachment; filename="amazing-run-{run.pk}.csv"'
+    return response
+
+
+class RunSamplesCsvApi(APIView):
+    @extend_schema(responses={(200, "text/csv"): str})
+    def get(self, request: Request, pk: int) -> StreamingHttpResponse:
+        run = get_object_or_404(runs_visible(user=request.user), pk=pk)  # type: ignore[arg-type]
+        return samples_csv_response(run)

@@ -1,0 +1,202 @@
+"""Writes for experiments and runs: validation of programs, run state changes, data ingest."""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Iterable, Mapping
+from datetime import UTC, datetime
+from typing import Any
+
+from django.db import transaction
+from django.db.models import Count, Max
+from django.utils import timezone
+from django.utils.dateparse import parse_datetime
+
+from portal.accounts.models import User
+from portal.errors import InvalidInput
+from portal.experiments.choices import Direction, RunState
+from portal.experiments.models import Experiment, Run, RunEvent, Sample
+
+logger = logging.getLogger(__name__)
+
+MAX_SEGMENTS = 100
+MAX_PROGRAM_S = 24 * 3600.0
+SEGMENT_KEYS = {"velocity_mps", "direction", "duration_s"}
+
+
+def segments_validate(
+    segments: Any, *, max_velocity_mps: float | None = None
+) -> list[dict[str, Any]]:
+    """A clean copy of a program, or ``InvalidInput`` naming the segment and field at fault."""
+    if not isinstance(segments, list) or not segments:
+        raise InvalidInput.on_field("segments", "An experiment needs at least one segment.")
+    if len(segments) > MAX_SEGMENTS:
+        raise InvalidInput.on_field("segments", f"At most {MAX_SEGMENTS} segments.")
+    errors: list[str] = []
+    clean: list[dict[str, Any]] = []
+    for i, raw in enumerate(segments, start=1):
+        if not isinstance(raw, Mapping):
+            errors.append(f"Segment {i}: must be an object with {sorted(SEGMENT_KEYS)}.")
+            continue
+        unknown = set(raw) - SEGMENT_KEYS
+        missing = SEGMENT_KEYS - set(raw)
+        if unknown or missing:
+            parts = []
+            if missing:
+                parts.append(f"missing {', '.join(sorted(missing))}")
+            if unknown:
+                parts.append(f"unknown {', '.join(sorted(unknown))}")
+            errors.append(f"Segment {i}: {'; '.join(parts)}.")
+            continue
+        velocity = _number(raw["velocity_mps"])
+        duration = _number(raw["duration_s"])
+        direction = raw["direction"]
+        if velocity is None or velocity < 0:
+            errors.append(f"Segment {i}: velocity must be a number ≥ 0 m/s.")
+        elif max_velocity_mps is not None and velocity > max_velocity_mps:
+            errors.append(
+                f"Segment {i}: velocity {velocity:g} m/s exceeds the maximum "
+                f"{max_velocity_mps:g} m/s of this robot."
+            )
+        if direction not in Direction.values:
+            errors.append(f"Segment {i}: direction must be 'cw' or 'ccw'.")
+        if duration is None or duration <= 0:
+            errors.append(f"Segment {i}: duration must be a number > 0 s.")
+        if not errors:
+            clean.append(
+                {"velocity_mps": velocity, "direction": direction, "duration_s": duration}
+            )
+    if errors:
+        raise InvalidInput(errors[0], fields={"segments": errors})
+    total_s = sum(s["duration_s"] for s in clean)
+    if total_s > MAX_PROGRAM_S:
+        raise InvalidInput.on_field(
+            "segments", f"The program lasts {total_s:g} s; at most {MAX_PROGRAM_S:g} s."
+        )
+    return clean
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        return None
+    try:
+        number = float(value)
+    except ValueError:
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _title_validate(title: Any) -> str:
+    if not isinstance(title, str) or not title.strip():
+        raise InvalidInput.on_field("title", "A title is required.")
+    if len(title) > 200:
+        raise InvalidInput.on_field("title", "At most 200 characters.")
+    return title.strip()
+
+
+def experiment_create(*, owner: User, title: str, segments: Any) -> Experiment:
+    from bookings.selectors import mobile_max_velocity_mps
+
+    experiment = Experiment(
+        owner=owner,
+        title=_title_validate(title),
+        segments=segments_validate(segments, max_velocity_mps=mobile_max_velocity_mps()),
+    )
+    experiment.full_clean()
+    experiment.save()
+    return experiment
+
+
+def experiment_update(*, experiment: Experiment, title: str, segments: Any) -> Experiment:
+    from bookings.selectors import mobile_max_velocity_mps
+
+    experiment.title = _title_validate(title)
+    experiment.segments = segments_validate(segments, max_velocity_mps=mobile_max_velocity_mps())
+    experiment.full_clean()
+    experiment.save()
+    return experiment
+
+
+def run_transition(
+    *, run_id: int, from_states: Iterable[str], to_state: str, reason: str = ""
+) -> bool:
+    """Move a run to ``to_state`` if it is in one of ``from_states``; False if it was not.
+
+    A compare-and-set update, so two workers racing on the same run change it once, and a
+    task that finds the run already past its step does nothing.
+    """
+    from_states = tuple(from_states)
+    with transaction.atomic():
+        current = (
+            Run.objects.select_for_update()
+            .filter(pk=run_id, state__in=from_states)
+            .values_list("state", flat=True)
+            .first()
+        )
+        if current is None:
+            return False
+        Run.objects.filter(pk=run_id).update(state=to_state, reason=reason, updated_at=timezone.now())
+        RunEvent.objects.create(run_id=run_id, from_state=current, to_state=to_state, reason=reason)
+    logger.info("run %s: %s → %s %s", run_id, current, to_state, reason)
+    return True
+
+
+def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
+    """Store a page of samples from the agent; duplicates (same run and seq) are skipped.
+
+    Returns how many rows the page held. ``run.last_seq`` only moves forward.
+    """
+    if not samples:
+        return 0
+    rows = [
+        Sample(
+            run=run,
+            seq=int(s["seq"]),
+            t=_epoch_to_datetime(s["t"]),
+            segment=s.get("segment"),
+            commanded_velocity_mps=float(s["commanded_velocity_mps"]),
+            velocity_mps=float(s["velocity_mps"]),
+            direction=s["direction"],
+            battery_v=float(s["battery_v"]),
+            track_m=float(s["track_m"]),
+        )
+        for s in samples
+    ]
+    last_seq = max(r.seq for r in rows)
+    with transaction.atomic():
+        Sample.objects.bulk_create(rows, batch_size=2000, ignore_conflicts=True)
+        Run.objects.filter(pk=run.pk, last_seq__lt=last_seq).update(last_seq=last_seq)
+    run.last_seq = max(run.last_seq, last_seq)
+    return len(rows)
+
+
+def _epoch_to_datetime(value: Any) -> datetime:
+    if isinstance(value, int | float):
+        return datetime.fromtimestamp(float(value), tz=UTC)
+    parsed = parse_datetime(str(value))
+    if parsed is None:
+        raise ValueError(f"not a timestamp: {value!r}")
+    return parsed
+
+
+def run_sample_stats(*, run: Run) -> dict[str, int]:
+    stats = Sample.objects.filter(run=run).aggregate(count=Count("pk"), last_seq=Max("seq"))
+    return {"count": stats["count"] or 0, "last_seq": stats["last_seq"] or 0}
+
+
+def run_create(*, reservation: Any, experiment: Experiment) -> Run:
+    """The run of ``experiment`` in a just-made reservation (state ``scheduled``)."""
+    run = Run(
+        reservation=reservation,
+        experiment=experiment,
+        title=experiment.title,
+        segments=experiment.segments,
+        start_at=reservation.start_at,
+        end_at=reservation.end_at,
+        state=RunState.SCHEDULED,
+    )
+    run.full_clean(exclude=["reservation"])
+    run.save()
+    RunEvent.objects.create(run=run, from_state="", to_state=RunState.SCHEDULED, reason="booked")
+    return run

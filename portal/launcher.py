@@ -1,0 +1,187 @@
+"""``make run``: the whole system on this machine, with the simulated robot.
+
+Prepares the embedded setup (database, demo data, agent token) and then runs the web server,
+a Celery worker, Celery beat and the base-station agent as child processes, each line of
+their output prefixed with the process's name. Ctrl-C (or SIGTERM) stops every child and
+its own children; if any child dies, the rest are stopped too and the exit code says so.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+BASE_DIR = Path(__file__).resolve().parent.parent
+STOP_GRACE_S = 10.0
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    process: subprocess.Popen[bytes] | None = None
+    pump: threading.Thread | None = field(default=None, repr=False)
+
+
+def _say(name: str, line: str, out: IO[str] = sys.stdout, lock: threading.Lock = threading.Lock()) -> None:
+    with lock:
+        out.write(f"{name:<7}| {line}\n")
+        out.flush()
+
+
+def _pump(child: Child) -> None:
+    assert child.process is not None and child.process.stdout is not None
+    for raw in child.process.stdout:
+        _say(child.name, raw.decode(errors="replace").rstrip())
+
+
+def _environment(var_dir: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env.setdefault("DJANGO_DEBUG", "1")
+    env.setdefault("AMAZING_VAR_DIR", str(var_dir))
+    env["PYTHONUNBUFFERED"] = "1"
+    portal_port = int(env.setdefault("PORTAL_PORT", "8000"))
+    agent_port = int(env.setdefault("AGENT_PORT", "8700"))
+    env.setdefault("AGENT_URL", f"http://127.0.0.1:{agent_port}")
+    env.setdefault("AGENT_DATA_DIR", str(var_dir / "agent"))
+    if "AGENT_TOKEN" not in env and "AGENT_TOKEN_FILE" not in env:
+        token_file = var_dir / "agent-token"
+        if not token_file.exists():
+            token_file.write_text(secrets.token_urlsafe(32))
+            token_file.chmod(0o600)
+        env["AGENT_TOKEN_FILE"] = str(token_file)
+    env.setdefault("DJANGO_ALLOWED_HOSTS", "127.0.0.1,localhost")
+    env["_PORTAL_PORT"] = str(portal_port)
+    return env
+
+
+def _manage(env: dict[str, str], *args: str) -> None:
+    subprocess.run([sys.executable, "manage.py", *args], cwd=BASE_DIR, env=env, check=True)
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket() as sock:
+        return sock.connect_ex(("127.0.0.1", port)) != 0
+
+
+def _wait_for_port(port: int, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not _port_free(port):
+            return True
+        time.sleep(0.2)
+    return False
+
+
+def _stop(children: list[Child]) -> None:
+    """SIGTERM each child's process group, then SIGKILL whatever is left after the grace time."""
+    for child in children:
+        if child.process and child.process.poll() is None:
+            try:
+                os.killpg(child.process.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+    deadline = time.monotonic() + STOP_GRACE_S
+    for child in children:
+        if child.process is None:
+            continue
+        try:
+            child.process.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            _say("launch", f"{child.name} did not stop in {STOP_GRACE_S:g} s; killing it")
+        # Reap stragglers of the group (a worker's pool processes) even if the leader exited.
+        try:
+            os.killpg(child.process.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        child.process.wait()
+        if child.pump:
+            child.pump.join(timeout=2)
+
+
+def main() -> int:
+    var_dir = Path(os.environ.get("AMAZING_VAR_DIR", BASE_DIR / "var")).resolve()
+    var_dir.mkdir(parents=True, exist_ok=True)
+    env = _environment(var_dir)
+    portal_port = int(env["PORTAL_PORT"])
+    agent_port = int(env["AGENT_PORT"])
+    for name, port in (("portal", portal_port), ("agent", agent_port)):
+        if not _port_free(port):
+            _say("launch", f"port {port} for the {name} is taken; set {name.upper()}_PORT")
+            return 2
+
+    _say("launch", f"database: {env.get('DATABASE_URL', 'SQLite in ' + str(var_dir))}")
+    _say("launch", f"task broker: {env.get('CELERY_BROKER_URL', 'filesystem (no server)')}")
+    _manage(env, "migrate", "--no-input", "-v", "0")
+    _manage(env, "demo_setup")
+
+    py = sys.executable
+    children = [
+        Child("agent", [py, "-m", "basestation", "--host", "127.0.0.1", "--port", str(agent_port)]),
+        Child(
+            "web",
+            [py, "-m", "uvicorn", "portal.asgi:application", "--host", "127.0.0.1",
+             "--port", str(portal_port), "--no-access-log"],
+        ),
+        Child("worker", [py, "-m", "celery", "-A", "portal", "worker", "--loglevel", "INFO",
+                         "--pool", "threads", "--concurrency", "4", "--without-mingle",
+                         "--without-gossip"]),
+        Child("beat", [py, "-m", "celery", "-A", "portal", "beat", "--loglevel", "INFO",
+                       "--schedule", str(var_dir / "celerybeat-schedule")]),
+    ]
+
+    stopping = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stopping.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+    exit_code = 0
+    try:
+        for child in children:
+            child.process = subprocess.Popen(
+                child.argv,
+                cwd=BASE_DIR,
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,  # own process group: stopped as a whole
+            )
+            child.pump = threading.Thread(target=_pump, args=(child,), daemon=True)
+            child.pump.start()
+            _say("launch", f"started {child.name} (pid {child.process.pid})")
+        if _wait_for_port(portal_port, 60):
+            _say("launch", f"ready: log in at http://127.0.0.1:{portal_port}/ "
+                 "(users admin and experimenter; passwords were printed when they were created)")
+            _say("launch", f"API docs at http://127.0.0.1:{portal_port}/api/docs/ ; Ctrl-C stops everything")
+        while not stopping.is_set():
+            for child in children:
+                assert child.process is not None
+                code = child.process.poll()
+                if code is not None:
+                    _say("launch", f"{child.name} exited with code {code}; stopping the rest")
+                    exit_code = 1
+                    stopping.set()
+                    break
+            stopping.wait(0.5)
+    finally:
+        _say("launch", "stopping…")
+        _stop(children)
+        _say("launch", "all processes stopped")
+    return exit_code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

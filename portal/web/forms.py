@@ -1,0 +1,64 @@
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from django import forms
+from django.utils import timezone
+
+from bookings.models import Resource
+from bookings.selectors import resources_bookable
+from portal.accounts.models import User
+from portal.experiments.models import Experiment
+from portal.experiments.selectors import experiments_visible
+
+
+class ExperimentForm(forms.Form):
+    """Title plus the segment rows, which arrive as parallel lists (one entry per table row)."""
+
+    title = forms.CharField(max_length=200)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.segment_rows: list[dict[str, str]] = []
+
+    def segments_from(self, data: Any) -> list[dict[str, Any]]:
+        velocities = data.getlist("velocity_mps")
+        directions = data.getlist("direction")
+        durations = data.getlist("duration_s")
+        segments: list[dict[str, Any]] = []
+        for velocity, direction, duration in zip(velocities, directions, durations, strict=False):
+            self.segment_rows.append(
+                {"velocity_mps": velocity, "direction": direction, "duration_s": duration}
+            )
+            if not velocity.strip() and not duration.strip():
+                continue  # An empty row the page offered but the user did not fill.
+            segments.append(
+                {"velocity_mps": velocity.strip(), "direction": direction, "duration_s": duration.strip()}
+            )
+        return segments
+
+
+class LocalDateTimeField(forms.DateTimeField):
+    """A ``datetime-local`` input, read in the testbed's time zone."""
+
+    widget = forms.DateTimeInput(attrs={"type": "datetime-local", "step": "1"}, format="%Y-%m-%dT%H:%M:%S")
+    input_formats = ["%Y-%m-%dT%H:%M:%S", "%Y-%m-%dT%H:%M"]
+
+    def to_python(self, value: Any) -> datetime | None:
+        result = super().to_python(value)
+        if result is not None and timezone.is_naive(result):
+            result = timezone.make_aware(result)
+        return result
+
+
+class BookingForm(forms.Form):
+    resource = forms.ModelChoiceField(queryset=Resource.objects.none(), to_field_name="name")
+    experiment = forms.ModelChoiceField(queryset=Experiment.objects.none(), required=False)
+    start_at = LocalDateTimeField(label="Start")
+    end_at = LocalDateTimeField(label="End")
+
+    def __init__(self, *args: Any, user: User, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.fields["resource"].queryset = resources_bookable()  # type: ignore[attr-defined]
+        self.fields["experiment"].queryset = experiments_visible(user=user).filter(owner=user)  # type: ignore[attr-defined]

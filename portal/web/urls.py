@@ -1,0 +1,14 @@
+from django.urls import path
+
+from portal.web import views
+
+urlpatterns = [
+    path("", views.home, name="home"),
+    path("experiments/new/", views.experiment_edit, name="experiment-new"),
+    path("experiments/<int:pk>/", views.experiment_edit, name="experiment-edit"),
+    path("book/", views.book, name="book"),
+    path("reservations/<int:pk>/cancel/", views.reservation_cancel_view, name="reservation-cancel"),
+    path("runs/<int:pk>/", views.run_page, name="run"),
+    path("runs/<int:pk>/data.json", views.run_data, name="run-data"),
+    path("runs/<int:pk>/samples.csv", views.run_csv, name="run-csv"),
+]

@@ -1,0 +1,102 @@
+"""Every endpoint against anonymous, owner, other experimenter and admin."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+from django.utils import timezone
+
+from bookings.services import reservation_create
+
+pytestmark = pytest.mark.django_db
+
+
+@pytest.fixture
+def booked(owner, mobile, experiment):
+    start = timezone.now() + timedelta(hours=2)
+    return reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=20), experiment=experiment
+    )
+
+
+READ_URLS = [
+    "/api/v1/experiments/{experiment}/",
+    "/api/v1/reservations/{reservation}/",
+    "/api/v1/runs/{run}/",
+    "/api/v1/runs/{run}/samples/",
+    "/api/v1/runs/{run}/samples.csv",
+]
+
+
+def _urls(booked):
+    ids = {"experiment": booked.run.experiment_id, "reservation": booked.pk, "run": booked.run.pk}
+    return [u.format(**ids) for u in READ_URLS]
+
+
+@pytest.mark.parametrize("who", ["anonymous", "owner", "other", "admin"])
+def test_read_endpoints_by_role(who, booked, owner, other, admin_user, client_for):
+    user = {"anonymous": None, "owner": owner, "other": other, "admin": admin_user}[who]
+    expected = {"anonymous": 403, "owner": 200, "other": 404, "admin": 200}[who]
+    client = client_for(user)
+    for url in _urls(booked):
+        assert client.get(url).status_code == expected, url
+
+
+@pytest.mark.parametrize("who", ["anonymous", "owner", "other", "admin"])
+def test_list_endpoints_show_only_what_the_user_may_see(who, booked, owner, other, admin_user, client_for):
+    user = {"anonymous": None, "owner": owner, "other": other, "admin": admin_user}[who]
+    client = client_for(user)
+    for url in ("/api/v1/experiments/", "/api/v1/reservations/", "/api/v1/runs/"):
+        response = client.get(url)
+        if user is None:
+            assert response.status_code == 403
+            continue
+        assert response.status_code == 200
+        assert len(response.json()) == (0 if who == "other" else 1), url
+    resources = client.get("/api/v1/resources/")
+    assert resources.status_code == (403 if user is None else 200)
+
+
+@pytest.mark.parametrize("who", ["anonymous", "other", "owner", "admin"])
+def test_cancel_by_role(who, booked, owner, other, admin_user, client_for):
+    user = {"anonymous": None, "owner": owner, "other": other, "admin": admin_user}[who]
+    response = client_for(user).delete(f"/api/v1/reservations/{booked.pk}/")
+    assert response.status_code == {"anonymous": 403, "other": 404, "owner": 200, "admin": 200}[who]
+    booked.refresh_from_db()
+    assert booked.state == ("cancelled" if who in ("owner", "admin") else "confirmed")
+
+
+def test_booking_someone_elses_experiment_over_the_api_is_not_found(other, mobile, experiment, client_for):
+    start = timezone.now() + timedelta(hours=1)
+    response = client_for(other).post(
+        "/api/v1/reservations/",
+        {"resource": "mobile-1", "start_at": start.isoformat(), "end_at": (start + timedelta(minutes=10)).isoformat(),
+         "experiment": experiment.pk},
+        format="json",
+    )
+    assert response.status_code == 404
+
+
+def test_an_overlapping_booking_over_the_api_is_a_409_with_a_message(booked, other, client_for):
+    from tests.factories import ExperimentFactory
+
+    theirs = ExperimentFactory(owner=other)
+    response = client_for(other).post(
+        "/api/v1/reservations/",
+        {"resource": "mobile-1", "start_at": booked.start_at.isoformat(),
+         "end_at": booked.end_at.isoformat(), "experiment": theirs.pk},
+        format="json",
+    )
+    assert response.status_code == 409
+    assert "already booked" in response.json()["detail"]
+
+
+def test_schema_and_docs_are_served(owner, client_for):
+    client = client_for(owner)
+    schema = client.get("/api/schema/")
+    assert schema.status_code == 200
+    assert b"/api/v1/reservations/" in schema.content
+    docs = client.get("/api/docs/")
+    assert docs.status_code == 200
+    assert b"/static/vendor/swagger-ui-dist/swagger-ui-bundle.js" in docs.content

@@ -1,0 +1,77 @@
+"""Shared fixtures: the permission trio (owner, other experimenter, admin) and API clients."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from rest_framework.test import APIClient
+
+from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    from django.conf import settings
+    from django.db import connection
+
+    db = settings.DATABASES["default"]
+    where = f"{db.get('HOST') or 'local'}:{db.get('PORT') or ''}" if db.get("HOST") else db["NAME"]
+    return [
+        f"database engine: {connection.vendor} ({db['ENGINE']}) at {where}",
+        f"celery broker: {settings.CELERY_BROKER_URL}",
+    ]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # `make test` demands the real servers; a run that fell back to SQLite is a failure,
+    # not a quiet pass on a different database.
+    if os.environ.get("AMAZING_TEST_REQUIRE_POSTGRES") == "1":
+        from django.conf import settings
+
+        engine = settings.DATABASES["default"]["ENGINE"]
+        if "postgresql" not in engine:
+            raise pytest.UsageError(f"tests must run on PostgreSQL, got {engine}")
+        if not settings.CELERY_BROKER_URL.startswith("redis://"):
+            raise pytest.UsageError(f"tests must use Redis, got {settings.CELERY_BROKER_URL}")
+
+
+@pytest.fixture
+def owner():
+    return UserFactory(username="alice")
+
+
+@pytest.fixture
+def other():
+    return UserFactory(username="bob")
+
+
+@pytest.fixture
+def admin_user():
+    return UserFactory(username="charlie", is_staff=True, is_superuser=True)
+
+
+@pytest.fixture
+def mobile():
+    return MobileResourceFactory()
+
+
+@pytest.fixture
+def experiment(owner):
+    return ExperimentFactory(owner=owner)
+
+
+def _client(user) -> APIClient:
+    client = APIClient()
+    if user is not None:
+        client.force_authenticate(user=user)
+    return client
+
+
+@pytest.fixture
+def api(owner) -> APIClient:
+    return _client(owner)
+
+
+@pytest.fixture
+def client_for():
+    return _client
