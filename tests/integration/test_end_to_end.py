@@ -1,0 +1,182 @@
+"""The whole path with real processes: web server, Celery worker and beat, agent.
+
+Book a slot a few seconds ahead with a two-segment experiment; the sweep stages it on the
+agent, the simulated robot drives it, the worker collects the samples, and the run page's
+data and the CSV download agree with the agent.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import secrets
+import time
+from datetime import timedelta
+
+import pytest
+import redis
+from django.conf import settings
+from django.utils import timezone
+from rest_framework.authtoken.models import Token
+
+from basestation.client import AgentClient
+from tests.factories import MobileResourceFactory, UserFactory
+from tests.integration.processes import Proc, free_port, python, wait_http
+
+pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
+
+# After a segment change the robot ramps at 1 m/s²; from then on the measurement must follow
+# the command within this tolerance (the simulator's noise is ≤ 0.01 m/s).
+VELOCITY_TOLERANCE_MPS = 0.05
+RAMP_ALLOWANCE_S = 1.5
+
+
+@pytest.fixture
+def stack(tmp_path):
+    """Agent, ASGI web server, Celery worker and beat on the test database and Redis."""
+    db = settings.DATABASES["default"]
+    assert db["ENGINE"].endswith("postgresql"), "the integration test runs on PostgreSQL"
+    broker_url = settings.CELERY_BROKER_URL
+    assert broker_url.startswith("redis://"), "the integration test runs on Redis"
+    redis.Redis.from_url(broker_url).flushdb()
+
+    token = secrets.token_urlsafe(24)
+    agent_port, web_port = free_port(), free_port()
+    env = dict(os.environ)
+    env.update(
+        {
+            "DJANGO_DEBUG": "1",
+            "DATABASE_URL": f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}",
+            "CELERY_BROKER_URL": broker_url,
+            "AGENT_TOKEN": token,
+            "AGENT_DATA_DIR": str(tmp_path / "agent"),
+            "AMAZING_VAR_DIR": str(tmp_path / "var"),
+            "RUN_SWEEP_INTERVAL_S": "0.5",
+            "PYTHONUNBUFFERED": "1",
+        }
+    )
+    procs = [
+        Proc("agent", [python(), "-m", "basestation", "--port", str(agent_port)], env),
+        Proc(
+            "web",
+            [python(), "-m", "uvicorn", "portal.asgi:application", "--port", str(web_port)],
+            env,
+        ),
+        Proc(
+            "worker",
+            [python(), "-m", "celery", "-A", "portal", "worker", "--pool", "threads",
+             "--concurrency", "4", "--loglevel", "INFO", "--without-mingle", "--without-gossip"],
+            env,
+        ),
+        Proc(
+            "beat",
+            [python(), "-m", "celery", "-A", "portal", "beat", "--loglevel", "INFO",
+             "--schedule", str(tmp_path / "beat-schedule")],
+            env,
+        ),
+    ]
+    try:
+        wait_http(f"http://127.0.0.1:{agent_port}/healthz", 30, procs)
+        wait_http(f"http://127.0.0.1:{web_port}/accounts/login/", 30, procs)
+        procs[2].wait_for_line(lambda line: "ready." in line, 30)
+        yield {
+            "web": f"http://127.0.0.1:{web_port}",
+            "agent": AgentClient(f"http://127.0.0.1:{agent_port}", token),
+            "agent_url": f"http://127.0.0.1:{agent_port}",
+            "token": token,
+            "procs": procs,
+        }
+    finally:
+        for proc in reversed(procs):
+            proc.stop()
+
+
+def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back(stack):
+    import requests
+
+    MobileResourceFactory(agent_url=stack["agent_url"])
+    user = UserFactory(username="erin")
+    headers = {"Authorization": f"Token {Token.objects.create(user=user).key}"}
+    web = stack["web"]
+    segments = [
+        {"velocity_mps": 0.5, "direction": "cw", "duration_s": 3.0},
+        {"velocity_mps": 0.8, "direction": "ccw", "duration_s": 3.0},
+    ]
+    experiment = requests.post(
+        f"{web}/api/v1/experiments/", json={"title": "there and back", "segments": segments},
+        headers=headers, timeout=10,
+    )
+    assert experiment.status_code == 201, experiment.text
+    start = timezone.now() + timedelta(seconds=4)
+    booking = requests.post(
+        f"{web}/api/v1/reservations/",
+        json={"resource": "mobile-1", "experiment": experiment.json()["id"],
+              "start_at": start.isoformat(), "end_at": (start + timedelta(seconds=9)).isoformat()},
+        headers=headers, timeout=10,
+    )
+    assert booking.status_code == 201, booking.text
+    run_id = booking.json()["run"]["id"]
+
+    deadline = time.monotonic() + 60
+    seen_states = []
+    run = {}
+    while time.monotonic() < deadline:
+        run = requests.get(f"{web}/api/v1/runs/{run_id}/", headers=headers, timeout=10).json()
+        if not seen_states or seen_states[-1] != run["state"]:
+            seen_states.append(run["state"])
+        if run["state"] in ("completed", "failed", "interrupted", "cancelled"):
+            break
+        time.sleep(0.3)
+    logs = "\n".join(p.output() for p in stack["procs"])
+    assert run["state"] == "completed", f"states {seen_states}: {run.get('reason')}\n{logs}"
+    assert "staged" in seen_states or "running" in seen_states
+
+    agent_run = stack["agent"].get_run(f"run-{run_id}")
+    assert agent_run["state"] == "completed"
+    assert run["sample_count"] == agent_run["sample_count"] == run["agent_sample_count"]
+    # 6 s of program at 20 Hz, plus the stop: at least 100 samples.
+    assert run["sample_count"] >= 100
+
+    samples = []
+    after = 0
+    while True:
+        page = requests.get(
+            f"{web}/api/v1/runs/{run_id}/samples/", params={"after": after, "limit": 1000},
+            headers=headers, timeout=10,
+        ).json()
+        samples += page["samples"]
+        if not page["samples"]:
+            break
+        after = page["last_seq"]
+    assert [s["seq"] for s in samples] == list(range(1, len(samples) + 1))
+
+    # Measured velocity follows the commanded segments once the ramp is over.
+    segment_start = {}
+    for s in samples:
+        if s["segment"] is not None:
+            segment_start.setdefault(s["segment"], timezone.datetime.fromisoformat(s["t"]))
+    assert sorted(segment_start) == [0, 1]
+    checked = 0
+    for s in samples:
+        if s["segment"] is None:
+            continue
+        in_segment_s = (
+            timezone.datetime.fromisoformat(s["t"]) - segment_start[s["segment"]]
+        ).total_seconds()
+        if in_segment_s < RAMP_ALLOWANCE_S:
+            continue
+        target = segments[s["segment"]]
+        assert s["commanded_velocity_mps"] == pytest.approx(target["velocity_mps"])
+        assert s["direction"] == target["direction"], (s, samples)
+        assert abs(s["velocity_mps"] - target["velocity_mps"]) <= VELOCITY_TOLERANCE_MPS, s
+        checked += 1
+    assert checked >= 40
+
+    csv_response = requests.get(f"{web}/api/v1/runs/{run_id}/samples.csv", headers=headers, timeout=10)
+    assert csv_response.status_code == 200
+    assert csv_response.headers["Content-Type"].startswith("text/csv")
+    rows = list(csv.DictReader(io.StringIO(csv_response.text)))
+    assert len(rows) == run["sample_count"]
+    assert [int(r["seq"]) for r in rows] == [s["seq"] for s in samples]
+    assert float(rows[-1]["battery_v"]) > 40

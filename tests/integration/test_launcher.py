@@ -1,0 +1,115 @@
+"""``make run``'s launcher, as a user meets it: embedded defaults, log in, book, stop."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import time
+from datetime import timedelta
+
+import pytest
+import requests
+from django.utils import timezone
+
+from tests.integration.processes import Proc, free_port, processes_matching_env, python
+
+pytestmark = pytest.mark.integration
+
+
+def _csrf(session: requests.Session, url: str) -> str:
+    page = session.get(url, timeout=10)
+    assert page.status_code == 200, page.text[:500]
+    match = re.search(r'name="csrfmiddlewaretoken" value="([^"]+)"', page.text)
+    assert match, f"no CSRF token on {url}"
+    return match.group(1)
+
+
+def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
+    var_dir = tmp_path / "var"
+    portal_port, agent_port = free_port(), free_port()
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        # The embedded defaults: no external database or broker.
+        if k not in {"DATABASE_URL", "CELERY_BROKER_URL", "REDIS_URL", "AGENT_TOKEN", "AGENT_TOKEN_FILE"}
+    }
+    env.update(
+        {
+            "AMAZING_VAR_DIR": str(var_dir),
+            "PORTAL_PORT": str(portal_port),
+            "AGENT_PORT": str(agent_port),
+            "RUN_SWEEP_INTERVAL_S": "0.5",
+        }
+    )
+    launcher = Proc("launch", [python(), "-m", "portal.launcher"], env)
+    try:
+        line = launcher.wait_for_line(lambda s: "demo user created: experimenter" in s, 90)
+        password = line.split("password: ")[1].strip()
+        launcher.wait_for_line(lambda s: "ready: log in at" in s, 90)
+        assert any("SQLite" in s for s in launcher.lines)
+        assert any("filesystem (no server)" in s for s in launcher.lines)
+
+        web = f"http://127.0.0.1:{portal_port}"
+        session = requests.Session()
+        token = _csrf(session, f"{web}/accounts/login/")
+        login = session.post(
+            f"{web}/accounts/login/",
+            data={"csrfmiddlewaretoken": token, "login": "experimenter", "password": password},
+            headers={"Referer": f"{web}/accounts/login/"},
+            timeout=10,
+        )
+        assert login.status_code == 200 and "Hello, experimenter" in login.text, login.text[:2000]
+
+        token = _csrf(session, f"{web}/experiments/new/")
+        saved = session.post(
+            f"{web}/experiments/new/",
+            data={
+                "csrfmiddlewaretoken": token,
+                "title": "launcher check",
+                "velocity_mps": ["0.6", "0.4", ""],
+                "direction": ["cw", "ccw", "cw"],
+                "duration_s": ["2", "2", ""],
+            },
+            timeout=10,
+        )
+        assert "Experiment “launcher check” saved." in saved.text, saved.text[:3000]
+        experiment_id = re.search(r'href="/book/\?experiment=(\d+)"', saved.text).group(1)
+
+        token = _csrf(session, f"{web}/book/")
+        start = timezone.localtime(timezone.now() + timedelta(seconds=5)).replace(microsecond=0)
+        booked = session.post(
+            f"{web}/book/",
+            data={
+                "csrfmiddlewaretoken": token,
+                "resource": "mobile-1",
+                "experiment": experiment_id,
+                "start_at": start.strftime("%Y-%m-%dT%H:%M:%S"),
+                "end_at": (start + timedelta(seconds=8)).strftime("%Y-%m-%dT%H:%M:%S"),
+            },
+            timeout=10,
+        )
+        assert booked.status_code == 200 and "/runs/" in booked.url, booked.text[:3000]
+        data_url = booked.url.rstrip("/") + "/data.json"
+
+        deadline = time.monotonic() + 60
+        data = {}
+        while time.monotonic() < deadline:
+            data = session.get(data_url, timeout=10).json()
+            if not data["live"]:
+                break
+            time.sleep(0.5)
+        assert data["state"] == "completed", f"{data.get('state')}: {data.get('reason')}\n{launcher.output(120)}"
+        assert data["sample_count"] >= 60
+        assert len(data["series"]["t"]) == data["sample_count"]
+
+        assert processes_matching_env("AMAZING_VAR_DIR", str(var_dir)), "children should be running"
+        launcher.popen.send_signal(signal.SIGINT)
+        assert launcher.popen.wait(timeout=30) == 0, launcher.output()
+    finally:
+        launcher.stop(signal.SIGKILL)
+        leftover = processes_matching_env("AMAZING_VAR_DIR", str(var_dir))
+        for pid in leftover:
+            os.kill(pid, signal.SIGKILL)
+    assert not leftover, f"processes left behind: {leftover}\n{launcher.output()}"
+    assert any("all processes stopped" in s for s in launcher.lines)
