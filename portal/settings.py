@@ -78,12 +78,13 @@ INSTALLED_APPS = [
     "rest_framework",
     "rest_framework.authtoken",
     "drf_spectacular",
-    "allauth",
-    "allauth.account",
+    # Before allauth, so that our templates override its defaults.
+    "portal.web",
     "portal.accounts",
     "portal.experiments",
-    "portal.web",
     "bookings",
+    "allauth",
+    "allauth.account",
 ]
 
 MIDDLEWARE = [

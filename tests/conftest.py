@@ -9,6 +9,9 @@ from rest_framework.test import APIClient
 
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 
+# The real-process stack (agent, web, worker, beat) for integration and browser tests.
+pytest_plugins = ["tests.integration.stack"]
+
 
 def pytest_report_header(config: pytest.Config) -> list[str]:
     from django.conf import settings

@@ -9,20 +9,14 @@ from __future__ import annotations
 
 import csv
 import io
-import os
-import secrets
 import time
 from datetime import timedelta
 
 import pytest
-import redis
-from django.conf import settings
 from django.utils import timezone
 from rest_framework.authtoken.models import Token
 
-from basestation.client import AgentClient
 from tests.factories import MobileResourceFactory, UserFactory
-from tests.integration.processes import Proc, free_port, python, wait_http
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -30,66 +24,6 @@ pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 # the command within this tolerance (the simulator's noise is ≤ 0.01 m/s).
 VELOCITY_TOLERANCE_MPS = 0.05
 RAMP_ALLOWANCE_S = 1.5
-
-
-@pytest.fixture
-def stack(tmp_path):
-    """Agent, ASGI web server, Celery worker and beat on the test database and Redis."""
-    db = settings.DATABASES["default"]
-    assert db["ENGINE"].endswith("postgresql"), "the integration test runs on PostgreSQL"
-    broker_url = settings.CELERY_BROKER_URL
-    assert broker_url.startswith("redis://"), "the integration test runs on Redis"
-    redis.Redis.from_url(broker_url).flushdb()
-
-    token = secrets.token_urlsafe(24)
-    agent_port, web_port = free_port(), free_port()
-    env = dict(os.environ)
-    env.update(
-        {
-            "DJANGO_DEBUG": "1",
-            "DATABASE_URL": f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}",
-            "CELERY_BROKER_URL": broker_url,
-            "AGENT_TOKEN": token,
-            "AGENT_DATA_DIR": str(tmp_path / "agent"),
-            "AMAZING_VAR_DIR": str(tmp_path / "var"),
-            "RUN_SWEEP_INTERVAL_S": "0.5",
-            "PYTHONUNBUFFERED": "1",
-        }
-    )
-    procs = [
-        Proc("agent", [python(), "-m", "basestation", "--port", str(agent_port)], env),
-        Proc(
-            "web",
-            [python(), "-m", "uvicorn", "portal.asgi:application", "--port", str(web_port)],
-            env,
-        ),
-        Proc(
-            "worker",
-            [python(), "-m", "celery", "-A", "portal", "worker", "--pool", "threads",
-             "--concurrency", "4", "--loglevel", "INFO", "--without-mingle", "--without-gossip"],
-            env,
-        ),
-        Proc(
-            "beat",
-            [python(), "-m", "celery", "-A", "portal", "beat", "--loglevel", "INFO",
-             "--schedule", str(tmp_path / "beat-schedule")],
-            env,
-        ),
-    ]
-    try:
-        wait_http(f"http://127.0.0.1:{agent_port}/healthz", 30, procs)
-        wait_http(f"http://127.0.0.1:{web_port}/accounts/login/", 30, procs)
-        procs[2].wait_for_line(lambda line: "ready." in line, 30)
-        yield {
-            "web": f"http://127.0.0.1:{web_port}",
-            "agent": AgentClient(f"http://127.0.0.1:{agent_port}", token),
-            "agent_url": f"http://127.0.0.1:{agent_port}",
-            "token": token,
-            "procs": procs,
-        }
-    finally:
-        for proc in reversed(procs):
-            proc.stop()
 
 
 def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back(stack):

@@ -3,8 +3,9 @@
   "use strict";
   const status = document.getElementById("run-status");
   const canvas = document.getElementById("velocity-chart");
-  if (!status || !canvas || typeof Chart === "undefined") return;
-  const chart = new Chart(canvas, {
+  if (!status) return;
+  // The status keeps refreshing even if the chart library failed to load.
+  const chart = canvas && typeof Chart !== "undefined" ? new Chart(canvas, {
     type: "line",
     data: { labels: [], datasets: [
       { label: "commanded (m/s, cw +)", data: [], borderWidth: 2, pointRadius: 0, stepped: true },
@@ -15,7 +16,7 @@
       scales: { x: { type: "linear", title: { display: true, text: "time since start (s)" } },
                 y: { title: { display: true, text: "velocity (m/s)" } } },
     },
-  });
+  }) : null;
   async function refresh() {
     let data;
     try {
@@ -28,9 +29,11 @@
       return;
     }
     const s = data.series;
-    chart.data.datasets[0].data = s.t.map((t, i) => ({ x: t, y: s.commanded_mps[i] }));
-    chart.data.datasets[1].data = s.t.map((t, i) => ({ x: t, y: s.measured_mps[i] }));
-    chart.update();
+    if (chart) {
+      chart.data.datasets[0].data = s.t.map((t, i) => ({ x: t, y: s.commanded_mps[i] }));
+      chart.data.datasets[1].data = s.t.map((t, i) => ({ x: t, y: s.measured_mps[i] }));
+      chart.update();
+    }
     const state = document.getElementById("run-state");
     state.textContent = data.state_label;
     state.dataset.state = data.state;

@@ -1,0 +1,126 @@
+"""The pages in a real browser (Debian's Chromium via Playwright) against the real stack."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+from django.utils import timezone
+from playwright.sync_api import Browser, Page, expect, sync_playwright
+
+from tests.factories import MobileResourceFactory, UserFactory
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+SCREENSHOTS = Path(os.environ.get("SCREENSHOT_DIR", Path(__file__).resolve().parents[2] / "var" / "screenshots"))
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    assert Path(CHROMIUM).exists(), "Chromium is missing: `make test` installs it (apt chromium)"
+    # Playwright's sync API runs an event loop in this thread; the test's own ORM calls are
+    # synchronous and safe, which Django cannot tell.
+    os.environ["DJANGO_ALLOW_ASYNC_UNSAFE"] = "true"
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield browser
+        browser.close()
+
+
+def _login(page: Page, web: str, username: str, password: str) -> None:
+    page.goto(f"{web}/")
+    expect(page).to_have_url(f"{web}/accounts/login/?next=/")
+    page.get_by_label("Username or email").fill(username)
+    page.get_by_label("Password").fill(password)
+    page.get_by_role("button", name="Log in").click()
+    expect(page.get_by_role("heading", name=f"Hello, {username}")).to_be_visible()
+
+
+def _no_horizontal_scroll(page: Page) -> bool:
+    return bool(page.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1"))
+
+
+def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
+    MobileResourceFactory(agent_url=stack["agent_url"])
+    UserFactory(username="dana")  # password: see factories
+    web = stack["web"]
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    context = browser.new_context(viewport={"width": 1280, "height": 900}, timezone_id="Europe/Lisbon")
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.on("response", lambda r: r.status >= 400 and errors.append(f"{r.status} {r.url}"))
+
+    _login(page, web, "dana", "correct horse battery")
+    page.get_by_role("link", name="New experiment").first.click()
+    page.get_by_label("Title").fill("browser lap")
+    # Three rows are offered; add a fourth with the button, fill two, leave the rest empty.
+    page.get_by_role("button", name="Add segment").click()
+    expect(page.locator("#segments tbody tr")).to_have_count(4)
+    rows = page.locator("#segments tbody tr")
+    rows.nth(0).get_by_label("velocity in m/s").fill("9")
+    rows.nth(0).get_by_label("duration in s").fill("2")
+    page.get_by_role("button", name="Save experiment").click()
+    # Too fast for the robot: the form says which segment and why, and keeps the input.
+    expect(page.get_by_role("alert")).to_contain_text("Segment 1: velocity 9 m/s exceeds the maximum 2 m/s")
+    rows = page.locator("#segments tbody tr")
+    expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_value("9")
+    rows.nth(0).get_by_label("velocity in m/s").fill("0.7")
+    rows.nth(1).get_by_label("velocity in m/s").fill("0.3")
+    rows.nth(1).get_by_label("direction").select_option("ccw")
+    rows.nth(1).get_by_label("duration in s").fill("2")
+    page.get_by_role("button", name="Save experiment").click()
+    expect(page.get_by_text("Experiment “browser lap” saved.")).to_be_visible()
+
+    page.get_by_role("link", name="book", exact=True).click()
+    start = timezone.localtime(timezone.now() + timedelta(seconds=6)).replace(microsecond=0)
+    page.get_by_label("Resource").select_option("mobile-1")
+    page.get_by_label("Start").fill(start.strftime("%Y-%m-%dT%H:%M:%S"))
+    page.get_by_label("End").fill((start + timedelta(seconds=8)).strftime("%Y-%m-%dT%H:%M:%S"))
+    page.get_by_role("button", name="Book").click()
+
+    expect(page.get_by_role("heading", name="browser lap")).to_be_visible()
+    expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
+    expect(page.locator("#sample-count")).not_to_have_text("0")
+    points = page.evaluate("Chart.getChart('velocity-chart').data.datasets[1].data.length")
+    assert points >= 60
+    page.screenshot(path=str(SCREENSHOTS / "run-page.png"), full_page=True)
+
+    with page.expect_download() as download_info:
+        page.get_by_role("button", name="Download CSV").click()
+    csv_text = Path(download_info.value.path()).read_text()
+    assert csv_text.splitlines()[0].startswith("seq,t,segment,commanded_velocity_mps")
+    assert len(csv_text.splitlines()) == int(page.locator("#sample-count").inner_text()) + 1
+    assert not errors, errors
+    context.close()
+
+
+@pytest.mark.parametrize("viewport", [{"width": 390, "height": 844}, {"width": 1280, "height": 800}])
+def test_pages_fit_a_phone_and_a_laptop(browser, live_server, viewport):
+    UserFactory(username="eve")
+    context = browser.new_context(viewport=viewport)
+    page = context.new_page()
+    failed: list[str] = []
+    page.on("response", lambda r: r.status >= 400 and failed.append(f"{r.status} {r.url}"))
+    _login(page, live_server.url, "eve", "correct horse battery")
+    for path in ("/", "/experiments/new/", "/book/"):
+        page.goto(f"{live_server.url}{path}")
+        assert page.evaluate("getComputedStyle(document.body).fontFamily") != "", path
+        assert _no_horizontal_scroll(page), f"{path} scrolls sideways at {viewport}"
+    page.goto(f"{live_server.url}/")
+    page.screenshot(path=str(SCREENSHOTS / f"home-{viewport['width']}.png"))
+    assert not failed, failed
+    context.close()
