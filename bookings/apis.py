@@ -18,7 +18,15 @@ from portal.experiments.selectors import experiments_visible
 class ResourceOutput(serializers.ModelSerializer):
     class Meta:
         model = Resource
-        fields = ["id", "name", "kind", "description", "max_velocity_mps", "max_accel_mps2", "enabled"]
+        fields = [
+            "id",
+            "name",
+            "kind",
+            "description",
+            "max_velocity_mps",
+            "max_accel_mps2",
+            "enabled",
+        ]
 
 
 class ResourceListApi(APIView):

@@ -7,6 +7,7 @@ past it, so duplicated or late tasks are harmless.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from datetime import datetime, timedelta
 from typing import Any
@@ -113,10 +114,9 @@ def run_unstage(*, run_id: int) -> None:
     if run.state not in (RunState.STAGED, RunState.RUNNING):
         return
     client = agent_client_for(run.reservation.resource)
-    try:
+    # A conflict means it had already ended there; collection records how.
+    with contextlib.suppress(AgentConflict):
         client.delete_run(run.agent_run_id)
-    except AgentConflict:
-        pass  # It had already ended there; collection records how.
     # A staged run cancelled on the agent ends here; a running one goes on to be collected.
     run_transition(
         run_id=run.pk,
@@ -184,9 +184,12 @@ def run_collect(*, run_id: int) -> None:
     reason = f"{expected} samples collected" + (
         f"; {agent_run['reason']}" if agent_run.get("reason") else ""
     )
-    if run_transition(
-        run_id=run.pk, from_states=[RunState.COLLECTING], to_state=final_state, reason=reason
-    ) and final_state == RunState.COMPLETED:
+    if (
+        run_transition(
+            run_id=run.pk, from_states=[RunState.COLLECTING], to_state=final_state, reason=reason
+        )
+        and final_state == RunState.COMPLETED
+    ):
         Reservation.objects.filter(pk=run.reservation_id, state=ReservationState.CONFIRMED).update(
             state=ReservationState.COMPLETED
         )

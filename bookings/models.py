@@ -64,4 +64,4 @@ class Reservation(models.Model):
         ]
 
     def __str__(self) -> str:
-        return f"{self.resource} {self.start_at:%Y-%m-%d %H:%M}–{self.end_at:%H:%M}"
+        return f"{self.resource} {self.start_at:%Y-%m-%d %H:%M}-{self.end_at:%H:%M}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from functools import partial
 from datetime import datetime, timedelta
 
 from django.conf import settings
@@ -70,7 +71,9 @@ def reservation_create(
     with transaction.atomic():
         # Serialise bookings of one resource: the overlap check and the insert cannot interleave.
         Resource.objects.select_for_update().filter(pk=resource.pk).first()
-        clash = reservations_overlapping(resource=resource, start_at=start_at, end_at=end_at).first()
+        clash = reservations_overlapping(
+            resource=resource, start_at=start_at, end_at=end_at
+        ).first()
         if clash is not None:
             local = timezone.localtime
             raise Conflict.on_field(
@@ -78,9 +81,7 @@ def reservation_create(
                 f"{resource.name} is already booked from {local(clash.start_at):%Y-%m-%d %H:%M} "
                 f"to {local(clash.end_at):%H:%M}.",
             )
-        reservation = Reservation(
-            resource=resource, owner=owner, start_at=start_at, end_at=end_at
-        )
+        reservation = Reservation(resource=resource, owner=owner, start_at=start_at, end_at=end_at)
         reservation.full_clean()
         reservation.save()
         if experiment is not None:
@@ -103,12 +104,18 @@ def reservation_cancel(*, reservation: Reservation, by: User, reason: str = "") 
         locked.save(update_fields=["state", "updated_at"])
         why = reason or f"cancelled by {by.username}"
         run = Run.objects.filter(reservation=locked).first()
-        if run is not None and not run_transition(
-            run_id=run.pk, from_states=[RunState.SCHEDULED], to_state=RunState.CANCELLED, reason=why
+        if (
+            run is not None
+            and not run_transition(
+                run_id=run.pk,
+                from_states=[RunState.SCHEDULED],
+                to_state=RunState.CANCELLED,
+                reason=why,
+            )
+            and run.state in (RunState.STAGED, RunState.RUNNING)
         ):
-            if run.state in (RunState.STAGED, RunState.RUNNING):
-                # The agent decides: a staged run is cancelled there, a running one is aborted
-                # (the robot ramps to zero) and its data collected as an interrupted run.
-                run_unstage.delay_on_commit(run.pk)
+            # The agent decides: a staged run is cancelled there, a running one is aborted
+            # (the robot ramps to zero) and its data collected as an interrupted run.
+            transaction.on_commit(partial(run_unstage.delay, run.pk))
     logger.info("reservation %s cancelled by %s", reservation.pk, by.username)
     return locked

@@ -34,7 +34,7 @@ def runs_sweep() -> None:
 def _retry_if_transient(task: Task, exc: AgentError) -> None:
     if not exc.retryable:
         raise exc
-    countdown_s = min(30, 2 ** task.request.retries)
+    countdown_s = min(30, 2**task.request.retries)
     logger.warning("%s: %s; retry in %ss", task.name, exc, countdown_s)
     raise task.retry(exc=exc, countdown=countdown_s, max_retries=MAX_RETRIES)
 

@@ -19,12 +19,16 @@ def exception_handler(exc: Exception, context: dict[str, Any]) -> Response | Non
             body["fields"] = exc.fields
         return Response(body, status=exc.http_status)
     if isinstance(exc, DjangoValidationError):
-        exc = exceptions.ValidationError(exc.message_dict if hasattr(exc, "error_dict") else exc.messages)
+        exc = exceptions.ValidationError(
+            exc.message_dict if hasattr(exc, "error_dict") else exc.messages
+        )
     response = drf_exception_handler(exc, context)
     if response is not None and isinstance(exc, exceptions.ValidationError):
         response.data = {
             "error": "invalid",
             "detail": "The request has invalid fields.",
-            "fields": response.data if isinstance(response.data, dict) else {"non_field_errors": response.data},
+            "fields": response.data
+            if isinstance(response.data, dict)
+            else {"non_field_errors": response.data},
         }
     return response

@@ -8,6 +8,7 @@ its own children; if any child dies, the rest are stopped too and the exit code 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 import signal
@@ -18,7 +19,6 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 STOP_GRACE_S = 10.0
@@ -32,14 +32,18 @@ class Child:
     pump: threading.Thread | None = field(default=None, repr=False)
 
 
-def _say(name: str, line: str, out: IO[str] = sys.stdout, lock: threading.Lock = threading.Lock()) -> None:
-    with lock:
-        out.write(f"{name:<7}| {line}\n")
-        out.flush()
+_OUTPUT_LOCK = threading.Lock()
+
+
+def _say(name: str, line: str) -> None:
+    with _OUTPUT_LOCK:
+        sys.stdout.write(f"{name:<7}| {line}\n")
+        sys.stdout.flush()
 
 
 def _pump(child: Child) -> None:
-    assert child.process is not None and child.process.stdout is not None
+    assert child.process is not None
+    assert child.process.stdout is not None
     for raw in child.process.stdout:
         _say(child.name, raw.decode(errors="replace").rstrip())
 
@@ -86,10 +90,8 @@ def _stop(children: list[Child]) -> None:
     """SIGTERM each child's process group, then SIGKILL whatever is left after the grace time."""
     for child in children:
         if child.process and child.process.poll() is None:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(child.process.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
     deadline = time.monotonic() + STOP_GRACE_S
     for child in children:
         if child.process is None:
@@ -99,10 +101,8 @@ def _stop(children: list[Child]) -> None:
         except subprocess.TimeoutExpired:
             _say("launch", f"{child.name} did not stop in {STOP_GRACE_S:g} s; killing it")
         # Reap stragglers of the group (a worker's pool processes) even if the leader exited.
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.killpg(child.process.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
         child.process.wait()
         if child.pump:
             child.pump.join(timeout=2)
@@ -129,14 +129,52 @@ def main() -> int:
         Child("agent", [py, "-m", "basestation", "--host", "127.0.0.1", "--port", str(agent_port)]),
         Child(
             "web",
-            [py, "-m", "uvicorn", "portal.asgi:application", "--host", "127.0.0.1",
-             "--port", str(portal_port), "--no-access-log"],
+            [
+                py,
+                "-m",
+                "uvicorn",
+                "portal.asgi:application",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(portal_port),
+                "--no-access-log",
+            ],
         ),
-        Child("worker", [py, "-m", "celery", "-A", "portal", "worker", "--loglevel", "INFO",
-                         "--pool", "threads", "--concurrency", "4", "--without-mingle",
-                         "--without-gossip"]),
-        Child("beat", [py, "-m", "celery", "-A", "portal", "beat", "--loglevel", "INFO",
-                       "--schedule", str(var_dir / "celerybeat-schedule")]),
+        Child(
+            "worker",
+            [
+                py,
+                "-m",
+                "celery",
+                "-A",
+                "portal",
+                "worker",
+                "--loglevel",
+                "INFO",
+                "--pool",
+                "threads",
+                "--concurrency",
+                "4",
+                "--without-mingle",
+                "--without-gossip",
+            ],
+        ),
+        Child(
+            "beat",
+            [
+                py,
+                "-m",
+                "celery",
+                "-A",
+                "portal",
+                "beat",
+                "--loglevel",
+                "INFO",
+                "--schedule",
+                str(var_dir / "celerybeat-schedule"),
+            ],
+        ),
     ]
 
     stopping = threading.Event()
@@ -163,9 +201,15 @@ def main() -> int:
             child.pump.start()
             _say("launch", f"started {child.name} (pid {child.process.pid})")
         if _wait_for_port(portal_port, 60):
-            _say("launch", f"ready: log in at http://127.0.0.1:{portal_port}/ "
-                 "(users admin and experimenter; passwords were printed when they were created)")
-            _say("launch", f"API docs at http://127.0.0.1:{portal_port}/api/docs/ ; Ctrl-C stops everything")
+            _say(
+                "launch",
+                f"ready: log in at http://127.0.0.1:{portal_port}/ "
+                "(users admin and experimenter; passwords were printed when they were created)",
+            )
+            _say(
+                "launch",
+                f"API docs at http://127.0.0.1:{portal_port}/api/docs/ ; Ctrl-C stops everything",
+            )
         while not stopping.is_set():
             for child in children:
                 assert child.process is not None

@@ -63,7 +63,9 @@ CSRF_TRUSTED_ORIGINS: list[str] = env.list("DJANGO_CSRF_TRUSTED_ORIGINS", defaul
 # reference (``Resource.agent_token_name``); "default" is this one.
 AGENT_TOKEN = env_secret("AGENT_TOKEN")
 if AGENT_TOKEN is None and not DEBUG:
-    raise ImproperlyConfigured("AGENT_TOKEN (or AGENT_TOKEN_FILE) is required when DJANGO_DEBUG is off")
+    raise ImproperlyConfigured(
+        "AGENT_TOKEN (or AGENT_TOKEN_FILE) is required when DJANGO_DEBUG is off"
+    )
 AGENT_TOKENS: dict[str, str] = {"default": AGENT_TOKEN or ""}
 AGENT_URL = env.str("AGENT_URL", default="http://127.0.0.1:8700")
 AGENT_TIMEOUT_S = env.float("AGENT_TIMEOUT_S", default=5.0)

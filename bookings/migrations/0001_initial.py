@@ -6,7 +6,6 @@ from django.db import migrations, models
 
 
 class Migration(migrations.Migration):
-
     initial = True
 
     dependencies = [
@@ -15,39 +14,101 @@ class Migration(migrations.Migration):
 
     operations = [
         migrations.CreateModel(
-            name='Resource',
+            name="Resource",
             fields=[
-                ('id', models.BigAutoField(auto_created=True, primary_key=True, serialize=False, verbose_name='ID')),
-                ('name', models.SlugField(max_length=64, unique=True)),
-                ('kind', models.CharField(choices=[('mobile', 'mobile node'), ('fixed', 'fixed node')], max_length=8)),
-                ('description', models.CharField(blank=True, max_length=200)),
-                ('agent_url', models.URLField(blank=True)),
-                ('agent_token_name', models.CharField(blank=True, default='default', max_length=64)),
-                ('max_velocity_mps', models.FloatField(blank=True, null=True)),
-                ('max_accel_mps2', models.FloatField(blank=True, null=True)),
-                ('enabled', models.BooleanField(default=True)),
+                (
+                    "id",
+                    models.BigAutoField(
+                        auto_created=True, primary_key=True, serialize=False, verbose_name="ID"
+                    ),
+                ),
+                ("name", models.SlugField(max_length=64, unique=True)),
+                (
+                    "kind",
+                    models.CharField(
+                        choices=[("mobile", "mobile node"), ("fixed", "fixed node")], max_length=8
+                    ),
+                ),
+                ("description", models.CharField(blank=True, max_length=200)),
+                ("agent_url", models.URLField(blank=True)),
+                (
+                    "agent_token_name",
+                    models.CharField(blank=True, default="default", max_length=64),
+                ),
+                ("max_velocity_mps", models.FloatField(blank=True, null=True)),
+                ("max_accel_mps2", models.FloatField(blank=True, null=True)),
+                ("enabled", models.BooleanField(default=True)),
             ],
             options={
-                'ordering': ['kind', 'name'],
-                'constraints': [models.CheckConstraint(condition=models.Q(models.Q(('kind', 'mobile'), _negated=True), models.Q(('max_velocity_mps__gt', 0), ('max_accel_mps2__gt', 0)), _connector='OR'), name='resource_mobile_has_limits')],
+                "ordering": ["kind", "name"],
+                "constraints": [
+                    models.CheckConstraint(
+                        condition=models.Q(
+                            models.Q(("kind", "mobile"), _negated=True),
+                            models.Q(("max_velocity_mps__gt", 0), ("max_accel_mps2__gt", 0)),
+                            _connector="OR",
+                        ),
+                        name="resource_mobile_has_limits",
+                    )
+                ],
             },
         ),
         migrations.CreateModel(
-            name='Reservation',
+            name="Reservation",
             fields=[
-                ('id', models.BigAutoField(auto_created=True, primary_key=True, serialize=False, verbose_name='ID')),
-                ('start_at', models.DateTimeField()),
-                ('end_at', models.DateTimeField()),
-                ('state', models.CharField(choices=[('confirmed', 'confirmed'), ('cancelled', 'cancelled'), ('completed', 'completed')], default='confirmed', max_length=16)),
-                ('created_at', models.DateTimeField(auto_now_add=True)),
-                ('updated_at', models.DateTimeField(auto_now=True)),
-                ('owner', models.ForeignKey(on_delete=django.db.models.deletion.CASCADE, related_name='reservations', to=settings.AUTH_USER_MODEL)),
-                ('resource', models.ForeignKey(on_delete=django.db.models.deletion.PROTECT, related_name='reservations', to='bookings.resource')),
+                (
+                    "id",
+                    models.BigAutoField(
+                        auto_created=True, primary_key=True, serialize=False, verbose_name="ID"
+                    ),
+                ),
+                ("start_at", models.DateTimeField()),
+                ("end_at", models.DateTimeField()),
+                (
+                    "state",
+                    models.CharField(
+                        choices=[
+                            ("confirmed", "confirmed"),
+                            ("cancelled", "cancelled"),
+                            ("completed", "completed"),
+                        ],
+                        default="confirmed",
+                        max_length=16,
+                    ),
+                ),
+                ("created_at", models.DateTimeField(auto_now_add=True)),
+                ("updated_at", models.DateTimeField(auto_now=True)),
+                (
+                    "owner",
+                    models.ForeignKey(
+                        on_delete=django.db.models.deletion.CASCADE,
+                        related_name="reservations",
+                        to=settings.AUTH_USER_MODEL,
+                    ),
+                ),
+                (
+                    "resource",
+                    models.ForeignKey(
+                        on_delete=django.db.models.deletion.PROTECT,
+                        related_name="reservations",
+                        to="bookings.resource",
+                    ),
+                ),
             ],
             options={
-                'ordering': ['start_at'],
-                'indexes': [models.Index(fields=['resource', 'start_at', 'end_at'], name='bookings_re_resourc_822b8a_idx')],
-                'constraints': [models.CheckConstraint(condition=models.Q(('end_at__gt', models.F('start_at'))), name='reservation_end_after_start')],
+                "ordering": ["start_at"],
+                "indexes": [
+                    models.Index(
+                        fields=["resource", "start_at", "end_at"],
+                        name="bookings_re_resourc_822b8a_idx",
+                    )
+                ],
+                "constraints": [
+                    models.CheckConstraint(
+                        condition=models.Q(("end_at__gt", models.F("start_at"))),
+                        name="reservation_end_after_start",
+                    )
+                ],
             },
         ),
     ]

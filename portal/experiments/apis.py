@@ -154,7 +154,9 @@ class SamplesQuery(serializers.Serializer):
 class RunSamplesApi(APIView):
     @extend_schema(
         parameters=[
-            OpenApiParameter("after", int, description="Return samples with seq greater than this."),
+            OpenApiParameter(
+                "after", int, description="Return samples with seq greater than this."
+            ),
             OpenApiParameter("limit", int, description="At most this many (≤ 10 000)."),
         ],
         responses=SampleOutput(many=True),

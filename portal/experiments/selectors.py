@@ -49,8 +49,10 @@ def run_velocity_series(*, run: Run, max_points: int = 2000) -> dict[str, list[A
     """
     count = Sample.objects.filter(run=run).count()
     stride = max(1, -(-count // max_points))
-    rows = Sample.objects.filter(run=run).order_by("seq").values_list(
-        "t", "segment", "commanded_velocity_mps", "velocity_mps", "direction"
+    rows = (
+        Sample.objects.filter(run=run)
+        .order_by("seq")
+        .values_list("t", "segment", "commanded_velocity_mps", "velocity_mps", "direction")
     )
     series: dict[str, list[Any]] = {"t": [], "commanded_mps": [], "measured_mps": []}
     t0 = None

@@ -64,9 +64,7 @@ def segments_validate(
         if duration is None or duration <= 0:
             errors.append(f"Segment {i}: duration must be a number > 0 s.")
         if not errors:
-            clean.append(
-                {"velocity_mps": velocity, "direction": direction, "duration_s": duration}
-            )
+            clean.append({"velocity_mps": velocity, "direction": direction, "duration_s": duration})
     if errors:
         raise InvalidInput(errors[0], fields={"segments": errors})
     total_s = sum(s["duration_s"] for s in clean)
@@ -136,7 +134,9 @@ def run_transition(
         )
         if current is None:
             return False
-        Run.objects.filter(pk=run_id).update(state=to_state, reason=reason, updated_at=timezone.now())
+        Run.objects.filter(pk=run_id).update(
+            state=to_state, reason=reason, updated_at=timezone.now()
+        )
         RunEvent.objects.create(run_id=run_id, from_state=current, to_state=to_state, reason=reason)
     logger.info("run %s: %s → %s %s", run_id, current, to_state, reason)
     return True

@@ -34,7 +34,11 @@ class ExperimentForm(forms.Form):
             if not velocity.strip() and not duration.strip():
                 continue  # An empty row the page offered but the user did not fill.
             segments.append(
-                {"velocity_mps": velocity.strip(), "direction": direction, "duration_s": duration.strip()}
+                {
+                    "velocity_mps": velocity.strip(),
+                    "direction": direction,
+                    "duration_s": duration.strip(),
+                }
             )
         return segments
 
@@ -42,7 +46,9 @@ class ExperimentForm(forms.Form):
 class LocalDateTimeField(forms.DateTimeField):
     """A ``datetime-local`` input, read in the testbed's time zone."""
 
-    widget = forms.DateTimeInput(attrs={"type": "datetime-local", "step": "1"}, format="%Y-%m-%dT%H:%M:%S")
+    widget = forms.DateTimeInput(
+        attrs={"type": "datetime-local", "step": "1"}, format="%Y-%m-%dT%H:%M:%S"
+    )
     input_formats = ["%Y-%m-%dT%H:%M:%S", "%Y-%m-%dT%H:%M"]
 
     def to_python(self, value: Any) -> datetime | None:

@@ -116,7 +116,11 @@ def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     return render(
         request,
         "web/run.html",
-        {"run": run, "events": run.events.all(), "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES)},
+        {
+            "run": run,
+            "events": run.events.all(),
+            "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES),
+        },
     )
 
 

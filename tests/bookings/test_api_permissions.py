@@ -16,7 +16,11 @@ pytestmark = pytest.mark.django_db
 def booked(owner, mobile, experiment):
     start = timezone.now() + timedelta(hours=2)
     return reservation_create(
-        owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=20), experiment=experiment
+        owner=owner,
+        resource=mobile,
+        start_at=start,
+        end_at=start + timedelta(minutes=20),
+        experiment=experiment,
     )
 
 
@@ -44,7 +48,9 @@ def test_read_endpoints_by_role(who, booked, owner, other, admin_user, client_fo
 
 
 @pytest.mark.parametrize("who", ["anonymous", "owner", "other", "admin"])
-def test_list_endpoints_show_only_what_the_user_may_see(who, booked, owner, other, admin_user, client_for):
+def test_list_endpoints_show_only_what_the_user_may_see(
+    who, booked, owner, other, admin_user, client_for
+):
     user = {"anonymous": None, "owner": owner, "other": other, "admin": admin_user}[who]
     client = client_for(user)
     for url in ("/api/v1/experiments/", "/api/v1/reservations/", "/api/v1/runs/"):
@@ -67,12 +73,18 @@ def test_cancel_by_role(who, booked, owner, other, admin_user, client_for):
     assert booked.state == ("cancelled" if who in ("owner", "admin") else "confirmed")
 
 
-def test_booking_someone_elses_experiment_over_the_api_is_not_found(other, mobile, experiment, client_for):
+def test_booking_someone_elses_experiment_over_the_api_is_not_found(
+    other, mobile, experiment, client_for
+):
     start = timezone.now() + timedelta(hours=1)
     response = client_for(other).post(
         "/api/v1/reservations/",
-        {"resource": "mobile-1", "start_at": start.isoformat(), "end_at": (start + timedelta(minutes=10)).isoformat(),
-         "experiment": experiment.pk},
+        {
+            "resource": "mobile-1",
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(minutes=10)).isoformat(),
+            "experiment": experiment.pk,
+        },
         format="json",
     )
     assert response.status_code == 404
@@ -84,8 +96,12 @@ def test_an_overlapping_booking_over_the_api_is_a_409_with_a_message(booked, oth
     theirs = ExperimentFactory(owner=other)
     response = client_for(other).post(
         "/api/v1/reservations/",
-        {"resource": "mobile-1", "start_at": booked.start_at.isoformat(),
-         "end_at": booked.end_at.isoformat(), "experiment": theirs.pk},
+        {
+            "resource": "mobile-1",
+            "start_at": booked.start_at.isoformat(),
+            "end_at": booked.end_at.isoformat(),
+            "experiment": theirs.pk,
+        },
         format="json",
     )
     assert response.status_code == 409

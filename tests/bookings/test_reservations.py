@@ -21,7 +21,9 @@ def _window(minutes_ahead: int = 60, length_min: int = 30):
     return start, start + timedelta(minutes=length_min)
 
 
-def test_booking_the_mobile_node_schedules_a_run_with_a_copy_of_the_program(owner, mobile, experiment):
+def test_booking_the_mobile_node_schedules_a_run_with_a_copy_of_the_program(
+    owner, mobile, experiment
+):
     start, end = _window()
     reservation = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
@@ -38,7 +40,9 @@ def test_booking_the_mobile_node_schedules_a_run_with_a_copy_of_the_program(owne
 
 def test_it_rejects_overlapping_reservation(owner, other, mobile, experiment):
     start, end = _window()
-    reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+    reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
     theirs = ExperimentFactory(owner=other)
     with pytest.raises(Conflict, match="already booked"):
         reservation_create(
@@ -53,19 +57,29 @@ def test_it_rejects_overlapping_reservation(owner, other, mobile, experiment):
 
 def test_back_to_back_reservations_do_not_overlap(owner, mobile, experiment):
     start, end = _window()
-    reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
     reservation_create(
-        owner=owner, resource=mobile, start_at=end, end_at=end + timedelta(minutes=10), experiment=experiment
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
+    reservation_create(
+        owner=owner,
+        resource=mobile,
+        start_at=end,
+        end_at=end + timedelta(minutes=10),
+        experiment=experiment,
     )
     assert Reservation.objects.count() == 2
 
 
 def test_a_cancelled_reservation_frees_its_slot(owner, mobile, experiment):
     start, end = _window()
-    first = reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+    first = reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
     reservation_cancel(reservation=first, by=owner)
     assert Run.objects.get(reservation=first).state == RunState.CANCELLED
-    reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+    reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
 
 
 @pytest.mark.parametrize(
@@ -83,17 +97,25 @@ def test_it_rejects_bad_windows(owner, mobile, experiment, change, field, messag
     if "end_at" in change:
         end = start + timedelta(seconds=change["end_at"])
     with pytest.raises(InvalidInput) as excinfo:
-        reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+        reservation_create(
+            owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+        )
     assert message in excinfo.value.fields[field][0]
     assert not Reservation.objects.exists()
 
 
 def test_the_program_must_fit_in_the_reservation(owner, mobile):
-    long = ExperimentFactory(owner=owner, segments=[{"velocity_mps": 1, "direction": "cw", "duration_s": 600}])
+    long = ExperimentFactory(
+        owner=owner, segments=[{"velocity_mps": 1, "direction": "cw", "duration_s": 600}]
+    )
     start = timezone.now() + timedelta(minutes=5)
     with pytest.raises(InvalidInput, match="lasts 600 s but the reservation only 300 s"):
         reservation_create(
-            owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=5), experiment=long
+            owner=owner,
+            resource=mobile,
+            start_at=start,
+            end_at=start + timedelta(minutes=5),
+            experiment=long,
         )
 
 
@@ -103,14 +125,18 @@ def test_the_mobile_node_needs_an_experiment_and_fixed_nodes_refuse_one(owner, m
         reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end)
     fixed = FixedResourceFactory()
     with pytest.raises(InvalidInput, match="Only mobile nodes"):
-        reservation_create(owner=owner, resource=fixed, start_at=start, end_at=end, experiment=experiment)
+        reservation_create(
+            owner=owner, resource=fixed, start_at=start, end_at=end, experiment=experiment
+        )
     assert reservation_create(owner=owner, resource=fixed, start_at=start, end_at=end).pk
 
 
 def test_someone_elses_experiment_cannot_be_booked(other, mobile, experiment):
     start, end = _window()
     with pytest.raises(NotAllowed):
-        reservation_create(owner=other, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+        reservation_create(
+            owner=other, resource=mobile, start_at=start, end_at=end, experiment=experiment
+        )
 
 
 def test_a_resource_out_of_service_cannot_be_booked(owner, mobile, experiment):
@@ -118,7 +144,9 @@ def test_a_resource_out_of_service_cannot_be_booked(owner, mobile, experiment):
     mobile.save()
     start, end = _window()
     with pytest.raises(InvalidInput, match="out of service"):
-        reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+        reservation_create(
+            owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+        )
 
 
 def test_only_owner_or_admin_cancels(owner, other, admin_user, mobile, experiment):

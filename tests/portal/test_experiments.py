@@ -70,7 +70,10 @@ def test_api_rejects_excessive_velocity_with_the_field(api, mobile):
 
 
 def test_api_creates_and_lists_an_experiment(api, mobile):
-    body = {"title": "two laps", "segments": [{"velocity_mps": 1, "direction": "ccw", "duration_s": 4}]}
+    body = {
+        "title": "two laps",
+        "segments": [{"velocity_mps": 1, "direction": "ccw", "duration_s": 4}],
+    }
     created = api.post("/api/v1/experiments/", body, format="json")
     assert created.status_code == 201
     assert created.json()["duration_s"] == 4.0

@@ -6,88 +6,197 @@ from django.db import migrations, models
 
 
 class Migration(migrations.Migration):
-
     initial = True
 
     dependencies = [
-        ('bookings', '0001_initial'),
+        ("bookings", "0001_initial"),
         migrations.swappable_dependency(settings.AUTH_USER_MODEL),
     ]
 
     operations = [
         migrations.CreateModel(
-            name='Experiment',
+            name="Experiment",
             fields=[
-                ('id', models.BigAutoField(auto_created=True, primary_key=True, serialize=False, verbose_name='ID')),
-                ('title', models.CharField(max_length=200)),
-                ('segments', models.JSONField()),
-                ('created_at', models.DateTimeField(auto_now_add=True)),
-                ('updated_at', models.DateTimeField(auto_now=True)),
-                ('owner', models.ForeignKey(on_delete=django.db.models.deletion.CASCADE, related_name='experiments', to=settings.AUTH_USER_MODEL)),
+                (
+                    "id",
+                    models.BigAutoField(
+                        auto_created=True, primary_key=True, serialize=False, verbose_name="ID"
+                    ),
+                ),
+                ("title", models.CharField(max_length=200)),
+                ("segments", models.JSONField()),
+                ("created_at", models.DateTimeField(auto_now_add=True)),
+                ("updated_at", models.DateTimeField(auto_now=True)),
+                (
+                    "owner",
+                    models.ForeignKey(
+                        on_delete=django.db.models.deletion.CASCADE,
+                        related_name="experiments",
+                        to=settings.AUTH_USER_MODEL,
+                    ),
+                ),
             ],
             options={
-                'ordering': ['-created_at'],
+                "ordering": ["-created_at"],
             },
         ),
         migrations.CreateModel(
-            name='Run',
+            name="Run",
             fields=[
-                ('id', models.BigAutoField(auto_created=True, primary_key=True, serialize=False, verbose_name='ID')),
-                ('title', models.CharField(max_length=200)),
-                ('segments', models.JSONField()),
-                ('start_at', models.DateTimeField(db_index=True)),
-                ('end_at', models.DateTimeField()),
-                ('state', models.CharField(choices=[('scheduled', 'scheduled'), ('staged', 'staged on the base station'), ('running', 'running'), ('collecting', 'collecting data'), ('completed', 'completed'), ('cancelled', 'cancelled'), ('failed', 'failed'), ('interrupted', 'interrupted (partial data kept)')], db_index=True, default='scheduled', max_length=16)),
-                ('reason', models.TextField(blank=True)),
-                ('last_seq', models.PositiveIntegerField(default=0)),
-                ('agent_sample_count', models.PositiveIntegerField(blank=True, null=True)),
-                ('created_at', models.DateTimeField(auto_now_add=True)),
-                ('updated_at', models.DateTimeField(auto_now=True)),
-                ('experiment', models.ForeignKey(on_delete=django.db.models.deletion.PROTECT, related_name='runs', to='experiments.experiment')),
-                ('reservation', models.OneToOneField(on_delete=django.db.models.deletion.CASCADE, related_name='run', to='bookings.reservation')),
+                (
+                    "id",
+                    models.BigAutoField(
+                        auto_created=True, primary_key=True, serialize=False, verbose_name="ID"
+                    ),
+                ),
+                ("title", models.CharField(max_length=200)),
+                ("segments", models.JSONField()),
+                ("start_at", models.DateTimeField(db_index=True)),
+                ("end_at", models.DateTimeField()),
+                (
+                    "state",
+                    models.CharField(
+                        choices=[
+                            ("scheduled", "scheduled"),
+                            ("staged", "staged on the base station"),
+                            ("running", "running"),
+                            ("collecting", "collecting data"),
+                            ("completed", "completed"),
+                            ("cancelled", "cancelled"),
+                            ("failed", "failed"),
+                            ("interrupted", "interrupted (partial data kept)"),
+                        ],
+                        db_index=True,
+                        default="scheduled",
+                        max_length=16,
+                    ),
+                ),
+                ("reason", models.TextField(blank=True)),
+                ("last_seq", models.PositiveIntegerField(default=0)),
+                ("agent_sample_count", models.PositiveIntegerField(blank=True, null=True)),
+                ("created_at", models.DateTimeField(auto_now_add=True)),
+                ("updated_at", models.DateTimeField(auto_now=True)),
+                (
+                    "experiment",
+                    models.ForeignKey(
+                        on_delete=django.db.models.deletion.PROTECT,
+                        related_name="runs",
+                        to="experiments.experiment",
+                    ),
+                ),
+                (
+                    "reservation",
+                    models.OneToOneField(
+                        on_delete=django.db.models.deletion.CASCADE,
+                        related_name="run",
+                        to="bookings.reservation",
+                    ),
+                ),
             ],
             options={
-                'ordering': ['-start_at'],
+                "ordering": ["-start_at"],
             },
         ),
         migrations.CreateModel(
-            name='RunEvent',
+            name="RunEvent",
             fields=[
-                ('id', models.BigAutoField(auto_created=True, primary_key=True, serialize=False, verbose_name='ID')),
-                ('from_state', models.CharField(blank=True, choices=[('scheduled', 'scheduled'), ('staged', 'staged on the base station'), ('running', 'running'), ('collecting', 'collecting data'), ('completed', 'completed'), ('cancelled', 'cancelled'), ('failed', 'failed'), ('interrupted', 'interrupted (partial data kept)')], max_length=16)),
-                ('to_state', models.CharField(choices=[('scheduled', 'scheduled'), ('staged', 'staged on the base station'), ('running', 'running'), ('collecting', 'collecting data'), ('completed', 'completed'), ('cancelled', 'cancelled'), ('failed', 'failed'), ('interrupted', 'interrupted (partial data kept)')], max_length=16)),
-                ('at', models.DateTimeField(auto_now_add=True)),
-                ('reason', models.TextField(blank=True)),
-                ('run', models.ForeignKey(on_delete=django.db.models.deletion.CASCADE, related_name='events', to='experiments.run')),
+                (
+                    "id",
+                    models.BigAutoField(
+                        auto_created=True, primary_key=True, serialize=False, verbose_name="ID"
+                    ),
+                ),
+                (
+                    "from_state",
+                    models.CharField(
+                        blank=True,
+                        choices=[
+                            ("scheduled", "scheduled"),
+                            ("staged", "staged on the base station"),
+                            ("running", "running"),
+                            ("collecting", "collecting data"),
+                            ("completed", "completed"),
+                            ("cancelled", "cancelled"),
+                            ("failed", "failed"),
+                            ("interrupted", "interrupted (partial data kept)"),
+                        ],
+                        max_length=16,
+                    ),
+                ),
+                (
+                    "to_state",
+                    models.CharField(
+                        choices=[
+                            ("scheduled", "scheduled"),
+                            ("staged", "staged on the base station"),
+                            ("running", "running"),
+                            ("collecting", "collecting data"),
+                            ("completed", "completed"),
+                            ("cancelled", "cancelled"),
+                            ("failed", "failed"),
+                            ("interrupted", "interrupted (partial data kept)"),
+                        ],
+                        max_length=16,
+                    ),
+                ),
+                ("at", models.DateTimeField(auto_now_add=True)),
+                ("reason", models.TextField(blank=True)),
+                (
+                    "run",
+                    models.ForeignKey(
+                        on_delete=django.db.models.deletion.CASCADE,
+                        related_name="events",
+                        to="experiments.run",
+                    ),
+                ),
             ],
             options={
-                'ordering': ['at', 'pk'],
+                "ordering": ["at", "pk"],
             },
         ),
         migrations.CreateModel(
-            name='Sample',
+            name="Sample",
             fields=[
-                ('id', models.BigAutoField(auto_created=True, primary_key=True, serialize=False, verbose_name='ID')),
-                ('seq', models.PositiveIntegerField()),
-                ('t', models.DateTimeField()),
-                ('segment', models.SmallIntegerField(null=True)),
-                ('commanded_velocity_mps', models.FloatField()),
-                ('velocity_mps', models.FloatField()),
-                ('direction', models.CharField(choices=[('cw', 'clockwise'), ('ccw', 'counter-clockwise')], max_length=3)),
-                ('battery_v', models.FloatField()),
-                ('track_m', models.FloatField()),
-                ('run', models.ForeignKey(on_delete=django.db.models.deletion.CASCADE, related_name='samples', to='experiments.run')),
+                (
+                    "id",
+                    models.BigAutoField(
+                        auto_created=True, primary_key=True, serialize=False, verbose_name="ID"
+                    ),
+                ),
+                ("seq", models.PositiveIntegerField()),
+                ("t", models.DateTimeField()),
+                ("segment", models.SmallIntegerField(null=True)),
+                ("commanded_velocity_mps", models.FloatField()),
+                ("velocity_mps", models.FloatField()),
+                (
+                    "direction",
+                    models.CharField(
+                        choices=[("cw", "clockwise"), ("ccw", "counter-clockwise")], max_length=3
+                    ),
+                ),
+                ("battery_v", models.FloatField()),
+                ("track_m", models.FloatField()),
+                (
+                    "run",
+                    models.ForeignKey(
+                        on_delete=django.db.models.deletion.CASCADE,
+                        related_name="samples",
+                        to="experiments.run",
+                    ),
+                ),
             ],
             options={
-                'ordering': ['run', 'seq'],
+                "ordering": ["run", "seq"],
             },
         ),
         migrations.AddConstraint(
-            model_name='run',
-            constraint=models.CheckConstraint(condition=models.Q(('end_at__gt', models.F('start_at'))), name='run_end_after_start'),
+            model_name="run",
+            constraint=models.CheckConstraint(
+                condition=models.Q(("end_at__gt", models.F("start_at"))), name="run_end_after_start"
+            ),
         ),
         migrations.AddConstraint(
-            model_name='sample',
-            constraint=models.UniqueConstraint(fields=('run', 'seq'), name='sample_run_seq_unique'),
+            model_name="sample",
+            constraint=models.UniqueConstraint(fields=("run", "seq"), name="sample_run_seq_unique"),
         ),
     ]

@@ -1,0 +1,183 @@
+"""Staging and collection against the real agent application over HTTP.
+
+The agent runs in-process behind a real HTTP server, without its control-loop thread: the
+test advances its clock tick by tick, so every state of a run can be observed exactly.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import timedelta
+
+import pytest
+from django.utils import timezone
+from werkzeug.serving import make_server
+
+from basestation.app import create_app
+from basestation.client import AgentClient, AgentError
+from basestation.config import AgentConfig
+from basestation.runtime import AgentRuntime, get_runtime
+from bookings import dispatch
+from bookings.choices import ReservationState
+from bookings.services import reservation_cancel, reservation_create
+from portal.experiments.choices import RunState
+from portal.experiments.models import Run, Sample
+from tests.factories import ExperimentFactory
+
+pytestmark = pytest.mark.django_db
+
+TOKEN = "dispatch-test-token"
+TICK_S = 0.05
+
+
+@dataclass
+class Agent:
+    url: str
+    runtime: AgentRuntime
+    client: AgentClient
+
+    def run_clock(self, from_s: float, to_s: float) -> None:
+        """Advance the agent's clock from ``from_s`` to ``to_s`` one control tick at a time."""
+        steps = round((to_s - from_s) / TICK_S)
+        for k in range(steps + 1):
+            self.runtime.manager.tick(from_s + k * TICK_S)
+
+
+@pytest.fixture
+def agent(tmp_path, settings) -> Iterator[Agent]:
+    config = AgentConfig(token=TOKEN, data_dir=tmp_path / "agent")
+    app = create_app(config, start_control_loop=False)
+    server = make_server("127.0.0.1", 0, app, threaded=True)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    settings.AGENT_TOKENS = {"default": TOKEN}
+    url = f"http://127.0.0.1:{server.server_port}"
+    try:
+        yield Agent(url=url, runtime=get_runtime(app), client=AgentClient(url, TOKEN))
+    finally:
+        server.shutdown()
+        thread.join()
+        server.server_close()
+        get_runtime(app).close()
+
+
+@pytest.fixture
+def booked(agent, owner, mobile):
+    mobile.agent_url = agent.url
+    mobile.save()
+    experiment = ExperimentFactory(
+        owner=owner,
+        segments=[
+            {"velocity_mps": 0.5, "direction": "cw", "duration_s": 2.0},
+            {"velocity_mps": 0.5, "direction": "ccw", "duration_s": 2.0},
+        ],
+    )
+    start = timezone.now() + timedelta(minutes=2)
+    reservation = reservation_create(
+        owner=owner,
+        resource=mobile,
+        start_at=start,
+        end_at=start + timedelta(seconds=10),
+        experiment=experiment,
+    )
+    return Run.objects.get(reservation=reservation)
+
+
+def _state(run: Run) -> str:
+    run.refresh_from_db()
+    return run.state
+
+
+def test_staging_puts_the_program_on_the_agent_once(agent, booked):
+    dispatch.run_stage(run_id=booked.pk)
+    assert _state(booked) == RunState.STAGED
+    on_agent = agent.client.get_run(booked.agent_run_id)
+    assert on_agent["state"] == "staged"
+    assert on_agent["segments"] == booked.segments
+    assert on_agent["owner"] == "alice"
+    dispatch.run_stage(run_id=booked.pk)  # already past this step: nothing happens
+    assert [e.to_state for e in booked.events.all()] == ["scheduled", "staged"]
+
+
+def test_a_conflicting_run_on_the_agent_fails_the_run_with_the_reason(agent, booked):
+    body = dispatch.run_agent_body(booked)
+    body["title"] = "something else"
+    agent.client.put_run(booked.agent_run_id, body)
+    dispatch.run_stage(run_id=booked.pk)
+    assert _state(booked) == RunState.FAILED
+    assert "refused" in booked.reason
+
+
+def test_an_unreachable_agent_is_a_retryable_error_and_changes_nothing(booked, mobile):
+    mobile.agent_url = "http://127.0.0.1:9"  # discard port: nothing listens
+    mobile.save()
+    with pytest.raises(AgentError) as excinfo:
+        dispatch.run_stage(run_id=booked.pk)
+    assert excinfo.value.retryable
+    assert _state(booked) == RunState.SCHEDULED
+
+
+def test_a_run_not_staged_before_its_end_fails(agent, booked):
+    dispatch.run_stage(run_id=booked.pk, now=booked.end_at + timedelta(seconds=1))
+    assert _state(booked) == RunState.FAILED
+    assert "before the reservation ended" in booked.reason
+
+
+def test_collection_follows_the_run_and_verifies_the_count(agent, booked):
+    dispatch.run_stage(run_id=booked.pk)
+    start_s = booked.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 1.0)
+    dispatch.run_collect(run_id=booked.pk)
+    assert _state(booked) == RunState.RUNNING
+    partial = Sample.objects.filter(run=booked).count()
+    assert partial == agent.client.get_run(booked.agent_run_id)["sample_count"] > 0
+
+    agent.run_clock(start_s + 1.0 + TICK_S, start_s + 9.0)
+    dispatch.run_collect(run_id=booked.pk)
+    dispatch.run_collect(run_id=booked.pk)  # a duplicate collection stores nothing twice
+    on_agent = agent.client.get_run(booked.agent_run_id)
+    assert on_agent["state"] == "completed"
+    assert _state(booked) == RunState.COMPLETED
+    seqs = list(Sample.objects.filter(run=booked).values_list("seq", flat=True))
+    assert seqs == list(range(1, on_agent["sample_count"] + 1))
+    assert booked.agent_sample_count == on_agent["sample_count"]
+    assert booked.reservation.state == ReservationState.COMPLETED
+    assert [e.to_state for e in booked.events.all()] == [
+        "scheduled",
+        "staged",
+        "running",
+        "collecting",
+        "completed",
+    ]
+
+
+def test_cancelling_a_staged_run_withdraws_it_from_the_agent(agent, booked, owner):
+    dispatch.run_stage(run_id=booked.pk)
+    reservation_cancel(reservation=booked.reservation, by=owner)
+    dispatch.run_unstage(run_id=booked.pk)  # what the task queued on commit does
+    assert _state(booked) == RunState.CANCELLED
+    assert agent.client.get_run(booked.agent_run_id)["state"] == "cancelled"
+
+
+def test_cancelling_a_running_run_aborts_it_and_keeps_the_data(agent, booked, owner):
+    dispatch.run_stage(run_id=booked.pk)
+    start_s = booked.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 1.0)
+    dispatch.run_collect(run_id=booked.pk)
+    reservation_cancel(reservation=booked.reservation, by=owner)
+    dispatch.run_unstage(run_id=booked.pk)
+    assert _state(booked) == RunState.RUNNING  # still to be collected
+    agent.run_clock(start_s + 1.0 + TICK_S, start_s + 2.0)
+    dispatch.run_collect(run_id=booked.pk)
+    assert _state(booked) == RunState.INTERRUPTED
+    on_agent = agent.client.get_run(booked.agent_run_id)
+    assert Sample.objects.filter(run=booked).count() == on_agent["sample_count"] > 0
+
+
+def test_a_run_the_agent_does_not_know_fails(agent, booked):
+    Run.objects.filter(pk=booked.pk).update(state=RunState.STAGED)
+    dispatch.run_collect(run_id=booked.pk)
+    assert _state(booked) == RunState.FAILED
+    assert "no record" in booked.reason
