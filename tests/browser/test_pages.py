@@ -25,7 +25,9 @@ CHROMIUM_ARGS = [
     "--disable-sync",
     "--no-first-run",
 ]
-SCREENSHOTS = Path(os.environ.get("SCREENSHOT_DIR", Path(__file__).resolve().parents[2] / "var" / "screenshots"))
+SCREENSHOTS = Path(
+    os.environ.get("SCREENSHOT_DIR", Path(__file__).resolve().parents[2] / "var" / "screenshots")
+)
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +60,9 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
     UserFactory(username="dana")  # password: see factories
     web = stack["web"]
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
-    context = browser.new_context(viewport={"width": 1280, "height": 900}, timezone_id="Europe/Lisbon")
+    context = browser.new_context(
+        viewport={"width": 1280, "height": 900}, timezone_id="Europe/Lisbon"
+    )
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
@@ -75,7 +79,9 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
     rows.nth(0).get_by_label("duration in s").fill("2")
     page.get_by_role("button", name="Save experiment").click()
     # Too fast for the robot: the form says which segment and why, and keeps the input.
-    expect(page.get_by_role("alert")).to_contain_text("Segment 1: velocity 9 m/s exceeds the maximum 2 m/s")
+    expect(page.get_by_role("alert")).to_contain_text(
+        "Segment 1: velocity 9 m/s exceeds the maximum 2 m/s"
+    )
     rows = page.locator("#segments tbody tr")
     expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_value("9")
     rows.nth(0).get_by_label("velocity in m/s").fill("0.7")
@@ -108,7 +114,9 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
     context.close()
 
 
-@pytest.mark.parametrize("viewport", [{"width": 390, "height": 844}, {"width": 1280, "height": 800}])
+@pytest.mark.parametrize(
+    "viewport", [{"width": 390, "height": 844}, {"width": 1280, "height": 800}]
+)
 def test_pages_fit_a_phone_and_a_laptop(browser, live_server, viewport):
     UserFactory(username="eve")
     context = browser.new_context(viewport=viewport)

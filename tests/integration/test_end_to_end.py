@@ -38,16 +38,23 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
         {"velocity_mps": 0.8, "direction": "ccw", "duration_s": 3.0},
     ]
     experiment = requests.post(
-        f"{web}/api/v1/experiments/", json={"title": "there and back", "segments": segments},
-        headers=headers, timeout=10,
+        f"{web}/api/v1/experiments/",
+        json={"title": "there and back", "segments": segments},
+        headers=headers,
+        timeout=10,
     )
     assert experiment.status_code == 201, experiment.text
     start = timezone.now() + timedelta(seconds=4)
     booking = requests.post(
         f"{web}/api/v1/reservations/",
-        json={"resource": "mobile-1", "experiment": experiment.json()["id"],
-              "start_at": start.isoformat(), "end_at": (start + timedelta(seconds=9)).isoformat()},
-        headers=headers, timeout=10,
+        json={
+            "resource": "mobile-1",
+            "experiment": experiment.json()["id"],
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(seconds=9)).isoformat(),
+        },
+        headers=headers,
+        timeout=10,
     )
     assert booking.status_code == 201, booking.text
     run_id = booking.json()["run"]["id"]
@@ -76,8 +83,10 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
     after = 0
     while True:
         page = requests.get(
-            f"{web}/api/v1/runs/{run_id}/samples/", params={"after": after, "limit": 1000},
-            headers=headers, timeout=10,
+            f"{web}/api/v1/runs/{run_id}/samples/",
+            params={"after": after, "limit": 1000},
+            headers=headers,
+            timeout=10,
         ).json()
         samples += page["samples"]
         if not page["samples"]:
@@ -107,7 +116,9 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
         checked += 1
     assert checked >= 40
 
-    csv_response = requests.get(f"{web}/api/v1/runs/{run_id}/samples.csv", headers=headers, timeout=10)
+    csv_response = requests.get(
+        f"{web}/api/v1/runs/{run_id}/samples.csv", headers=headers, timeout=10
+    )
     assert csv_response.status_code == 200
     assert csv_response.headers["Content-Type"].startswith("text/csv")
     rows = list(csv.DictReader(io.StringIO(csv_response.text)))

@@ -32,7 +32,8 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         k: v
         for k, v in os.environ.items()
         # The embedded defaults: no external database or broker.
-        if k not in {"DATABASE_URL", "CELERY_BROKER_URL", "REDIS_URL", "AGENT_TOKEN", "AGENT_TOKEN_FILE"}
+        if k
+        not in {"DATABASE_URL", "CELERY_BROKER_URL", "REDIS_URL", "AGENT_TOKEN", "AGENT_TOKEN_FILE"}
     }
     env.update(
         {
@@ -59,7 +60,8 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             headers={"Referer": f"{web}/accounts/login/"},
             timeout=10,
         )
-        assert login.status_code == 200 and "Hello, experimenter" in login.text, login.text[:2000]
+        assert login.status_code == 200
+        assert "Hello, experimenter" in login.text, login.text[:2000]
 
         token = _csrf(session, f"{web}/experiments/new/")
         saved = session.post(
@@ -89,7 +91,8 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             },
             timeout=10,
         )
-        assert booked.status_code == 200 and "/runs/" in booked.url, booked.text[:3000]
+        assert booked.status_code == 200
+        assert "/runs/" in booked.url, booked.text[:3000]
         data_url = booked.url.rstrip("/") + "/data.json"
 
         deadline = time.monotonic() + 60
@@ -99,7 +102,9 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             if not data["live"]:
                 break
             time.sleep(0.5)
-        assert data["state"] == "completed", f"{data.get('state')}: {data.get('reason')}\n{launcher.output(120)}"
+        assert data["state"] == "completed", (
+            f"{data.get('state')}: {data.get('reason')}\n{launcher.output(120)}"
+        )
         assert data["sample_count"] >= 60
         assert len(data["series"]["t"]) == data["sample_count"]
 

@@ -1,0 +1,37 @@
+"""Bearer-token check for every ``/api/v1`` request."""
+
+from __future__ import annotations
+
+import hmac
+
+from flask import request
+from werkzeug.datastructures import WWWAuthenticate
+from werkzeug.exceptions import Unauthorized
+
+from basestation.runtime import get_runtime
+
+PROTECTED_PREFIX = "/api/v1"
+
+
+class BearerUnauthorized(Unauthorized):
+    def __init__(self, description: str) -> None:
+        super().__init__(
+            description, www_authenticate=WWWAuthenticate("bearer", {"realm": "amazing-agent"})
+        )
+
+
+def require_bearer_token() -> None:
+    """Runs before routing's result is used, so a refused request touches nothing."""
+    path = request.path
+    if path != PROTECTED_PREFIX and not path.startswith(PROTECTED_PREFIX + "/"):
+        return
+    header = request.headers.get("Authorization", "")
+    scheme, _, presented = header.strip().partition(" ")
+    if scheme.lower() != "bearer" or not presented.strip():
+        raise BearerUnauthorized("Missing bearer token: send 'Authorization: Bearer <token>'.")
+    expected = get_runtime().config.token
+    # Compare bytes in constant time; surrogatepass because a header may carry any character.
+    if not hmac.compare_digest(
+        presented.strip().encode("utf-8", "surrogatepass"), expected.encode("utf-8")
+    ):
+        raise BearerUnauthorized("The bearer token is not valid for this agent.")

@@ -1,0 +1,180 @@
+"""REST client for the base-station agent (what the portal's Celery tasks use).
+
+Plain ``requests``; no Django. Every failure is an :class:`AgentError` whose ``retryable``
+says whether trying again later can help: connection errors, timeouts and 5xx can;
+4xx cannot (the request itself is wrong, or conflicts with the agent's state).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+from urllib.parse import quote
+
+import requests
+
+API_PREFIX = "/api/v1"
+
+
+class AgentError(Exception):
+    def __init__(
+        self,
+        message: str,
+        *,
+        retryable: bool,
+        status: int | None,
+        body: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.message = message
+        self.retryable = retryable
+        self.status = status
+        self.body = body or {}
+
+
+class AgentUnauthorized(AgentError):
+    """401: the token is wrong or missing (fix the configuration, do not retry)."""
+
+
+class AgentNotFound(AgentError):
+    """404: no such run on the agent."""
+
+
+class AgentConflict(AgentError):
+    """409: different body for an existing id, overlapping window, or run already ended.
+
+    ``kind`` is the agent's ``conflict`` field: ``body_differs``, ``window_overlaps`` or
+    ``already_ended``.
+    """
+
+    @property
+    def kind(self) -> str | None:
+        value = self.body.get("conflict")
+        return value if isinstance(value, str) else None
+
+
+class AgentRejected(AgentError):
+    """422: the agent refused the request; ``fields`` maps field names to messages."""
+
+    @property
+    def fields(self) -> dict[str, list[str]]:
+        value = self.body.get("fields")
+        return value if isinstance(value, dict) else {}
+
+
+_BY_STATUS: dict[int, type[AgentError]] = {
+    401: AgentUnauthorized,
+    404: AgentNotFound,
+    409: AgentConflict,
+    422: AgentRejected,
+}
+
+
+class AgentClient:
+    def __init__(self, base_url: str, token: str, timeout_s: float = 5.0) -> None:
+        """``base_url`` is the agent's root, e.g. ``http://10.0.0.5:8700`` (no ``/api/v1``)."""
+        self.base_url = base_url.rstrip("/")
+        self.timeout_s = timeout_s
+        self._session = requests.Session()
+        self._session.headers["Authorization"] = f"Bearer {token}"
+        self._session.headers["Accept"] = "application/json"
+
+    def close(self) -> None:
+        self._session.close()
+
+    def __enter__(self) -> AgentClient:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- endpoints -------------------------------------------------------------------------
+
+    def healthz(self) -> dict[str, Any]:
+        return self._request("GET", "/healthz")
+
+    def status(self) -> dict[str, Any]:
+        return self._request("GET", f"{API_PREFIX}/status")
+
+    def list_runs(self, state: str | None = None) -> list[dict[str, Any]]:
+        params = {"state": state} if state else None
+        runs = self._request("GET", f"{API_PREFIX}/runs", params=params)["runs"]
+        assert isinstance(runs, list)
+        return runs
+
+    def put_run(self, run_id: str, body: dict[str, Any]) -> dict[str, Any]:
+        """Stage ``run_id`` (idempotent: the same body again returns the stored run)."""
+        return self._request("PUT", self._run_path(run_id), json=body)
+
+    def get_run(self, run_id: str) -> dict[str, Any]:
+        return self._request("GET", self._run_path(run_id))
+
+    def delete_run(self, run_id: str) -> dict[str, Any]:
+        """Cancel a staged run or abort a running one; returns the run in its new state."""
+        return self._request("DELETE", self._run_path(run_id))
+
+    def samples(self, run_id: str, after_seq: int = 0, limit: int = 1000) -> dict[str, Any]:
+        """One page: ``{"run_id", "state", "samples", "last_seq", "more"}``."""
+        return self._request(
+            "GET",
+            f"{self._run_path(run_id)}/samples",
+            params={"after": after_seq, "limit": limit},
+        )
+
+    def iter_samples(
+        self, run_id: str, after_seq: int = 0, limit: int = 1000
+    ) -> Iterator[dict[str, Any]]:
+        """Every sample after ``after_seq``, paging until the agent says there is no more."""
+        while True:
+            page = self.samples(run_id, after_seq, limit)
+            yield from page["samples"]
+            if not page["more"] or page["last_seq"] <= after_seq:
+                return
+            after_seq = page["last_seq"]
+
+    # -- plumbing ----------------------------------------------------------------------------
+
+    @staticmethod
+    def _run_path(run_id: str) -> str:
+        return f"{API_PREFIX}/runs/{quote(run_id, safe='')}"
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
+        url = self.base_url + path
+        try:
+            response = self._session.request(method, url, timeout=self.timeout_s, **kwargs)
+        except (
+            requests.ConnectionError,
+            requests.Timeout,
+            requests.exceptions.ChunkedEncodingError,
+        ) as exc:
+            raise AgentError(
+                f"{method} {url}: {exc.__class__.__name__}: {exc}", retryable=True, status=None
+            ) from exc
+        except requests.RequestException as exc:
+            raise AgentError(
+                f"{method} {url}: {exc.__class__.__name__}: {exc}", retryable=False, status=None
+            ) from exc
+        try:
+            payload = response.json()
+        except ValueError:
+            payload = None
+        body = payload if isinstance(payload, dict) else None
+        if response.ok:
+            if body is None:
+                raise AgentError(
+                    f"{method} {url}: answer is not a JSON object",
+                    retryable=False,
+                    status=response.status_code,
+                )
+            return body
+        detail = ""
+        if body is not None:
+            detail = str(body.get("detail") or body.get("error") or "")
+        message = f"{method} {url}: HTTP {response.status_code}" + (f": {detail}" if detail else "")
+        error_class = _BY_STATUS.get(response.status_code, AgentError)
+        raise error_class(
+            message,
+            retryable=response.status_code >= 500,
+            status=response.status_code,
+            body=body,
+        )

@@ -1,0 +1,129 @@
+"""The agent's configuration, read once at start from ``AGENT_``-prefixed environment variables.
+
+Every value is parsed and range-checked here so that a mistyped variable stops the agent
+with a message naming the variable, instead of surfacing later as a strange robot motion.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+ENV_PREFIX = "AGENT_"
+DEFAULT_DATA_DIR = Path("./var/agent")
+
+
+class ConfigError(Exception):
+    """The environment does not describe a usable agent (the Flask analogue of
+    Django's ``ImproperlyConfigured``)."""
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    token: str
+    data_dir: Path = DEFAULT_DATA_DIR
+    control_hz: float = 20.0
+    max_velocity_mps: float = 2.0
+    max_accel_mps2: float = 1.0
+    rail_length_m: float = 120.0
+    resource: str = "mobile-1"
+
+    def __post_init__(self) -> None:
+        # Checked here too so that configs built in code (tests, benchmarks) obey the same rules.
+        _check_token(self.token, "token")
+        _check_range("control_hz", self.control_hz, low=1.0, high=200.0)
+        _check_range("max_velocity_mps", self.max_velocity_mps, low=0.01, high=10.0)
+        _check_range("max_accel_mps2", self.max_accel_mps2, low=0.01, high=20.0)
+        _check_range("rail_length_m", self.rail_length_m, low=1.0, high=100_000.0)
+        if not self.resource.strip():
+            raise ConfigError("resource must not be empty")
+
+    @property
+    def control_period_s(self) -> float:
+        return 1.0 / self.control_hz
+
+    @property
+    def store_path(self) -> Path:
+        return self.data_dir / "runs.sqlite3"
+
+    def __repr__(self) -> str:
+        # Never print the token (logs, tracebacks).
+        return (
+            f"AgentConfig(token=<hidden>, data_dir={self.data_dir!r}, "
+            f"control_hz={self.control_hz}, max_velocity_mps={self.max_velocity_mps}, "
+            f"max_accel_mps2={self.max_accel_mps2}, rail_length_m={self.rail_length_m}, "
+            f"resource={self.resource!r})"
+        )
+
+    @classmethod
+    def from_env(cls, environ: Mapping[str, str] | None = None) -> AgentConfig:
+        env = os.environ if environ is None else environ
+        return cls(
+            token=_token_from_env(env),
+            data_dir=Path(env.get(f"{ENV_PREFIX}DATA_DIR", "").strip() or DEFAULT_DATA_DIR),
+            control_hz=_float_env(env, "CONTROL_HZ", 20.0, low=1.0, high=200.0),
+            max_velocity_mps=_float_env(env, "MAX_VELOCITY_MPS", 2.0, low=0.01, high=10.0),
+            max_accel_mps2=_float_env(env, "MAX_ACCEL_MPS2", 1.0, low=0.01, high=20.0),
+            rail_length_m=_float_env(env, "RAIL_LENGTH_M", 120.0, low=1.0, high=100_000.0),
+            resource=_resource_from_env(env),
+        )
+
+
+def _token_from_env(env: Mapping[str, str]) -> str:
+    token = env.get(f"{ENV_PREFIX}TOKEN")
+    token_file = env.get(f"{ENV_PREFIX}TOKEN_FILE")
+    if token and token_file:
+        raise ConfigError(f"set only one of {ENV_PREFIX}TOKEN and {ENV_PREFIX}TOKEN_FILE, not both")
+    if token_file:
+        try:
+            token = Path(token_file).read_text(encoding="utf-8").strip()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{ENV_PREFIX}TOKEN_FILE: cannot read {token_file!r}: {exc}") from exc
+        _check_token(token, f"{ENV_PREFIX}TOKEN_FILE ({token_file})")
+        return token
+    if not token:
+        raise ConfigError(
+            f"{ENV_PREFIX}TOKEN or {ENV_PREFIX}TOKEN_FILE must be set: the agent refuses to "
+            "serve its API without a bearer token"
+        )
+    _check_token(token, f"{ENV_PREFIX}TOKEN")
+    return token
+
+
+def _check_token(token: str, name: str) -> None:
+    if not token:
+        raise ConfigError(f"{name} is empty")
+    # The token travels in an HTTP header: only visible ASCII survives every proxy unchanged.
+    if not all("!" <= ch <= "~" for ch in token):
+        raise ConfigError(f"{name} must be printable ASCII without spaces")
+
+
+def _float_env(
+    env: Mapping[str, str], name: str, default: float, *, low: float, high: float
+) -> float:
+    raw = env.get(f"{ENV_PREFIX}{name}", "").strip()
+    if not raw:
+        return default
+    try:
+        value = float(raw)
+    except ValueError:
+        raise ConfigError(f"{ENV_PREFIX}{name}={raw!r} is not a number") from None
+    _check_range(f"{ENV_PREFIX}{name}", value, low=low, high=high)
+    return value
+
+
+def _check_range(name: str, value: float, *, low: float, high: float) -> None:
+    if not math.isfinite(value) or not low <= value <= high:
+        raise ConfigError(f"{name}={value!r} is out of range [{low}, {high}]")
+
+
+def _resource_from_env(env: Mapping[str, str]) -> str:
+    raw = env.get(f"{ENV_PREFIX}RESOURCE")
+    if raw is None:
+        return "mobile-1"
+    if not raw.strip():
+        raise ConfigError(f"{ENV_PREFIX}RESOURCE must not be empty")
+    return raw.strip()

@@ -1,0 +1,86 @@
+"""The live parts of one agent (store, robot, manager, control loop), owned by its Flask app."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+
+from flask import Flask, current_app
+
+from basestation.config import AgentConfig
+from basestation.control import ControlLoop, ControlStats
+from basestation.manager import RunManager
+from basestation.robot import Robot, SimpleSimulatedRobot
+from basestation.store import RunStore
+
+logger = logging.getLogger(__name__)
+
+EXTENSION_KEY = "basestation"
+
+try:
+    AGENT_VERSION = version("amazing-mobile-node")
+except PackageNotFoundError:  # running from a source tree that was never installed
+    AGENT_VERSION = "0+unknown"
+
+
+@dataclass
+class AgentRuntime:
+    config: AgentConfig
+    store: RunStore
+    robot: Robot
+    manager: RunManager
+    control_loop: ControlLoop | None = None
+    closed: bool = False
+
+    @classmethod
+    def open(cls, config: AgentConfig, *, robot: Robot | None = None) -> AgentRuntime:
+        store = RunStore(config.store_path)
+        # A run still marked running was cut off by a crash or kill of the previous agent:
+        # its samples are kept, its state says why it stopped.
+        store.mark_interrupted(now_s=time.time(), reason="agent restarted during run")
+        if robot is None:
+            robot = SimpleSimulatedRobot(
+                max_velocity_mps=config.max_velocity_mps,
+                max_accel_mps2=config.max_accel_mps2,
+                rail_length_m=config.rail_length_m,
+            )
+        manager = RunManager(store=store, robot=robot, config=config)
+        return cls(config=config, store=store, robot=robot, manager=manager)
+
+    def start_control_loop(self) -> None:
+        self.control_loop = ControlLoop(self.manager.tick, hz=self.config.control_hz)
+        self.control_loop.start()
+
+    def control_stats(self) -> ControlStats:
+        if self.control_loop is not None:
+            return self.control_loop.stats()
+        # Driven by hand (tests): the manager still counts its ticks.
+        return ControlStats(
+            hz=self.config.control_hz,
+            running=False,
+            ticks=self.manager.snapshot.ticks,
+            late_ticks=0,
+            skipped_ticks=0,
+            tick_errors=0,
+            max_lateness_s=0.0,
+        )
+
+    def close(self) -> None:
+        """Stop the loop, command the robot to zero, close the store. Idempotent."""
+        if self.closed:
+            return
+        self.closed = True
+        if self.control_loop is not None:
+            self.control_loop.stop()
+        try:
+            self.manager.shutdown(time.time())
+        finally:
+            self.store.close()
+
+
+def get_runtime(app: Flask | None = None) -> AgentRuntime:
+    runtime = (app or current_app).extensions[EXTENSION_KEY]
+    assert isinstance(runtime, AgentRuntime)
+    return runtime

@@ -1,0 +1,89 @@
+"""``amazing-agent`` / ``python -m basestation``: serve the agent with waitress."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import types
+
+from waitress.server import create_server
+
+from basestation.app import create_app
+from basestation.config import AgentConfig, ConfigError
+from basestation.runtime import get_runtime
+
+logger = logging.getLogger("basestation.serve")
+
+EXIT_CONFIG_ERROR = 2
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="amazing-agent",
+        description="AMazING mobile-node base-station agent (configured by AGENT_* variables).",
+    )
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    parser.add_argument(
+        "--port", type=int, default=8700, help="TCP port (0 picks a free one; see the log)"
+    )
+    parser.add_argument("--threads", type=int, default=8, help="HTTP worker threads")
+    parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ...")
+    return parser.parse_args(argv)
+
+
+class _Stop(SystemExit):
+    """Raised in the main thread by the signal handler; waitress stops serving on it."""
+
+
+def _raise_stop(signum: int, frame: types.FrameType | None) -> None:
+    raise _Stop(0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    logging.basicConfig(
+        stream=sys.stderr,
+        level=args.log_level.upper(),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        config = AgentConfig.from_env()
+    except ConfigError as exc:
+        print(f"amazing-agent: configuration error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG_ERROR
+
+    app = create_app(config)
+    runtime = get_runtime(app)
+    try:
+        server = create_server(app, host=args.host, port=args.port, threads=args.threads)
+    except OSError as exc:
+        logger.error("cannot listen on %s:%s: %s", args.host, args.port, exc)
+        runtime.close()
+        return 1
+    port = getattr(server, "effective_port", args.port)
+    logger.info(
+        "agent %s listening on http://%s:%s, control %g Hz, data dir %s",
+        config.resource,
+        args.host,
+        port,
+        config.control_hz,
+        config.data_dir.resolve(),
+    )
+    previous = {sig: signal.signal(sig, _raise_stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        server.run()  # returns after SIGTERM/SIGINT (waitress catches the SystemExit)
+    except _Stop:
+        pass
+    finally:
+        # A second signal during shutdown must not cut the clean-up short.
+        for sig in previous:
+            signal.signal(sig, signal.SIG_IGN)
+        logger.info("stopping: robot to zero, closing the run store")
+        server.close()
+        runtime.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    logger.info("agent stopped")
+    return 0

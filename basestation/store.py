@@ -1,0 +1,446 @@
+"""The run store: one SQLite file (WAL) holding staged runs and every sample they produced.
+
+Durability is the point of this module: the agent may be killed at any moment, and every
+sample it acknowledged must still be there, exactly once, afterwards. Hence
+``synchronous=FULL`` (a committed tick survives power loss, not only a process crash), one
+transaction per tick batch, and ``(run_id, seq)`` as the samples' primary key.
+
+Each thread gets its own connection: in WAL mode readers never block the writer, so an HTTP
+thread paging through 5 000 samples does not delay the control loop's next commit.
+Writers are serialised by SQLite itself (``BEGIN IMMEDIATE`` with a busy timeout), which
+also makes every check-then-write below atomic.
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+from basestation.errors import RunConflict
+from basestation.program import RunSpec, format_epoch
+
+STAGED: Final = "staged"
+RUNNING: Final = "running"
+COMPLETED: Final = "completed"
+CANCELLED: Final = "cancelled"
+ABORTED: Final = "aborted"
+INTERRUPTED: Final = "interrupted"
+FAILED: Final = "failed"
+RUN_STATES: Final = (STAGED, RUNNING, COMPLETED, CANCELLED, ABORTED, INTERRUPTED, FAILED)
+# States that hold the robot's time: new runs must not overlap them.
+ACTIVE_STATES: Final = (STAGED, RUNNING)
+END_STATES: Final = (COMPLETED, CANCELLED, ABORTED, INTERRUPTED, FAILED)
+
+logger = logging.getLogger(__name__)
+
+SCHEMA_VERSION = 1
+BUSY_TIMEOUT_MS = 5_000
+
+_SCHEMA = f"""
+CREATE TABLE IF NOT EXISTS runs (
+    id TEXT PRIMARY KEY,
+    body TEXT NOT NULL,              -- canonical JSON of the staged body
+    owner TEXT NOT NULL,
+    title TEXT NOT NULL,
+    start_at REAL NOT NULL,          -- epoch seconds, agent clock
+    end_at REAL NOT NULL,
+    state TEXT NOT NULL CHECK (state IN ({", ".join(repr(s) for s in RUN_STATES)})),
+    reason TEXT,
+    created_at REAL NOT NULL,
+    updated_at REAL NOT NULL,
+    started_at REAL,
+    ended_at REAL
+);
+CREATE INDEX IF NOT EXISTS runs_state_start ON runs (state, start_at);
+CREATE TABLE IF NOT EXISTS samples (
+    run_id TEXT NOT NULL REFERENCES runs (id),
+    seq INTEGER NOT NULL,
+    t REAL NOT NULL,
+    segment INTEGER,
+    commanded_velocity_mps REAL NOT NULL,
+    velocity_mps REAL NOT NULL,
+    direction TEXT NOT NULL,
+    battery_v REAL NOT NULL,
+    track_m REAL NOT NULL,
+    PRIMARY KEY (run_id, seq)
+) WITHOUT ROWID;
+"""
+
+
+@dataclass(frozen=True)
+class Sample:
+    seq: int
+    t: float  # epoch seconds, agent clock
+    segment: int | None  # None once the program is over (robot braking)
+    commanded_velocity_mps: float
+    velocity_mps: float
+    direction: str
+    battery_v: float
+    track_m: float
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "seq": self.seq,
+            "t": self.t,
+            "segment": self.segment,
+            "commanded_velocity_mps": self.commanded_velocity_mps,
+            "velocity_mps": self.velocity_mps,
+            "direction": self.direction,
+            "battery_v": self.battery_v,
+            "track_m": self.track_m,
+        }
+
+
+@dataclass(frozen=True)
+class SampleStats:
+    count: int
+    first_seq: int | None
+    last_seq: int | None
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    id: str
+    spec: RunSpec
+    body: str
+    state: str
+    reason: str | None
+    created_at_s: float
+    updated_at_s: float
+    started_at_s: float | None
+    ended_at_s: float | None
+
+    def to_json_dict(self, stats: SampleStats) -> dict[str, Any]:
+        spec = self.spec.to_json_dict()
+        return {
+            "id": self.id,
+            "owner": spec["owner"],
+            "title": spec["title"],
+            "state": self.state,
+            "reason": self.reason,
+            "start_at": spec["start_at"],
+            "end_at": spec["end_at"],
+            "segments": spec["segments"],
+            "limits": spec["limits"],
+            "sample_count": stats.count,
+            "first_seq": stats.first_seq,
+            "last_seq": stats.last_seq,
+            "created_at": format_epoch(self.created_at_s),
+            "updated_at": format_epoch(self.updated_at_s),
+            "started_at": format_epoch(self.started_at_s),
+            "ended_at": format_epoch(self.ended_at_s),
+        }
+
+
+class StoreClosed(Exception):
+    pass
+
+
+class RunStore:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
+        self._connections: list[sqlite3.Connection] = []
+        self._connections_lock = threading.Lock()
+        self._closed = False
+        conn = self._conn()
+        # WAL is a property of the file; set once here, every later connection inherits it.
+        mode = conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+        if str(mode).lower() != "wal":
+            raise RuntimeError(f"{path}: SQLite refused WAL mode (got {mode!r})")
+        conn.executescript(
+            f"BEGIN IMMEDIATE; {_SCHEMA} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+        )
+
+    # -- connections and transactions ------------------------------------------------------
+
+    def _conn(self) -> sqlite3.Connection:
+        if self._closed:
+            raise StoreClosed(f"run store {self.path} is closed")
+        conn: sqlite3.Connection | None = getattr(self._local, "conn", None)
+        if conn is None:
+            # isolation_level=None: we issue BEGIN/COMMIT ourselves, so a transaction is
+            # exactly as wide as the code below says. check_same_thread=False only so that
+            # close() can close every thread's connection at shutdown.
+            conn = sqlite3.connect(
+                self.path, isolation_level=None, check_same_thread=False, timeout=10.0
+            )
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA synchronous=FULL")
+            conn.execute("PRAGMA foreign_keys=ON")
+            conn.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
+            self._local.conn = conn
+            with self._connections_lock:
+                self._connections.append(conn)
+        return conn
+
+    @contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        conn = self._conn()
+        # IMMEDIATE takes the write lock up front: the checks made inside the block still
+        # hold when its writes commit.
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield conn
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+        conn.execute("COMMIT")
+
+    @contextmanager
+    def _read(self) -> Iterator[sqlite3.Connection]:
+        """A consistent snapshot across several SELECTs (a page and its ``more`` flag)."""
+        conn = self._conn()
+        conn.execute("BEGIN")
+        try:
+            yield conn
+        finally:
+            conn.execute("COMMIT")
+
+    def close(self) -> None:
+        self._closed = True
+        with self._connections_lock:
+            connections, self._connections = self._connections, []
+        for conn in connections:
+            conn.close()
+
+    # -- runs --------------------------------------------------------------------------------
+
+    def mark_interrupted(self, *, now_s: float, reason: str) -> list[str]:
+        """Move every run left ``running`` (the agent died under it) to ``interrupted``."""
+        with self._write() as tx:
+            ids = [r["id"] for r in tx.execute("SELECT id FROM runs WHERE state = ?", (RUNNING,))]
+            tx.execute(
+                "UPDATE runs SET state = ?, reason = ?, updated_at = ?, ended_at = ? "
+                "WHERE state = ?",
+                (INTERRUPTED, reason, now_s, now_s, RUNNING),
+            )
+        for run_id in ids:
+            _log_state_change(run_id, RUNNING, INTERRUPTED, reason)
+        return ids
+
+    def stage_run(
+        self,
+        run_id: str,
+        spec: RunSpec,
+        *,
+        now_s: float,
+        admit: Callable[[RunSpec], None],
+    ) -> tuple[RunRecord, bool]:
+        """Store a new run, or recognise an identical one; returns (record, created).
+
+        ``admit`` runs inside the write transaction, only for a new run, and raises to
+        refuse it (clock- and agent-dependent checks that a repeat must not re-run).
+        Raises :class:`RunConflict` for a different body under the same id, or a window
+        overlapping another staged or running run.
+        """
+        body = spec.canonical_json()
+        with self._write() as tx:
+            row = tx.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
+            if row is not None:
+                if row["body"] == body:
+                    return _record(row), False
+                raise RunConflict(
+                    "body_differs", f"run {run_id} is already staged with a different body"
+                )
+            admit(spec)
+            # Half-open windows [start, end): back-to-back runs do not overlap.
+            other = tx.execute(
+                "SELECT id, start_at, end_at FROM runs WHERE state IN ('staged', 'running') "
+                "AND start_at < ? AND end_at > ? ORDER BY start_at LIMIT 1",
+                (spec.end_at_s, spec.start_at_s),
+            ).fetchone()
+            if other is not None:
+                raise RunConflict(
+                    "window_overlaps",
+                    f"the window overlaps run {other['id']} "
+                    f"({format_epoch(other['start_at'])} to {format_epoch(other['end_at'])})",
+                )
+            tx.execute(
+                "INSERT INTO runs (id, body, owner, title, start_at, end_at, state, reason, "
+                "created_at, updated_at) VALUES (?, ?, ?, ?, ?, ?, ?, NULL, ?, ?)",
+                (
+                    run_id,
+                    body,
+                    spec.owner,
+                    spec.title,
+                    spec.start_at_s,
+                    spec.end_at_s,
+                    STAGED,
+                    now_s,
+                    now_s,
+                ),
+            )
+            row = tx.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
+        _log_state_change(run_id, None, STAGED, f"{spec.start_at_s - now_s:+.1f} s to start")
+        return _record(row), True
+
+    def transition(
+        self,
+        run_id: str,
+        *,
+        from_states: Sequence[str],
+        to_state: str,
+        reason: str | None,
+        now_s: float,
+    ) -> bool:
+        """Compare-and-set the state; False when the run is not in one of ``from_states``.
+
+        ``started_at`` is set on entering ``running``, ``ended_at`` on entering an end state.
+        """
+        if to_state not in RUN_STATES:
+            raise ValueError(f"unknown run state {to_state!r}")
+        started_at_s = now_s if to_state == RUNNING else None
+        ended_at_s = now_s if to_state in END_STATES else None
+        with self._write() as tx:
+            row = tx.execute("SELECT state FROM runs WHERE id = ?", (run_id,)).fetchone()
+            if row is None or row["state"] not in from_states:
+                return False
+            tx.execute(
+                "UPDATE runs SET state = ?, reason = ?, updated_at = ?, "
+                "started_at = COALESCE(?, started_at), ended_at = COALESCE(?, ended_at) "
+                "WHERE id = ?",
+                (to_state, reason, now_s, started_at_s, ended_at_s, run_id),
+            )
+        _log_state_change(run_id, row["state"], to_state, reason)
+        return True
+
+    def get_run(self, run_id: str) -> RunRecord | None:
+        row = self._conn().execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
+        return None if row is None else _record(row)
+
+    def get_run_with_stats(self, run_id: str) -> tuple[RunRecord, SampleStats] | None:
+        with self._read() as conn:
+            row = conn.execute(_RUN_WITH_STATS + "WHERE r.id = ?", (run_id,)).fetchone()
+        return None if row is None else (_record(row), _stats(row))
+
+    def list_runs(
+        self, *, state: str | None = None, limit: int = 1000
+    ) -> list[tuple[RunRecord, SampleStats]]:
+        """Newest first (by start time)."""
+        with self._read() as conn:
+            rows = conn.execute(
+                _RUN_WITH_STATS + "WHERE (? IS NULL OR r.state = ?) "
+                "ORDER BY r.start_at DESC, r.id LIMIT ?",
+                (state, state, limit),
+            ).fetchall()
+        return [(_record(row), _stats(row)) for row in rows]
+
+    def staged_runs(self) -> list[RunRecord]:
+        """Oldest first (by start time): the manager's schedule."""
+        rows = self._conn().execute(
+            "SELECT * FROM runs WHERE state = 'staged' ORDER BY start_at, id"
+        )
+        return [_record(row) for row in rows]
+
+    # -- samples -----------------------------------------------------------------------------
+
+    def append_samples(self, run_id: str, samples: Sequence[Sample]) -> bool:
+        """Store one tick batch in one transaction, only while the run is ``running``.
+
+        Returns False (and stores nothing) once the run has left ``running`` — e.g. an
+        abort committed by an HTTP thread a moment ago — so no sample ever lands in a
+        run the portal already considers ended.
+        """
+        with self._write() as tx:
+            row = tx.execute("SELECT state FROM runs WHERE id = ?", (run_id,)).fetchone()
+            if row is None or row["state"] != RUNNING:
+                return False
+            tx.executemany(
+                "INSERT INTO samples (run_id, seq, t, segment, commanded_velocity_mps, "
+                "velocity_mps, direction, battery_v, track_m) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [
+                    (
+                        run_id,
+                        s.seq,
+                        s.t,
+                        s.segment,
+                        s.commanded_velocity_mps,
+                        s.velocity_mps,
+                        s.direction,
+                        s.battery_v,
+                        s.track_m,
+                    )
+                    for s in samples
+                ],
+            )
+        return True
+
+    def samples_after(self, run_id: str, after_seq: int, limit: int) -> list[Sample]:
+        """Up to ``limit`` samples with ``seq > after_seq``, ordered by seq."""
+        rows = self._conn().execute(
+            "SELECT seq, t, segment, commanded_velocity_mps, velocity_mps, direction, "
+            "battery_v, track_m FROM samples WHERE run_id = ? AND seq > ? ORDER BY seq LIMIT ?",
+            (run_id, after_seq, limit),
+        )
+        return [_sample(row) for row in rows]
+
+    def sample_stats(self, run_id: str) -> SampleStats:
+        row = (
+            self._conn()
+            .execute(
+                "SELECT COUNT(*) AS sample_count, MIN(seq) AS first_seq, MAX(seq) AS last_seq "
+                "FROM samples WHERE run_id = ?",
+                (run_id,),
+            )
+            .fetchone()
+        )
+        return _stats(row)
+
+
+_RUN_WITH_STATS = (
+    "SELECT r.*, "
+    "(SELECT COUNT(*) FROM samples s WHERE s.run_id = r.id) AS sample_count, "
+    "(SELECT MIN(seq) FROM samples s WHERE s.run_id = r.id) AS first_seq, "
+    "(SELECT MAX(seq) FROM samples s WHERE s.run_id = r.id) AS last_seq "
+    "FROM runs r "
+)
+
+
+def _log_state_change(
+    run_id: str, from_state: str | None, to_state: str, reason: str | None
+) -> None:
+    # Logged here, where the change commits, so every change gets exactly one line whoever
+    # made it (control loop, HTTP thread, startup recovery).
+    logger.info("run %s: %s -> %s (%s)", run_id, from_state or "new", to_state, reason or "")
+
+
+def _record(row: sqlite3.Row) -> RunRecord:
+    return RunRecord(
+        id=row["id"],
+        spec=RunSpec.from_canonical_json(row["body"]),
+        body=row["body"],
+        state=row["state"],
+        reason=row["reason"],
+        created_at_s=row["created_at"],
+        updated_at_s=row["updated_at"],
+        started_at_s=row["started_at"],
+        ended_at_s=row["ended_at"],
+    )
+
+
+def _stats(row: sqlite3.Row) -> SampleStats:
+    return SampleStats(
+        count=int(row["sample_count"]), first_seq=row["first_seq"], last_seq=row["last_seq"]
+    )
+
+
+def _sample(row: sqlite3.Row) -> Sample:
+    return Sample(
+        seq=row["seq"],
+        t=row["t"],
+        segment=row["segment"],
+        commanded_velocity_mps=row["commanded_velocity_mps"],
+        velocity_mps=row["velocity_mps"],
+        direction=row["direction"],
+        battery_v=row["battery_v"],
+        track_m=row["track_m"],
+    )

@@ -1,0 +1,102 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from basestation.config import AgentConfig, ConfigError
+
+TOKEN = "a-long-enough-token"
+
+
+def test_it_reads_defaults_when_only_the_token_is_set() -> None:
+    config = AgentConfig.from_env({"AGENT_TOKEN": TOKEN})
+    assert config.token == TOKEN
+    assert config.data_dir == Path("./var/agent")
+    assert config.control_hz == 20.0
+    assert config.max_velocity_mps == 2.0
+    assert config.max_accel_mps2 == 1.0
+    assert config.rail_length_m == 120.0
+    assert config.resource == "mobile-1"
+
+
+def test_it_reads_every_variable() -> None:
+    config = AgentConfig.from_env(
+        {
+            "AGENT_TOKEN": TOKEN,
+            "AGENT_DATA_DIR": "/srv/agent",
+            "AGENT_CONTROL_HZ": "10",
+            "AGENT_MAX_VELOCITY_MPS": "1.5",
+            "AGENT_MAX_ACCEL_MPS2": "0.5",
+            "AGENT_RAIL_LENGTH_M": "250",
+            "AGENT_RESOURCE": "mobile-2",
+        }
+    )
+    assert config.data_dir == Path("/srv/agent")
+    assert config.control_hz == 10.0
+    assert config.max_velocity_mps == 1.5
+    assert config.max_accel_mps2 == 0.5
+    assert config.rail_length_m == 250.0
+    assert config.resource == "mobile-2"
+
+
+def test_it_reads_the_token_from_a_file(tmp_path: Path) -> None:
+    token_file = tmp_path / "token"
+    token_file.write_text(TOKEN + "\n", encoding="utf-8")
+    config = AgentConfig.from_env({"AGENT_TOKEN_FILE": str(token_file)})
+    assert config.token == TOKEN
+
+
+def test_it_refuses_to_start_without_a_token() -> None:
+    with pytest.raises(ConfigError, match="AGENT_TOKEN or AGENT_TOKEN_FILE must be set"):
+        AgentConfig.from_env({})
+
+
+def test_it_refuses_an_empty_token() -> None:
+    with pytest.raises(ConfigError, match="AGENT_TOKEN"):
+        AgentConfig.from_env({"AGENT_TOKEN": ""})
+
+
+def test_it_refuses_a_missing_token_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="AGENT_TOKEN_FILE: cannot read"):
+        AgentConfig.from_env({"AGENT_TOKEN_FILE": str(tmp_path / "absent")})
+
+
+def test_it_refuses_an_empty_token_file(tmp_path: Path) -> None:
+    token_file = tmp_path / "token"
+    token_file.write_text("\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"AGENT_TOKEN_FILE.*empty"):
+        AgentConfig.from_env({"AGENT_TOKEN_FILE": str(token_file)})
+
+
+def test_it_refuses_both_token_sources(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="only one of"):
+        AgentConfig.from_env({"AGENT_TOKEN": TOKEN, "AGENT_TOKEN_FILE": str(tmp_path / "t")})
+
+
+def test_it_refuses_a_token_with_spaces() -> None:
+    with pytest.raises(ConfigError, match="AGENT_TOKEN must be printable ASCII"):
+        AgentConfig.from_env({"AGENT_TOKEN": "two words"})
+
+
+@pytest.mark.parametrize(
+    ("variable", "value"),
+    [
+        ("AGENT_CONTROL_HZ", "fast"),
+        ("AGENT_CONTROL_HZ", "0"),
+        ("AGENT_CONTROL_HZ", "nan"),
+        ("AGENT_MAX_VELOCITY_MPS", "-1"),
+        ("AGENT_MAX_VELOCITY_MPS", "inf"),
+        ("AGENT_MAX_ACCEL_MPS2", "0"),
+        ("AGENT_RAIL_LENGTH_M", "1e9"),
+        ("AGENT_RAIL_LENGTH_M", "12 m"),
+        ("AGENT_RESOURCE", "  "),
+    ],
+)
+def test_it_names_the_variable_holding_a_bad_value(variable: str, value: str) -> None:
+    with pytest.raises(ConfigError, match=variable):
+        AgentConfig.from_env({"AGENT_TOKEN": TOKEN, variable: value})
+
+
+def test_it_never_shows_the_token_in_its_repr() -> None:
+    assert TOKEN not in repr(AgentConfig(token=TOKEN))

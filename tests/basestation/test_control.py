@@ -1,0 +1,68 @@
+"""The control loop thread: rate, absolute deadlines, late and skipped ticks."""
+
+from __future__ import annotations
+
+import time
+
+from basestation.control import ControlLoop
+
+
+def test_it_ticks_at_its_rate_on_absolute_deadlines() -> None:
+    stamps: list[float] = []
+    loop = ControlLoop(lambda now_s: stamps.append(time.monotonic()), hz=50.0)
+    loop.start()
+    time.sleep(0.6)
+    loop.stop()
+    assert not loop.running
+    # ~30 ticks in 0.6 s; generous bounds because the test machine may be busy.
+    assert 20 <= loop.ticks <= 32
+    assert loop.ticks == len(stamps)
+    # Absolute deadlines: the k-th tick is near start + k/50 s, with no accumulated drift.
+    offsets = [(stamp - stamps[0]) - k * 0.02 for k, stamp in enumerate(stamps)]
+    if loop.skipped_ticks == 0:
+        assert sorted(offsets)[len(offsets) // 2] < 0.005
+
+
+def test_it_passes_the_wall_clock_to_the_tick() -> None:
+    seen: list[float] = []
+    loop = ControlLoop(seen.append, hz=100.0)
+    loop.start()
+    time.sleep(0.1)
+    loop.stop()
+    assert seen
+    assert abs(seen[-1] - time.time()) < 1.0
+
+
+def test_it_counts_a_slow_tick_as_late_and_skips_the_missed_slots() -> None:
+    calls: list[float] = []
+
+    def tick(now_s: float) -> None:
+        calls.append(now_s)
+        if len(calls) == 3:
+            time.sleep(0.1)  # five periods at 50 Hz
+
+    loop = ControlLoop(tick, hz=50.0)
+    loop.start()
+    time.sleep(0.4)
+    loop.stop()
+    assert loop.late_ticks >= 1
+    assert loop.skipped_ticks >= 3
+    assert loop.max_lateness_s >= 0.06
+    # 0.4 s at 50 Hz is 20 slots; the slow tick ate ~5 of them and no burst made them up.
+    assert loop.ticks <= 17
+
+
+def test_it_survives_a_failing_tick() -> None:
+    calls: list[float] = []
+
+    def tick(now_s: float) -> None:
+        calls.append(now_s)
+        if len(calls) == 2:
+            raise RuntimeError("radio hiccup")
+
+    loop = ControlLoop(tick, hz=100.0)
+    loop.start()
+    time.sleep(0.1)
+    loop.stop()
+    assert loop.tick_errors == 1
+    assert len(calls) > 3

@@ -1,0 +1,121 @@
+"""The real agent process: ``python -m basestation`` under waitress, driven through AgentClient."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from basestation.client import AgentClient
+from tests.basestation.conftest import TOKEN, run_body
+
+pytestmark = pytest.mark.integration
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+LISTENING = re.compile(r"listening on http://127\.0\.0\.1:(\d+)")
+
+
+@dataclass
+class Agent:
+    process: subprocess.Popen[bytes]
+    log_path: Path
+    url: str
+
+    def log(self) -> str:
+        return self.log_path.read_text(encoding="utf-8", errors="replace")
+
+
+def _agent_env(data_dir: Path, **extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("AGENT_")}
+    env.update({"AGENT_DATA_DIR": str(data_dir), **extra})
+    return env
+
+
+@pytest.fixture
+def agent_process(tmp_path: Path) -> Iterator[Agent]:
+    log_path = tmp_path / "agent.log"
+    with log_path.open("wb") as log:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "basestation", "--host", "127.0.0.1", "--port", "0"],
+            cwd=REPO_ROOT,
+            env=_agent_env(tmp_path / "data", AGENT_TOKEN=TOKEN),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        deadline = time.monotonic() + 15.0
+        match = None
+        while match is None and time.monotonic() < deadline and process.poll() is None:
+            time.sleep(0.05)
+            match = LISTENING.search(log_path.read_text(encoding="utf-8", errors="replace"))
+        assert match is not None, log_path.read_text(encoding="utf-8", errors="replace")
+        yield Agent(process=process, log_path=log_path, url=f"http://127.0.0.1:{match[1]}")
+    finally:
+        if process.poll() is None:
+            process.kill()
+        process.wait(10)
+
+
+def test_the_real_agent_runs_a_short_program_and_stops_cleanly(agent_process: Agent) -> None:
+    with AgentClient(agent_process.url, TOKEN, timeout_s=5.0) as agent:
+        assert agent.healthz() == {"ok": True}
+        start_s = time.time() + 1.0
+        segments = [
+            {"velocity_mps": 0.4, "direction": "cw", "duration_s": 1.0},
+            {"velocity_mps": 0.4, "direction": "ccw", "duration_s": 1.0},
+        ]
+        staged = agent.put_run("e2e", run_body(start_s, window_s=4.0, segments=segments))
+        assert staged["state"] == "staged"
+
+        deadline = time.monotonic() + 10.0
+        run = staged
+        while run["state"] in ("staged", "running") and time.monotonic() < deadline:
+            time.sleep(0.2)
+            run = agent.get_run("e2e")
+        assert run["state"] == "completed", run
+        assert run["reason"] == "program finished"
+
+        samples = list(agent.iter_samples("e2e", 0, limit=25))
+        assert [s["seq"] for s in samples] == list(range(1, len(samples) + 1))
+        assert run["sample_count"] == len(samples) == run["last_seq"]
+        # 2 s of program and ~0.4 s of braking at 20 Hz is ~48 ticks; a busy machine skips
+        # some (a late tick skips its missed slots), never adds any.
+        assert 30 <= len(samples) <= 52
+        assert all(start_s <= s["t"] < start_s + 4.0 for s in samples)
+        assert {s["direction"] for s in samples} == {"cw", "ccw"}
+
+        status = agent.status()
+        assert status["link"]["state"] == "up"
+        assert status["current_run"] is None
+        assert status["control"]["ticks"] > 40
+
+    agent_process.process.send_signal(signal.SIGTERM)
+    assert agent_process.process.wait(10) == 0
+    log = agent_process.log()
+    assert "run e2e: new -> staged" in log
+    assert "run e2e: staged -> running" in log
+    assert "run e2e: running -> completed (program finished)" in log
+    assert "control 20 Hz" in log
+    assert "agent stopped" in log
+
+
+def test_the_real_agent_refuses_to_start_without_a_token(tmp_path: Path) -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "basestation", "--port", "0"],
+        cwd=REPO_ROOT,
+        env=_agent_env(tmp_path / "data"),
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
+    )
+    assert result.returncode == 2
+    assert "AGENT_TOKEN or AGENT_TOKEN_FILE must be set" in result.stderr

@@ -1,0 +1,146 @@
+"""The run store on its own, and what a restart of the agent does to it."""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from basestation.app import create_app
+from basestation.config import AgentConfig
+from basestation.errors import RunConflict
+from basestation.program import parse_run_body
+from basestation.runtime import get_runtime
+from basestation.store import RunStore, Sample
+from tests.basestation.conftest import TOKEN, run_body
+
+T0 = 1_900_000_000.0
+
+
+def _sample(seq: int) -> Sample:
+    return Sample(
+        seq=seq,
+        t=T0 + seq * 0.05,
+        segment=0,
+        commanded_velocity_mps=0.5,
+        velocity_mps=0.49,
+        direction="cw",
+        battery_v=59.8,
+        track_m=seq * 0.025,
+    )
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> Iterator[RunStore]:
+    store = RunStore(tmp_path / "runs.sqlite3")
+    yield store
+    store.close()
+
+
+def _stage_running(store: RunStore, run_id: str = "run-1") -> None:
+    store.stage_run(run_id, parse_run_body(run_body(T0)), now_s=T0 - 60, admit=lambda _: None)
+    assert store.transition(
+        run_id, from_states=["staged"], to_state="running", reason="started", now_s=T0
+    )
+
+
+def test_it_uses_wal_and_full_sync(store: RunStore) -> None:
+    conn = sqlite3.connect(store.path)
+    try:
+        assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    finally:
+        conn.close()
+    assert store._conn().execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+
+
+def test_it_stores_a_tick_batch_and_pages_by_seq(store: RunStore) -> None:
+    _stage_running(store)
+    assert store.append_samples("run-1", [_sample(1), _sample(2), _sample(3)])
+    assert store.append_samples("run-1", [_sample(4)])
+    assert [s.seq for s in store.samples_after("run-1", 0, 10)] == [1, 2, 3, 4]
+    assert [s.seq for s in store.samples_after("run-1", 2, 1)] == [3]
+    assert store.samples_after("run-1", 1, 1)[0] == _sample(2)
+    stats = store.sample_stats("run-1")
+    assert (stats.count, stats.first_seq, stats.last_seq) == (4, 1, 4)
+
+
+def test_it_never_stores_a_seq_twice(store: RunStore) -> None:
+    _stage_running(store)
+    store.append_samples("run-1", [_sample(1), _sample(2)])
+    with pytest.raises(sqlite3.IntegrityError):
+        store.append_samples("run-1", [_sample(3), _sample(2)])
+    # The failed batch left nothing behind: one transaction per batch.
+    assert [s.seq for s in store.samples_after("run-1", 0, 10)] == [1, 2]
+
+
+def test_it_refuses_samples_for_a_run_that_is_not_running(store: RunStore) -> None:
+    _stage_running(store)
+    store.transition("run-1", from_states=["running"], to_state="aborted", reason="x", now_s=T0 + 1)
+    assert not store.append_samples("run-1", [_sample(1)])
+    assert store.sample_stats("run-1").count == 0
+
+
+def test_it_refuses_an_overlap_inside_one_transaction_under_concurrent_puts(
+    store: RunStore,
+) -> None:
+    # Eight threads race to stage eight different runs in the same window: exactly one wins.
+    outcomes: list[str] = []
+    lock = threading.Lock()
+    spec = parse_run_body(run_body(T0))
+
+    def stage(index: int) -> None:
+        try:
+            store.stage_run(f"run-{index}", spec, now_s=T0 - 60, admit=lambda _: None)
+            result = "created"
+        except RunConflict as exc:
+            result = exc.kind
+        with lock:
+            outcomes.append(result)
+
+    threads = [threading.Thread(target=stage, args=(i,)) for i in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(outcomes) == ["created"] + ["window_overlaps"] * 7
+
+
+def test_it_marks_a_run_left_running_as_interrupted_on_restart_and_keeps_its_samples_once(
+    tmp_path: Path,
+) -> None:
+    config = AgentConfig(token=TOKEN, data_dir=tmp_path / "agent")
+    first = get_runtime(create_app(config, start_control_loop=False))
+    _stage_running(first.store)
+    first.store.append_samples("run-1", [_sample(seq) for seq in range(1, 51)])
+    # The agent dies: no shutdown, the store is simply dropped.
+    first.store.close()
+
+    second = get_runtime(create_app(config, start_control_loop=False))
+    try:
+        record = second.store.get_run("run-1")
+        assert record is not None
+        assert record.state == "interrupted"
+        assert record.reason == "agent restarted during run"
+        assert record.ended_at_s is not None
+        samples = second.store.samples_after("run-1", 0, 1000)
+        assert [s.seq for s in samples] == list(range(1, 51))
+        stats = second.store.sample_stats("run-1")
+        assert (stats.count, stats.first_seq, stats.last_seq) == (50, 1, 50)
+        # The restarted manager never touches the interrupted run again.
+        for k in range(40):
+            second.manager.tick(T0 + 3.0 + k * 0.05)
+        assert second.store.sample_stats("run-1").count == 50
+    finally:
+        second.close()
+
+    third = get_runtime(create_app(config, start_control_loop=False))
+    try:
+        record = third.store.get_run("run-1")
+        assert record is not None
+        assert record.state == "interrupted"
+        assert third.store.sample_stats("run-1").count == 50
+    finally:
+        third.close()
