@@ -69,9 +69,10 @@ run: setup
 services:
 	@bash tests/ensure_services.sh $(TEST_DATABASE_URL) $(TEST_REDIS_URL)
 
+# Firmware first (seconds), then every Python suite; pytest's summary closes the output.
 test: setup system-deps services
+	$(MAKE) --no-print-directory -C firmware test hex size-check
 	$(TEST_ENV) $(PY) -m pytest
-	@if [ -f firmware/Makefile ]; then $(MAKE) --no-print-directory -C firmware test hex size-check; fi
 
 lint: setup system-deps
 	$(VENV)/bin/ruff check .
@@ -88,11 +89,11 @@ format: setup
 ci: lint test
 
 firmware: system-deps
-	$(MAKE) -C firmware hex size-check
+	$(MAKE) --no-print-directory -C firmware hex size-check
 
 bench: setup services
 	$(TEST_ENV) $(PY) -m bench
 
 clean:
 	rm -rf $(VENV) $(STAMPS) node_modules var .mypy_cache .ruff_cache .pytest_cache .hypothesis
-	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware clean; fi
+	$(MAKE) -C firmware clean

@@ -8,7 +8,7 @@ from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from typing import Any
 
-from django.db import transaction
+from django.db import connection, transaction
 from django.db.models import Count, Max
 from django.utils import timezone
 from django.utils.dateparse import parse_datetime
@@ -142,33 +142,75 @@ def run_transition(
     return True
 
 
+SAMPLE_COLUMNS = (
+    "seq",
+    "t",
+    "segment",
+    "commanded_velocity_mps",
+    "velocity_mps",
+    "direction",
+    "battery_v",
+    "track_m",
+)
+
+
 def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
     """Store a page of samples from the agent; duplicates (same run and seq) are skipped.
 
-    Returns how many rows the page held. ``run.last_seq`` only moves forward.
+    Returns how many rows the page held. ``run.last_seq`` only moves forward. On PostgreSQL
+    the page goes in by ``COPY`` into a temporary table and one ``INSERT … ON CONFLICT DO
+    NOTHING``: several times faster than row inserts, and still idempotent.
     """
     if not samples:
         return 0
     rows = [
-        Sample(
-            run=run,
-            seq=int(s["seq"]),
-            t=_epoch_to_datetime(s["t"]),
-            segment=s.get("segment"),
-            commanded_velocity_mps=float(s["commanded_velocity_mps"]),
-            velocity_mps=float(s["velocity_mps"]),
-            direction=s["direction"],
-            battery_v=float(s["battery_v"]),
-            track_m=float(s["track_m"]),
+        (
+            int(s["seq"]),
+            _epoch_to_datetime(s["t"]),
+            s.get("segment"),
+            float(s["commanded_velocity_mps"]),
+            float(s["velocity_mps"]),
+            str(s["direction"]),
+            float(s["battery_v"]),
+            float(s["track_m"]),
         )
         for s in samples
     ]
-    last_seq = max(r.seq for r in rows)
+    last_seq = max(r[0] for r in rows)
     with transaction.atomic():
-        Sample.objects.bulk_create(rows, batch_size=2000, ignore_conflicts=True)
+        if connection.vendor == "postgresql":
+            _copy_samples(run.pk, rows)
+        else:
+            Sample.objects.bulk_create(
+                [Sample(run=run, **dict(zip(SAMPLE_COLUMNS, r, strict=True))) for r in rows],
+                batch_size=2000,
+                ignore_conflicts=True,
+            )
         Run.objects.filter(pk=run.pk, last_seq__lt=last_seq).update(last_seq=last_seq)
     run.last_seq = max(run.last_seq, last_seq)
     return len(rows)
+
+
+def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> None:
+    columns = ", ".join(SAMPLE_COLUMNS)
+    table = Sample._meta.db_table
+    with connection.cursor() as cursor:
+        # Emptied at every commit, so one per connection serves every page.
+        cursor.execute(
+            "CREATE TEMPORARY TABLE IF NOT EXISTS sample_page (seq integer, t timestamptz, "
+            "segment smallint, commanded_velocity_mps double precision, "
+            "velocity_mps double precision, direction varchar(3), battery_v double precision, "
+            "track_m double precision) ON COMMIT DELETE ROWS"
+        )
+        with cursor.copy(f"COPY sample_page ({columns}) FROM STDIN") as copy:
+            for row in rows:
+                copy.write_row(row)
+        # Identifiers are this module's constants; the run id is a bound parameter.
+        cursor.execute(
+            f"INSERT INTO {table} (run_id, {columns}) SELECT %s, {columns} FROM sample_page "  # noqa: S608
+            "ON CONFLICT (run_id, seq) DO NOTHING",
+            [run_id],
+        )
 
 
 def _epoch_to_datetime(value: Any) -> datetime:

@@ -11,7 +11,7 @@ from django.utils import timezone
 from bookings.selectors import reservations_visible
 from bookings.services import reservation_cancel, reservation_create
 from portal.errors import DomainError
-from portal.experiments.apis import samples_csv_response
+from portal.experiments.apis import is_asgi, samples_csv_response
 from portal.experiments.choices import RUN_ACTIVE_STATES, RunState
 from portal.experiments.selectors import experiments_visible, run_velocity_series, runs_visible
 from portal.experiments.services import experiment_create, experiment_update
@@ -143,4 +143,4 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
 @login_required
 def run_csv(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
-    return samples_csv_response(run)
+    return samples_csv_response(run, asynchronous=is_asgi(request))

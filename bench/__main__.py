@@ -1,0 +1,106 @@
+"""``make bench``: measure the numbers of DESIGN §6 and write them to docs/performance.md.
+
+Runs on a scratch PostgreSQL database (``<name>_bench`` next to the one in DATABASE_URL),
+created afresh and dropped at the end. Each benchmark compares the system with a baseline
+measured in the same run on the same machine, so the ratios travel between machines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+from urllib.parse import urlsplit, urlunsplit
+
+REPO = Path(__file__).resolve().parent.parent
+REPORT = REPO / "docs" / "performance.md"
+
+
+def _scratch_database() -> tuple[str, str]:
+    url = os.environ.get("DATABASE_URL", "")
+    if not url.startswith(("postgres://", "postgresql://")):
+        sys.exit("make bench needs DATABASE_URL pointing at PostgreSQL")
+    parts = urlsplit(url)
+    name = (parts.path.lstrip("/") or "amazing") + "_bench"
+    return urlunsplit(parts._replace(path="/" + name)), name
+
+
+def _recreate(url: str, name: str) -> None:
+    import psycopg
+
+    admin = urlunsplit(urlsplit(url)._replace(path="/postgres"))
+    with psycopg.connect(admin, autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        conn.execute(f'CREATE DATABASE "{name}"')
+
+
+def _drop(url: str, name: str) -> None:
+    import psycopg
+    from django.db import connections
+
+    connections.close_all()
+    admin = urlunsplit(urlsplit(url)._replace(path="/postgres"))
+    with psycopg.connect(admin, autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
+
+
+def write_section(key: str, body: str) -> None:
+    """Replace (or append) the report section between this benchmark's markers."""
+    begin, end = f"<!-- bench:{key} -->", f"<!-- /bench:{key} -->"
+    text = REPORT.read_text() if REPORT.exists() else "# Performance\n"
+    block = f"{begin}\n{body.rstrip()}\n{end}"
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        text = head + block + rest.split(end, 1)[1]
+    else:
+        text = text.rstrip() + "\n\n" + block + "\n"
+    REPORT.write_text(text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(prog="python -m bench")
+    parser.add_argument("--samples", type=int, default=72_000, help="samples of the long run")
+    parser.add_argument("--no-report", action="store_true", help="print only")
+    args = parser.parse_args()
+
+    url, name = _scratch_database()
+    _recreate(url, name)
+    os.environ["DATABASE_URL"] = url
+    os.environ.setdefault("DJANGO_SETTINGS_MODULE", "portal.settings")
+    os.environ.setdefault("DJANGO_DEBUG", "1")
+    import django
+    from django.core.management import call_command
+
+    django.setup()
+    call_command("migrate", verbosity=0)
+    from bench import telemetry
+
+    stamp = f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {machine()}."
+    try:
+        results = telemetry.run(samples=args.samples)
+    finally:
+        _drop(url, name)
+    print(stamp)
+    print(results)
+    if not args.no_report:
+        write_section("telemetry", f"{results}\n\n{stamp}")
+        print(f"written to {REPORT.relative_to(REPO)}")
+
+
+if __name__ == "__main__":
+    main()
