@@ -1,0 +1,289 @@
+"""Encode and decode wire-protocol frames (docs/protocol.md), checks in the documented order."""
+
+from __future__ import annotations
+
+import struct
+from typing import Final
+
+from basestation.protocol.errors import FrameError
+from basestation.protocol.frames import (
+    ACCEL_LIMIT_MM_S2,
+    COMMAND_FLAGS_DEFINED,
+    COMMAND_FRAME_SIZE,
+    CONFIG_FRAME_SIZE,
+    HEADER_SIZE,
+    LAT_LIMIT_E7,
+    LON_LIMIT_E7,
+    PROTOCOL_VERSION,
+    TELEMETRY_FRAME_SIZE,
+    VELOCITY_LIMIT_MM_S,
+    CommandFlag,
+    CommandFrame,
+    ConfigFrame,
+    Direction,
+    FixQuality,
+    Frame,
+    FrameType,
+    TelemetryFrame,
+    TelemetryStatus,
+)
+
+Buffer = bytes | bytearray | memoryview
+
+_HEADER: Final = struct.Struct("<BBBBBB")  # len, to, from, ctl, version, type
+_COMMAND: Final = struct.Struct("<HHBBH")  # seq, velocity, direction, flags, ttl
+_TELEMETRY: Final = struct.Struct("<HHIHBHiiBBBb")
+_CONFIG: Final = struct.Struct("<HHH")  # seq, max velocity, acceleration
+
+_FRAME_SIZE: Final[dict[int, int]] = {
+    FrameType.COMMAND: COMMAND_FRAME_SIZE,
+    FrameType.TELEMETRY: TELEMETRY_FRAME_SIZE,
+    FrameType.CONFIG: CONFIG_FRAME_SIZE,
+}
+_DIRECTIONS: Final = frozenset(int(d) for d in Direction)
+_FIX_QUALITIES: Final = frozenset(int(q) for q in FixQuality)
+
+assert HEADER_SIZE + _COMMAND.size == COMMAND_FRAME_SIZE
+assert HEADER_SIZE + _TELEMETRY.size == TELEMETRY_FRAME_SIZE
+assert HEADER_SIZE + _CONFIG.size == CONFIG_FRAME_SIZE
+
+
+# --- field checks shared by encoder and decoder ---------------------------------------------
+
+
+def _check_velocity(velocity_mm_s: int, name: str = "velocity_mm_s") -> None:
+    if not 0 <= velocity_mm_s <= VELOCITY_LIMIT_MM_S:
+        raise FrameError("out_of_range", f"{name} {velocity_mm_s} not in 0..{VELOCITY_LIMIT_MM_S}")
+
+
+def _check_direction(direction: int) -> None:
+    if direction not in _DIRECTIONS:
+        raise FrameError("bad_enum", f"direction {direction} is neither 0 (CCW) nor 1 (CW)")
+
+
+def _check_command_flags(flags: int) -> None:
+    if flags & ~COMMAND_FLAGS_DEFINED:
+        raise FrameError("reserved_bits", f"command flags 0x{flags:02x} set reserved bits")
+
+
+def _check_lat_lon(lat_e7: int, lon_e7: int) -> None:
+    if not -LAT_LIMIT_E7 <= lat_e7 <= LAT_LIMIT_E7:
+        raise FrameError("out_of_range", f"lat_e7 {lat_e7} outside ±90°")
+    if not -LON_LIMIT_E7 <= lon_e7 <= LON_LIMIT_E7:
+        raise FrameError("out_of_range", f"lon_e7 {lon_e7} outside ±180°")
+
+
+def _check_fix_quality(fix_quality: int) -> None:
+    if fix_quality not in _FIX_QUALITIES:
+        raise FrameError("bad_enum", f"fix_quality {fix_quality} not one of 0, 1, 2, 4, 5")
+
+
+def _check_accel(accel_mm_s2: int) -> None:
+    if not 1 <= accel_mm_s2 <= ACCEL_LIMIT_MM_S2:
+        raise FrameError("out_of_range", f"accel_mm_s2 {accel_mm_s2} not in 1..{ACCEL_LIMIT_MM_S2}")
+
+
+def _check_width(name: str, value: int, low: int, high: int) -> None:
+    if not low <= value <= high:
+        raise FrameError("out_of_range", f"{name} {value} does not fit in {low}..{high}")
+
+
+def _check_u8(name: str, value: int) -> None:
+    _check_width(name, value, 0, 0xFF)
+
+
+def _check_u16(name: str, value: int) -> None:
+    _check_width(name, value, 0, 0xFFFF)
+
+
+def _header(frame_type: FrameType, size: int, to_node: int, from_node: int) -> bytes:
+    _check_u8("to_node", to_node)
+    _check_u8("from_node", from_node)
+    return _HEADER.pack(size - 1, to_node, from_node, 0, PROTOCOL_VERSION, frame_type)
+
+
+# --- encoders ------------------------------------------------------------------------------
+
+
+def encode_command(frame: CommandFrame) -> bytes:
+    _check_u16("seq", frame.seq)
+    _check_velocity(frame.velocity_mm_s)
+    _check_direction(frame.direction)
+    _check_u8("flags", frame.flags)
+    _check_command_flags(frame.flags)
+    _check_u16("ttl_ms", frame.ttl_ms)
+    header = _header(FrameType.COMMAND, COMMAND_FRAME_SIZE, frame.to_node, frame.from_node)
+    body = _COMMAND.pack(frame.seq, frame.velocity_mm_s, frame.direction, frame.flags, frame.ttl_ms)
+    return header + body
+
+
+def encode_telemetry(frame: TelemetryFrame) -> bytes:
+    _check_u16("seq", frame.seq)
+    _check_u16("echo_seq", frame.echo_seq)
+    _check_width("robot_clock_ms", frame.robot_clock_ms, 0, 0xFFFF_FFFF)
+    _check_u16("velocity_mm_s", frame.velocity_mm_s)
+    _check_direction(frame.direction)
+    _check_u16("battery_10mv", frame.battery_10mv)
+    _check_lat_lon(frame.lat_e7, frame.lon_e7)
+    _check_fix_quality(frame.fix_quality)
+    _check_u8("satellites", frame.satellites)
+    _check_u8("status", frame.status)
+    _check_width("rssi_dbm", frame.rssi_dbm, -128, 127)
+    header = _header(FrameType.TELEMETRY, TELEMETRY_FRAME_SIZE, frame.to_node, frame.from_node)
+    body = _TELEMETRY.pack(
+        frame.seq,
+        frame.echo_seq,
+        frame.robot_clock_ms,
+        frame.velocity_mm_s,
+        frame.direction,
+        frame.battery_10mv,
+        frame.lat_e7,
+        frame.lon_e7,
+        frame.fix_quality,
+        frame.satellites,
+        frame.status,
+        frame.rssi_dbm,
+    )
+    return header + body
+
+
+def encode_config(frame: ConfigFrame) -> bytes:
+    _check_u16("seq", frame.seq)
+    _check_velocity(frame.max_velocity_mm_s, "max_velocity_mm_s")
+    _check_accel(frame.accel_mm_s2)
+    header = _header(FrameType.CONFIG, CONFIG_FRAME_SIZE, frame.to_node, frame.from_node)
+    return header + _CONFIG.pack(frame.seq, frame.max_velocity_mm_s, frame.accel_mm_s2)
+
+
+def encode_frame(frame: Frame) -> bytes:
+    if isinstance(frame, CommandFrame):
+        return encode_command(frame)
+    if isinstance(frame, TelemetryFrame):
+        return encode_telemetry(frame)
+    return encode_config(frame)
+
+
+# --- decoders ------------------------------------------------------------------------------
+
+
+def _decode_header(data: Buffer) -> tuple[FrameType, int, int]:
+    """Check the common header (§3 steps 1 to 6); return the type, ``to`` and ``from``."""
+    raw = bytes(data)
+    if len(raw) < HEADER_SIZE:
+        raise FrameError("too_short", f"{len(raw)} bytes, the header alone is {HEADER_SIZE}")
+    length, to_node, from_node, ctl, version, frame_type = _HEADER.unpack_from(raw)
+    if length != len(raw) - 1:
+        raise FrameError("length_mismatch", f"len byte {length}, {len(raw) - 1} bytes follow it")
+    if ctl != 0:
+        raise FrameError("reserved_bits", f"ctl byte 0x{ctl:02x} is not 0")
+    if version != PROTOCOL_VERSION:
+        raise FrameError("unknown_version", f"version {version}, expected {PROTOCOL_VERSION}")
+    if frame_type not in _FRAME_SIZE:
+        raise FrameError("unknown_type", f"frame type {frame_type}")
+    expected = _FRAME_SIZE[frame_type]
+    if len(raw) != expected:
+        raise FrameError(
+            "size_mismatch",
+            f"{FrameType(frame_type).name.lower()} frame is {expected} bytes, got {len(raw)}",
+        )
+    return FrameType(frame_type), to_node, from_node
+
+
+def _decode_command_body(raw: bytes, to_node: int, from_node: int) -> CommandFrame:
+    seq, velocity_mm_s, direction, flags, ttl_ms = _COMMAND.unpack_from(raw, HEADER_SIZE)
+    _check_velocity(velocity_mm_s)
+    _check_direction(direction)
+    _check_command_flags(flags)
+    return CommandFrame(
+        seq=seq,
+        velocity_mm_s=velocity_mm_s,
+        direction=Direction(direction),
+        flags=CommandFlag(flags),
+        ttl_ms=ttl_ms,
+        to_node=to_node,
+        from_node=from_node,
+    )
+
+
+def _decode_telemetry_body(raw: bytes, to_node: int, from_node: int) -> TelemetryFrame:
+    (
+        seq,
+        echo_seq,
+        robot_clock_ms,
+        velocity_mm_s,
+        direction,
+        battery_10mv,
+        lat_e7,
+        lon_e7,
+        fix_quality,
+        satellites,
+        status,
+        rssi_dbm,
+    ) = _TELEMETRY.unpack_from(raw, HEADER_SIZE)
+    _check_direction(direction)
+    _check_lat_lon(lat_e7, lon_e7)
+    _check_fix_quality(fix_quality)
+    return TelemetryFrame(
+        seq=seq,
+        echo_seq=echo_seq,
+        robot_clock_ms=robot_clock_ms,
+        velocity_mm_s=velocity_mm_s,
+        direction=Direction(direction),
+        battery_10mv=battery_10mv,
+        lat_e7=lat_e7,
+        lon_e7=lon_e7,
+        fix_quality=FixQuality(fix_quality),
+        satellites=satellites,
+        status=TelemetryStatus(status),
+        rssi_dbm=rssi_dbm,
+        to_node=to_node,
+        from_node=from_node,
+    )
+
+
+def _decode_config_body(raw: bytes, to_node: int, from_node: int) -> ConfigFrame:
+    seq, max_velocity_mm_s, accel_mm_s2 = _CONFIG.unpack_from(raw, HEADER_SIZE)
+    _check_velocity(max_velocity_mm_s, "max_velocity_mm_s")
+    _check_accel(accel_mm_s2)
+    return ConfigFrame(
+        seq=seq,
+        max_velocity_mm_s=max_velocity_mm_s,
+        accel_mm_s2=accel_mm_s2,
+        to_node=to_node,
+        from_node=from_node,
+    )
+
+
+def decode_frame(data: Buffer) -> Frame:
+    """Decode any version-1 frame; raise :class:`FrameError` for anything else."""
+    raw = bytes(data)
+    frame_type, to_node, from_node = _decode_header(raw)
+    if frame_type is FrameType.COMMAND:
+        return _decode_command_body(raw, to_node, from_node)
+    if frame_type is FrameType.TELEMETRY:
+        return _decode_telemetry_body(raw, to_node, from_node)
+    return _decode_config_body(raw, to_node, from_node)
+
+
+def decode_command(data: Buffer) -> CommandFrame:
+    """Decode a command frame; a valid frame of another type is rejected as ``unknown_type``."""
+    frame = decode_frame(data)
+    if not isinstance(frame, CommandFrame):
+        raise FrameError("unknown_type", "expected a command frame")
+    return frame
+
+
+def decode_telemetry(data: Buffer) -> TelemetryFrame:
+    """Decode a telemetry frame; a valid frame of another type is rejected as ``unknown_type``."""
+    frame = decode_frame(data)
+    if not isinstance(frame, TelemetryFrame):
+        raise FrameError("unknown_type", "expected a telemetry frame")
+    return frame
+
+
+def decode_config(data: Buffer) -> ConfigFrame:
+    """Decode a config frame; a valid frame of another type is rejected as ``unknown_type``."""
+    frame = decode_frame(data)
+    if not isinstance(frame, ConfigFrame):
+        raise FrameError("unknown_type", "expected a config frame")
+    return frame
