@@ -7,9 +7,24 @@ class ResourceKind(models.TextChoices):
 
 
 class ReservationState(models.TextChoices):
+    REQUESTED = "requested", "awaiting approval"
     CONFIRMED = "confirmed", "confirmed"
+    REJECTED = "rejected", "rejected"
     CANCELLED = "cancelled", "cancelled"
     COMPLETED = "completed", "completed"
 
 
-RESERVATION_ACTIVE_STATES = (ReservationState.CONFIRMED,)
+# A requested reservation holds its slot while an admin decides, so nobody else can take it.
+RESERVATION_ACTIVE_STATES = (ReservationState.REQUESTED, ReservationState.CONFIRMED)
+# What counts against a quota: everything not withdrawn.
+RESERVATION_COUNTED_STATES = (
+    ReservationState.REQUESTED,
+    ReservationState.CONFIRMED,
+    ReservationState.COMPLETED,
+)
+
+
+class QuotaPeriod(models.TextChoices):
+    DAY = "day", "day"
+    WEEK = "week", "week (Monday to Sunday)"
+    MONTH = "month", "calendar month"

@@ -50,7 +50,7 @@ def runs_due_for_collection(*, now: datetime) -> QuerySet[Run]:
 def run_agent_body(run: Run) -> dict[str, Any]:
     """What the agent is asked to run: the program, its window and the robot's limits."""
     reservation = run.reservation
-    resource = reservation.resource
+    resource = run.resource
     return {
         "owner": reservation.owner.get_username(),
         "title": run.title,
@@ -65,7 +65,7 @@ def run_agent_body(run: Run) -> dict[str, Any]:
 
 
 def _load(run_id: int) -> Run:
-    return Run.objects.select_related("reservation__resource", "reservation__owner").get(pk=run_id)
+    return Run.objects.select_related("resource", "reservation__owner").get(pk=run_id)
 
 
 def run_stage(*, run_id: int, now: datetime | None = None) -> None:
@@ -77,6 +77,16 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
     run = _load(run_id)
     if run.state != RunState.SCHEDULED:
         return
+    if run.reservation.state != ReservationState.CONFIRMED and run.end_at > now:
+        return  # awaiting approval: staged once an admin confirms it
+    if run.reservation.state != ReservationState.CONFIRMED:
+        run_transition(
+            run_id=run.pk,
+            from_states=[RunState.SCHEDULED],
+            to_state=RunState.FAILED,
+            reason="the reservation was not approved before it ended",
+        )
+        return
     if run.end_at <= now:
         run_transition(
             run_id=run.pk,
@@ -85,7 +95,7 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
             reason="the base station could not be reached before the reservation ended",
         )
         return
-    client = agent_client_for(run.reservation.resource)
+    client = agent_client_for(run.resource)
     try:
         client.put_run(run.agent_run_id, run_agent_body(run))
     except (AgentConflict, AgentRejected) as exc:
@@ -100,7 +110,7 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
         run_id=run.pk,
         from_states=[RunState.SCHEDULED],
         to_state=RunState.STAGED,
-        reason=f"staged on {run.reservation.resource.name}",
+        reason=f"staged on {run.resource.name}",
     ):
         # Cancelled while we were staging it: withdraw it again.
         run.refresh_from_db(fields=["state"])
@@ -113,7 +123,7 @@ def run_unstage(*, run_id: int) -> None:
     run = _load(run_id)
     if run.state not in (RunState.STAGED, RunState.RUNNING):
         return
-    client = agent_client_for(run.reservation.resource)
+    client = agent_client_for(run.resource)
     # A conflict means it had already ended there; collection records how.
     with contextlib.suppress(AgentConflict):
         client.delete_run(run.agent_run_id)
@@ -131,7 +141,7 @@ def run_collect(*, run_id: int) -> None:
     run = _load(run_id)
     if run.state not in RUN_ACTIVE_STATES:
         return
-    client = agent_client_for(run.reservation.resource)
+    client = agent_client_for(run.resource)
     try:
         # Read the state before the samples: if it is already final, this pull gets them all.
         agent_run = client.get_run(run.agent_run_id)

@@ -1,9 +1,23 @@
 from __future__ import annotations
 
 from django.conf import settings
+from django.contrib.auth.models import Group
 from django.db import models
 
-from bookings.choices import ReservationState, ResourceKind
+from bookings.choices import QuotaPeriod, ReservationState, ResourceKind
+
+
+class ResourceGroup(models.Model):
+    """Resources that quota policies and the calendar treat together (e.g. "north side")."""
+
+    name = models.SlugField(max_length=64, unique=True)
+    description = models.CharField(max_length=200, blank=True)
+
+    class Meta:
+        ordering = ["name"]
+
+    def __str__(self) -> str:
+        return self.name
 
 
 class Resource(models.Model):
@@ -12,13 +26,19 @@ class Resource(models.Model):
     name = models.SlugField(max_length=64, unique=True)
     kind = models.CharField(max_length=8, choices=ResourceKind.choices)
     description = models.CharField(max_length=200, blank=True)
+    groups = models.ManyToManyField(ResourceGroup, blank=True, related_name="resources")
     # Mobile nodes only: where their base-station agent listens, and which configured
     # token (a name in settings.AGENT_TOKENS, never the secret itself) authenticates to it.
     agent_url = models.URLField(blank=True)
     agent_token_name = models.CharField(max_length=64, default="default", blank=True)
     max_velocity_mps = models.FloatField(null=True, blank=True)
     max_accel_mps2 = models.FloatField(null=True, blank=True)
-    enabled = models.BooleanField(default=True)
+    enabled = models.BooleanField(
+        default=True, help_text="Off takes the resource out of service: nothing can be booked."
+    )
+    requires_approval = models.BooleanField(
+        default=False, help_text="Bookings wait for an admin's decision."
+    )
 
     class Meta:
         ordering = ["kind", "name"]
@@ -39,23 +59,51 @@ class Resource(models.Model):
 
 
 class Reservation(models.Model):
-    """A resource held by a user for ``[start_at, end_at)``."""
+    """One or more resources held by a user for ``[start_at, end_at)``."""
 
-    resource = models.ForeignKey(Resource, on_delete=models.PROTECT, related_name="reservations")
     owner = models.ForeignKey(
         settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="reservations"
+    )
+    resources: models.ManyToManyField[Resource, ReservationItem] = models.ManyToManyField(
+        Resource, through="ReservationItem", related_name="reservations"
     )
     start_at = models.DateTimeField()
     end_at = models.DateTimeField()
     state = models.CharField(
         max_length=16, choices=ReservationState.choices, default=ReservationState.CONFIRMED
     )
+    title = models.CharField(max_length=200, blank=True)
+    # Set when an admin booked past a quota rule; the audit log has the same reason.
+    override_reason = models.TextField(blank=True)
+    decided_by = models.ForeignKey(
+        settings.AUTH_USER_MODEL,
+        null=True,
+        blank=True,
+        on_delete=models.SET_NULL,
+        related_name="+",
+    )
+    decided_at = models.DateTimeField(null=True, blank=True)
+    decision_reason = models.TextField(blank=True)
+    cancelled_by = models.ForeignKey(
+        settings.AUTH_USER_MODEL,
+        null=True,
+        blank=True,
+        on_delete=models.SET_NULL,
+        related_name="+",
+    )
+    cancel_reason = models.TextField(blank=True)
+    # A maintenance window declared after the booking overlaps it: shown to owner and admins.
+    conflict = models.TextField(blank=True)
+    reminder_sent_at = models.DateTimeField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 
     class Meta:
         ordering = ["start_at"]
-        indexes = [models.Index(fields=["resource", "start_at", "end_at"])]
+        indexes = [
+            models.Index(fields=["owner", "start_at"]),
+            models.Index(fields=["state", "start_at"]),
+        ]
         constraints = [
             models.CheckConstraint(
                 condition=models.Q(end_at__gt=models.F("start_at")),
@@ -64,4 +112,113 @@ class Reservation(models.Model):
         ]
 
     def __str__(self) -> str:
-        return f"{self.resource} {self.start_at:%Y-%m-%d %H:%M}-{self.end_at:%H:%M}"
+        names = ", ".join(item.resource.name for item in self.items.all())
+        return f"{names} {self.start_at:%Y-%m-%d %H:%M}-{self.end_at:%H:%M}"
+
+    @property
+    def is_active(self) -> bool:
+        return self.state in (ReservationState.REQUESTED, ReservationState.CONFIRMED)
+
+
+class ReservationItem(models.Model):
+    """One resource of a reservation, with the period copied so one index can guard it.
+
+    On PostgreSQL an exclusion constraint (migration 0002) forbids two active items of the
+    same resource with overlapping periods; the services check the same under a lock first,
+    which is the only guard on SQLite.
+    """
+
+    reservation = models.ForeignKey(Reservation, on_delete=models.CASCADE, related_name="items")
+    resource = models.ForeignKey(Resource, on_delete=models.PROTECT, related_name="items")
+    start_at = models.DateTimeField()
+    end_at = models.DateTimeField()
+    active = models.BooleanField(default=True)
+
+    class Meta:
+        indexes = [models.Index(fields=["resource", "start_at", "end_at"])]
+        constraints = [
+            models.UniqueConstraint(
+                fields=["reservation", "resource"], name="reservation_item_unique"
+            ),
+            models.CheckConstraint(
+                condition=models.Q(end_at__gt=models.F("start_at")),
+                name="reservation_item_end_after_start",
+            ),
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.resource} in {self.reservation_id}"
+
+
+class Blackout(models.Model):
+    """A maintenance window: no new bookings of its resources (or of all) during it."""
+
+    resources = models.ManyToManyField(Resource, blank=True, related_name="blackouts")
+    all_resources = models.BooleanField(default=False)
+    start_at = models.DateTimeField()
+    end_at = models.DateTimeField()
+    reason = models.CharField(max_length=200)
+    created_by = models.ForeignKey(
+        settings.AUTH_USER_MODEL, null=True, on_delete=models.SET_NULL, related_name="+"
+    )
+    created_at = models.DateTimeField(auto_now_add=True)
+
+    class Meta:
+        ordering = ["start_at"]
+        constraints = [
+            models.CheckConstraint(
+                condition=models.Q(end_at__gt=models.F("start_at")),
+                name="blackout_end_after_start",
+            ),
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.reason} {self.start_at:%Y-%m-%d %H:%M}"
+
+
+class QuotaPolicy(models.Model):
+    """A limit set by admins. Every field left empty means "no limit of this kind".
+
+    Scope: a policy applies to a booking when each scope field it sets matches — the user,
+    a group of the user, a resource of the booking, or a resource group of one of them.
+    """
+
+    name = models.CharField(max_length=100)
+    user = models.ForeignKey(
+        settings.AUTH_USER_MODEL, null=True, blank=True, on_delete=models.CASCADE, related_name="+"
+    )
+    group = models.ForeignKey(Group, null=True, blank=True, on_delete=models.CASCADE)
+    resource = models.ForeignKey(Resource, null=True, blank=True, on_delete=models.CASCADE)
+    resource_group = models.ForeignKey(
+        ResourceGroup, null=True, blank=True, on_delete=models.CASCADE
+    )
+    period = models.CharField(max_length=8, choices=QuotaPeriod.choices, blank=True)
+    max_hours = models.FloatField(null=True, blank=True)
+    max_count = models.PositiveIntegerField(null=True, blank=True)
+    max_length_s = models.PositiveIntegerField(null=True, blank=True)
+    min_notice_s = models.PositiveIntegerField(null=True, blank=True)
+    max_advance_s = models.PositiveIntegerField(null=True, blank=True)
+    max_future = models.PositiveIntegerField(
+        null=True, blank=True, help_text="Most upcoming reservations held at once."
+    )
+    active = models.BooleanField(default=True)
+    created_at = models.DateTimeField(auto_now_add=True)
+    updated_at = models.DateTimeField(auto_now=True)
+
+    class Meta:
+        ordering = ["name"]
+        verbose_name_plural = "quota policies"
+        constraints = [
+            models.CheckConstraint(
+                condition=(models.Q(max_hours__isnull=True) & models.Q(max_count__isnull=True))
+                | ~models.Q(period=""),
+                name="quota_period_needed_for_hours_or_count",
+            ),
+            models.CheckConstraint(
+                condition=models.Q(max_hours__isnull=True) | models.Q(max_hours__gt=0),
+                name="quota_max_hours_positive",
+            ),
+        ]
+
+    def __str__(self) -> str:
+        return self.name

@@ -1,11 +1,12 @@
 from __future__ import annotations
 
+from collections.abc import Iterable
 from datetime import datetime
 
-from django.db.models import Max, QuerySet
+from django.db.models import Max, Q, QuerySet
 
-from bookings.choices import RESERVATION_ACTIVE_STATES, ResourceKind
-from bookings.models import Reservation, Resource
+from bookings.choices import ResourceKind
+from bookings.models import Blackout, Reservation, ReservationItem, Resource
 from portal.accounts.models import User
 
 
@@ -20,18 +21,59 @@ def mobile_max_velocity_mps() -> float | None:
     )["v"]
 
 
-def reservations_overlapping(
-    *, resource: Resource, start_at: datetime, end_at: datetime
-) -> QuerySet[Reservation]:
-    """Active reservations of ``resource`` that share any instant with ``[start_at, end_at)``."""
-    return Reservation.objects.filter(
-        resource=resource,
-        state__in=RESERVATION_ACTIVE_STATES,
-        start_at__lt=end_at,
-        end_at__gt=start_at,
+def items_overlapping(
+    *,
+    resources: Iterable[Resource],
+    start_at: datetime,
+    end_at: datetime,
+    exclude_reservation_id: int | None = None,
+) -> QuerySet[ReservationItem]:
+    """Active holdings of any of ``resources`` that share an instant with ``[start_at, end_at)``."""
+    qs = ReservationItem.objects.filter(
+        resource__in=list(resources), active=True, start_at__lt=end_at, end_at__gt=start_at
+    ).select_related("resource", "reservation")
+    if exclude_reservation_id is not None:
+        qs = qs.exclude(reservation_id=exclude_reservation_id)
+    return qs
+
+
+def blackouts_overlapping(
+    *, resources: Iterable[Resource], start_at: datetime, end_at: datetime
+) -> QuerySet[Blackout]:
+    return (
+        Blackout.objects.filter(start_at__lt=end_at, end_at__gt=start_at)
+        .filter(Q(all_resources=True) | Q(resources__in=list(resources)))
+        .distinct()
     )
 
 
 def reservations_visible(*, user: User) -> QuerySet[Reservation]:
-    qs = Reservation.objects.select_related("resource", "owner", "run")
+    qs = Reservation.objects.select_related("owner", "run").prefetch_related("items__resource")
     return qs if user.is_testbed_admin else qs.filter(owner=user)
+
+
+def resource_free_intervals(
+    *, resource: Resource, start_at: datetime, end_at: datetime
+) -> list[tuple[datetime, datetime]]:
+    """The parts of ``[start_at, end_at)`` in which ``resource`` could be booked."""
+    busy = [
+        (max(s, start_at), min(e, end_at))
+        for s, e in items_overlapping(resources=[resource], start_at=start_at, end_at=end_at)
+        .order_by("start_at")
+        .values_list("start_at", "end_at")
+    ]
+    busy += [
+        (max(b.start_at, start_at), min(b.end_at, end_at))
+        for b in blackouts_overlapping(resources=[resource], start_at=start_at, end_at=end_at)
+    ]
+    if not resource.enabled:
+        busy = [(start_at, end_at)]
+    free: list[tuple[datetime, datetime]] = []
+    cursor = start_at
+    for s, e in sorted(busy):
+        if s > cursor:
+            free.append((cursor, s))
+        cursor = max(cursor, e)
+    if cursor < end_at:
+        free.append((cursor, end_at))
+    return free

@@ -9,7 +9,7 @@ from django.conf import settings
 from django.utils import timezone
 
 from basestation.client import AgentError
-from bookings import dispatch
+from bookings import dispatch, notifications, reminders
 
 logger = logging.getLogger(__name__)
 
@@ -62,3 +62,24 @@ def run_collect(run_id: int) -> None:
         dispatch.run_collect(run_id=run_id)
     except AgentError as exc:
         logger.warning("run %s: collection deferred: %s", run_id, exc)
+
+
+@shared_task(
+    bind=True,
+    time_limit=60,
+    soft_time_limit=50,
+    autoretry_for=(OSError,),
+    retry_backoff=True,
+    max_retries=MAX_RETRIES,
+)
+def reservation_notify(self: Task, kind: str, reservation_id: int, **extra: int) -> None:
+    # Mail servers fail transiently (OSError covers SMTP connection errors); retry those only.
+    notifications.reservation_notify(kind, reservation_id, **extra)
+
+
+@shared_task(time_limit=60, soft_time_limit=50)
+def reservations_remind() -> None:
+    """E-mail owners whose confirmed reservations start within the reminder lead, once."""
+    for reservation_id in reminders.reservations_due_for_reminder(now=timezone.now()):
+        if reminders.reminder_claim(reservation_id=reservation_id):
+            reservation_notify.delay("reminder", reservation_id)

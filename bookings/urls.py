@@ -4,6 +4,22 @@ from bookings import apis
 
 urlpatterns = [
     path("resources/", apis.ResourceListApi.as_view(), name="api-resources"),
+    path(
+        "resources/<slug:name>/availability/",
+        apis.AvailabilityApi.as_view(),
+        name="api-resource-availability",
+    ),
     path("reservations/", apis.ReservationListApi.as_view(), name="api-reservations"),
+    path("reservations/busy/", apis.BusyApi.as_view(), name="api-reservations-busy"),
     path("reservations/<int:pk>/", apis.ReservationDetailApi.as_view(), name="api-reservation"),
+    path(
+        "reservations/<int:pk>/decision/",
+        apis.ReservationDecisionApi.as_view(),
+        name="api-reservation-decision",
+    ),
+    path("quota/", apis.QuotaApi.as_view(), name="api-quota"),
+    path("quota/check/", apis.QuotaCheckApi.as_view(), name="api-quota-check"),
+    path("quota-policies/", apis.QuotaPolicyListApi.as_view(), name="api-quota-policies"),
+    path("quota-policies/<int:pk>/", apis.QuotaPolicyDetailApi.as_view(), name="api-quota-policy"),
+    path("blackouts/", apis.BlackoutListApi.as_view(), name="api-blackouts"),
 ]

@@ -1,13 +1,11 @@
 from __future__ import annotations
 
-from datetime import timedelta
 from typing import Any
 
 import factory
-from django.utils import timezone
 
 from bookings.choices import ResourceKind
-from bookings.models import Reservation, Resource
+from bookings.models import Resource
 from portal.accounts.models import User
 from portal.experiments.models import Experiment
 
@@ -61,13 +59,3 @@ class ExperimentFactory(factory.django.DjangoModelFactory):
             {"velocity_mps": 0.8, "direction": "ccw", "duration_s": 3.0},
         ]
     )
-
-
-class ReservationFactory(factory.django.DjangoModelFactory):
-    class Meta:
-        model = Reservation
-
-    resource = factory.SubFactory(MobileResourceFactory)
-    owner = factory.SubFactory(UserFactory)
-    start_at = factory.LazyFunction(lambda: timezone.now() + timedelta(hours=1))
-    end_at = factory.LazyAttribute(lambda r: r.start_at + timedelta(minutes=30))

@@ -88,7 +88,7 @@ class RunEventOutput(serializers.Serializer):
 
 class RunOutput(serializers.ModelSerializer):
     reservation = serializers.IntegerField(source="reservation_id")
-    resource = serializers.CharField(source="reservation.resource.name")
+    resource = serializers.CharField(source="resource.name")
     owner = serializers.CharField(source="reservation.owner.username")
     segments = SegmentSerializer(many=True)
     sample_count = serializers.SerializerMethodField()

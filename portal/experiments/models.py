@@ -44,6 +44,8 @@ class Run(models.Model):
     reservation = models.OneToOneField(
         "bookings.Reservation", on_delete=models.CASCADE, related_name="run"
     )
+    # The mobile node of the reservation that drives this run.
+    resource = models.ForeignKey("bookings.Resource", on_delete=models.PROTECT, related_name="runs")
     experiment = models.ForeignKey(Experiment, on_delete=models.PROTECT, related_name="runs")
     title = models.CharField(max_length=200)
     segments = models.JSONField()

@@ -19,7 +19,7 @@ def experiments_visible(*, user: User) -> QuerySet[Experiment]:
 
 
 def runs_visible(*, user: User) -> QuerySet[Run]:
-    qs = Run.objects.select_related("reservation", "reservation__owner", "reservation__resource")
+    qs = Run.objects.select_related("reservation", "reservation__owner", "resource")
     return qs if user.is_testbed_admin else qs.filter(reservation__owner=user)
 
 

@@ -227,10 +227,11 @@ def run_sample_stats(*, run: Run) -> dict[str, int]:
     return {"count": stats["count"] or 0, "last_seq": stats["last_seq"] or 0}
 
 
-def run_create(*, reservation: Any, experiment: Experiment) -> Run:
-    """The run of ``experiment`` in a just-made reservation (state ``scheduled``)."""
+def run_create(*, reservation: Any, resource: Any, experiment: Experiment) -> Run:
+    """The run of ``experiment`` on ``resource`` in a just-made reservation (``scheduled``)."""
     run = Run(
         reservation=reservation,
+        resource=resource,
         experiment=experiment,
         title=experiment.title,
         segments=experiment.segments,
@@ -238,7 +239,7 @@ def run_create(*, reservation: Any, experiment: Experiment) -> Run:
         end_at=reservation.end_at,
         state=RunState.SCHEDULED,
     )
-    run.full_clean(exclude=["reservation"])
+    run.full_clean(exclude=["reservation", "resource"])
     run.save()
     RunEvent.objects.create(run=run, from_state="", to_state=RunState.SCHEDULED, reason="booked")
     return run

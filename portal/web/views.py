@@ -10,6 +10,7 @@ from django.utils import timezone
 
 from bookings.selectors import reservations_visible
 from bookings.services import reservation_cancel, reservation_create
+from portal.audit.services import client_ip
 from portal.errors import DomainError
 from portal.experiments.apis import is_asgi, samples_csv_response
 from portal.experiments.choices import RUN_ACTIVE_STATES, RunState
@@ -81,7 +82,9 @@ def book(request: HttpRequest) -> HttpResponse:
         form = BookingForm(request.POST, user=user)
         if form.is_valid():
             try:
-                reservation = reservation_create(owner=user, **form.cleaned_data)
+                reservation = reservation_create(
+                    owner=user, ip=client_ip(request), **form.cleaned_data
+                )
             except DomainError as exc:
                 _form_error(form, exc)
             else:
@@ -101,7 +104,12 @@ def reservation_cancel_view(request: HttpRequest, pk: int) -> HttpResponse:
     reservation = get_object_or_404(reservations_visible(user=_user(request)), pk=pk)
     if request.method == "POST":
         try:
-            reservation_cancel(reservation=reservation, by=_user(request))
+            reservation_cancel(
+                reservation=reservation,
+                by=_user(request),
+                reason=request.POST.get("reason", ""),
+                ip=client_ip(request),
+            )
         except DomainError as exc:
             messages.error(request, exc.message)
         else:

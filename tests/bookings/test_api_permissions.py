@@ -67,7 +67,9 @@ def test_list_endpoints_show_only_what_the_user_may_see(
 @pytest.mark.parametrize("who", ["anonymous", "other", "owner", "admin"])
 def test_cancel_by_role(who, booked, owner, other, admin_user, client_for):
     user = {"anonymous": None, "owner": owner, "other": other, "admin": admin_user}[who]
-    response = client_for(user).delete(f"/api/v1/reservations/{booked.pk}/")
+    response = client_for(user).delete(
+        f"/api/v1/reservations/{booked.pk}/", {"reason": "roof inspection"}, format="json"
+    )
     assert response.status_code == {"anonymous": 403, "other": 404, "owner": 200, "admin": 200}[who]
     booked.refresh_from_db()
     assert booked.state == ("cancelled" if who in ("owner", "admin") else "confirmed")

@@ -156,7 +156,9 @@ def test_only_owner_or_admin_cancels(owner, other, admin_user, mobile, experimen
     )
     with pytest.raises(NotAllowed):
         reservation_cancel(reservation=reservation, by=other)
-    reservation_cancel(reservation=reservation, by=admin_user)
+    with pytest.raises(InvalidInput, match="Say why"):
+        reservation_cancel(reservation=reservation, by=admin_user)
+    reservation_cancel(reservation=reservation, by=admin_user, reason="roof inspection")
     reservation.refresh_from_db()
     assert reservation.state == ReservationState.CANCELLED
     with pytest.raises(Conflict, match="already cancelled"):

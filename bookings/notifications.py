@@ -1,0 +1,79 @@
+"""E-mails about reservations: what happened, to whom, in the testbed's words."""
+
+from __future__ import annotations
+
+import logging
+
+from django.conf import settings
+from django.core.mail import send_mail
+from django.utils import timezone
+
+from bookings.models import Blackout, Reservation
+from portal.accounts.models import User
+
+logger = logging.getLogger(__name__)
+
+SUBJECTS = {
+    "confirmed": "Booking confirmed: {what}",
+    "requested": "Booking request received: {what}",
+    "approved": "Booking approved: {what}",
+    "rejected": "Booking request rejected: {what}",
+    "cancelled_by_admin": "Your booking was cancelled by an admin: {what}",
+    "blackout_conflict": "Maintenance overlaps a booking: {what}",
+    "reminder": "Reminder: {what} starts soon",
+}
+
+
+def _describe(reservation: Reservation) -> str:
+    names = ", ".join(item.resource.name for item in reservation.items.select_related("resource"))
+    start = timezone.localtime(reservation.start_at)
+    end = timezone.localtime(reservation.end_at)
+    return f"{names} on {start:%Y-%m-%d %H:%M}–{end:%H:%M} ({settings.TIME_ZONE})"
+
+
+def reservation_message(
+    kind: str, reservation: Reservation, *, blackout: Blackout | None = None
+) -> tuple[str, str]:
+    what = _describe(reservation)
+    lines = [f"Hello {reservation.owner.get_username()},", ""]
+    if kind == "confirmed":
+        lines.append(f"your booking of {what} is confirmed.")
+    elif kind == "requested":
+        lines.append(f"your booking of {what} waits for an admin's approval; you will be told.")
+    elif kind == "approved":
+        lines.append(f"your booking of {what} was approved.")
+    elif kind == "rejected":
+        lines.append(f"your booking request for {what} was rejected: {reservation.decision_reason}")
+    elif kind == "cancelled_by_admin":
+        lines.append(f"an admin cancelled your booking of {what}: {reservation.cancel_reason}")
+    elif kind == "blackout_conflict" and blackout is not None:
+        lines.append(
+            f"a maintenance window, “{blackout.reason}”, overlaps your booking of {what}. "
+            "An admin will contact you; you may also move or cancel the booking."
+        )
+    elif kind == "reminder":
+        lines.append(f"your booking of {what} starts soon.")
+    if reservation.title:
+        lines += ["", f"Experiment: {reservation.title}"]
+    lines += ["", "— AMazING testbed"]
+    return SUBJECTS[kind].format(what=what), "\n".join(lines)
+
+
+def reservation_notify(kind: str, reservation_id: int, *, blackout_id: int | None = None) -> int:
+    """Send the e-mail of ``kind``; returns how many were sent."""
+    reservation = Reservation.objects.select_related("owner").get(pk=reservation_id)
+    blackout = Blackout.objects.filter(pk=blackout_id).first() if blackout_id else None
+    subject, body = reservation_message(kind, reservation, blackout=blackout)
+    recipients = [reservation.owner.email] if reservation.owner.email else []
+    if kind in ("blackout_conflict", "requested"):
+        # Admins learn of pending requests and of bookings a maintenance window hits.
+        recipients += list(
+            User.objects.filter(is_staff=True, is_active=True)
+            .exclude(email="")
+            .values_list("email", flat=True)
+        )
+    recipients = sorted(set(recipients))
+    if not recipients:
+        logger.warning("reservation %s: no address to send %r to", reservation_id, kind)
+        return 0
+    return send_mail(subject, body, settings.DEFAULT_FROM_EMAIL, recipients)
