@@ -64,7 +64,7 @@ def test_a_resource_needing_approval_holds_the_slot_until_an_admin_decides(
             resource=mobile,
             start_at=start,
             end_at=end,
-            experiment=__import__("tests.factories").factories.ExperimentFactory(owner=other),
+            experiment=ExperimentFactory(owner=other),
         )
     with pytest.raises(NotAllowed):
         reservation_decide(reservation=reservation, by=other, approve=True)
