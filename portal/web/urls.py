@@ -11,4 +11,11 @@ urlpatterns = [
     path("runs/<int:pk>/", views.run_page, name="run"),
     path("runs/<int:pk>/data.json", views.run_data, name="run-data"),
     path("runs/<int:pk>/samples.csv", views.run_csv, name="run-csv"),
+    path("calendar/", views.calendar_page, name="calendar"),
+    path("calendar/events.json", views.calendar_events, name="calendar-events"),
+    path("calendar/feeds/", views.calendar_feeds, name="calendar-feeds"),
+    path("calendar/feed/<str:token>.ics", views.ical_personal, name="ical-personal"),
+    path("calendar/feed/<str:token>/<slug:name>.ics", views.ical_resource, name="ical-resource"),
+    path("approvals/", views.approvals, name="approvals"),
+    path("usage/", views.usage_report, name="usage"),
 ]

@@ -1,15 +1,35 @@
 from __future__ import annotations
 
+import csv
+from collections.abc import Callable
+from datetime import date, datetime, time, timedelta
+from functools import wraps
 from typing import Any
+from zoneinfo import ZoneInfo
 
+from django.conf import settings
 from django.contrib import messages
 from django.contrib.auth.decorators import login_required
-from django.http import HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
+from django.core.exceptions import BadRequest, PermissionDenied
+from django.http import Http404, HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
 from django.shortcuts import get_object_or_404, redirect, render
+from django.urls import reverse
 from django.utils import timezone
+from django.utils.dateparse import parse_datetime
 
-from bookings.selectors import reservations_visible
-from bookings.services import reservation_cancel, reservation_create
+from bookings.calendar import (
+    calendar_entries,
+    calendar_feed_for,
+    calendar_feed_renew,
+    ical_document,
+)
+from bookings.choices import ReservationState
+from bookings.models import CalendarFeed, Reservation, Resource
+from bookings.quotas import quota_summary
+from bookings.reports import GROUPINGS, usage_hours
+from bookings.selectors import reservations_visible, resources_bookable
+from bookings.services import reservation_cancel, reservation_create, reservation_decide
+from portal.accounts.models import User
 from portal.audit.services import client_ip
 from portal.errors import DomainError
 from portal.experiments.apis import is_asgi, samples_csv_response
@@ -21,6 +41,19 @@ from portal.web.forms import BookingForm, ExperimentForm
 
 def _user(request: HttpRequest) -> Any:
     return request.user
+
+
+def admin_required(view: Callable[..., HttpResponse]) -> Callable[..., HttpResponse]:
+    """Anonymous visitors go to the login page; logged-in non-admins get 403."""
+
+    @wraps(view)
+    @login_required
+    def wrapper(request: HttpRequest, *args: Any, **kwargs: Any) -> HttpResponse:
+        if not _user(request).is_testbed_admin:
+            raise PermissionDenied("This page is for the testbed's admins.")
+        return view(request, *args, **kwargs)
+
+    return wrapper
 
 
 def _form_error(form: Any, exc: DomainError) -> None:
@@ -152,3 +185,182 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
 def run_csv(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
     return samples_csv_response(run, asynchronous=is_asgi(request))
+
+
+# --- Calendar, feeds, approvals, usage ---------------------------------------------------
+
+
+@login_required
+def calendar_page(request: HttpRequest) -> HttpResponse:
+    user = _user(request)
+    return render(
+        request,
+        "web/calendar.html",
+        {
+            "resources": resources_bookable(),
+            "experiments": experiments_visible(user=user).filter(owner=user),
+            "quota": quota_summary(user=user, now=timezone.now()),
+        },
+    )
+
+
+def _range(request: HttpRequest) -> tuple[datetime, datetime]:
+    try:
+        start = parse_datetime(request.GET.get("start", ""))
+        end = parse_datetime(request.GET.get("end", ""))
+    except ValueError:
+        start = end = None
+    if start is None or end is None or end <= start or end - start > timedelta(days=62):
+        raise BadRequest("Give start and end (ISO 8601), at most 62 days apart.")
+    if timezone.is_naive(start):
+        start = timezone.make_aware(start)
+    if timezone.is_naive(end):
+        end = timezone.make_aware(end)
+    return start, end
+
+
+@login_required
+def calendar_events(request: HttpRequest) -> JsonResponse:
+    """Events for FullCalendar: own bookings in full, others' as busy, maintenance windows."""
+    start, end = _range(request)
+    resource = None
+    if request.GET.get("resource"):
+        resource = get_object_or_404(Resource, name=request.GET["resource"])
+    colours = {"own": "#1e6fb8", "other": "#7a5195", "busy": "#8a8f98", "blackout": "#c62828"}
+    events = []
+    for e in calendar_entries(
+        viewer=_user(request), start_at=start, end_at=end, resource=resource, now=timezone.now()
+    ):
+        event: dict[str, Any] = {
+            "id": e.uid,
+            "title": e.title,
+            "start": e.start_at.isoformat(),
+            "end": e.end_at.isoformat(),
+            "editable": e.editable,
+            "color": colours[e.kind],
+            "extendedProps": {
+                "kind": e.kind,
+                "reservation": e.reservation_id,
+                "state": e.state,
+                "resources": list(e.resources),
+                "url": e.url,
+            },
+        }
+        if e.kind == "blackout":
+            event["display"] = "background"
+        events.append(event)
+    return JsonResponse(events, safe=False)
+
+
+@login_required
+def calendar_feeds(request: HttpRequest) -> HttpResponse:
+    user = _user(request)
+    if request.method == "POST":
+        calendar_feed_renew(user=user)
+        messages.success(request, "New feed addresses made; the old ones no longer work.")
+        return redirect("calendar-feeds")
+    feed = calendar_feed_for(user)
+    base = request.build_absolute_uri("/")[:-1]
+    return render(
+        request,
+        "web/feeds.html",
+        {
+            "personal": base + reverse("ical-personal", args=[feed.token]),
+            "per_resource": [
+                (r.name, base + reverse("ical-resource", args=[feed.token, r.name]))
+                for r in resources_bookable()
+            ],
+        },
+    )
+
+
+def _feed_user(token: str) -> User:
+    feed = CalendarFeed.objects.filter(token=token).select_related("user").first()
+    if feed is None or not feed.user.is_active:
+        raise Http404("No such feed (it may have been renewed).")
+    return feed.user
+
+
+def _ical_response(entries: list[Any], name: str) -> HttpResponse:
+    body = ical_document(entries, name=name, stamp=timezone.now())
+    response = HttpResponse(body, content_type="text/calendar; charset=utf-8")
+    response["Cache-Control"] = "private, max-age=300"
+    return response
+
+
+FEED_PAST = timedelta(days=31)
+FEED_FUTURE = timedelta(days=366)
+
+
+def ical_personal(request: HttpRequest, token: str) -> HttpResponse:
+    user = _feed_user(token)
+    now = timezone.now()
+    entries = calendar_entries(
+        viewer=user, start_at=now - FEED_PAST, end_at=now + FEED_FUTURE, now=now, only_own=True
+    )
+    return _ical_response(entries, f"AMazING: {user.get_username()}")
+
+
+def ical_resource(request: HttpRequest, token: str, name: str) -> HttpResponse:
+    user = _feed_user(token)
+    resource = get_object_or_404(Resource, name=name)
+    now = timezone.now()
+    entries = calendar_entries(
+        viewer=user, start_at=now - FEED_PAST, end_at=now + FEED_FUTURE, resource=resource, now=now
+    )
+    return _ical_response(entries, f"AMazING: {resource.name}")
+
+
+@admin_required
+def approvals(request: HttpRequest) -> HttpResponse:
+    if request.method == "POST":
+        reservation = get_object_or_404(Reservation, pk=request.POST.get("reservation"))
+        try:
+            reservation_decide(
+                reservation=reservation,
+                by=_user(request),
+                approve=request.POST.get("decision") == "approve",
+                reason=request.POST.get("reason", ""),
+                ip=client_ip(request),
+            )
+        except DomainError as exc:
+            messages.error(request, exc.message)
+        else:
+            messages.success(request, f"Decision recorded for reservation {reservation.pk}.")
+        return redirect("approvals")
+    pending = (
+        Reservation.objects.filter(state=ReservationState.REQUESTED)
+        .select_related("owner")
+        .prefetch_related("items__resource")
+        .order_by("start_at")
+    )
+    return render(request, "web/approvals.html", {"pending": pending})
+
+
+@admin_required
+def usage_report(request: HttpRequest) -> HttpResponse:
+    zone = ZoneInfo(settings.TIME_ZONE)
+    today = timezone.localdate()
+    try:
+        first = date.fromisoformat(request.GET.get("from") or today.replace(day=1).isoformat())
+        last = date.fromisoformat(request.GET.get("to") or today.isoformat())
+    except ValueError as exc:
+        raise BadRequest("Dates are YYYY-MM-DD.") from exc
+    by = request.GET.get("by", "user")
+    if by not in GROUPINGS or last < first:
+        raise BadRequest("Group by user, group or resource; 'to' not before 'from'.")
+    start = datetime.combine(first, time(0), tzinfo=zone)
+    end = datetime.combine(last + timedelta(days=1), time(0), tzinfo=zone)
+    rows = usage_hours(start_at=start, end_at=end, by=by)
+    if request.GET.get("format") == "csv":
+        response = HttpResponse(content_type="text/csv; charset=utf-8")
+        response["Content-Disposition"] = f'attachment; filename="usage-{by}-{first}-{last}.csv"'
+        writer = csv.writer(response)
+        writer.writerow([by, "hours", "reservations"])
+        writer.writerows(rows)
+        return response
+    return render(
+        request,
+        "web/usage.html",
+        {"rows": rows, "by": by, "first": first, "last": last, "groupings": GROUPINGS},
+    )

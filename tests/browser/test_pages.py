@@ -2,53 +2,17 @@
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterator
 from datetime import timedelta
 from pathlib import Path
 
 import pytest
 from django.utils import timezone
-from playwright.sync_api import Browser, Page, expect, sync_playwright
+from playwright.sync_api import Page, expect
 
+from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
-
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-SCREENSHOTS = Path(
-    os.environ.get("SCREENSHOT_DIR", Path(__file__).resolve().parents[2] / "var" / "screenshots")
-)
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    assert Path(CHROMIUM).exists(), "Chromium is missing: `make test` installs it (apt chromium)"
-    # Playwright's sync API runs an event loop in this thread; the test's own ORM calls are
-    # synchronous and safe, which Django cannot tell.
-    os.environ["DJANGO_ALLOW_ASYNC_UNSAFE"] = "true"
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield browser
-        browser.close()
-
-
-def _login(page: Page, web: str, username: str, password: str) -> None:
-    page.goto(f"{web}/")
-    expect(page).to_have_url(f"{web}/accounts/login/?next=/")
-    page.get_by_label("Username or email").fill(username)
-    page.get_by_label("Password").fill(password)
-    page.get_by_role("button", name="Log in").click()
-    expect(page.get_by_role("heading", name=f"Hello, {username}")).to_be_visible()
 
 
 def _no_horizontal_scroll(page: Page) -> bool:
@@ -68,7 +32,7 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.on("response", lambda r: r.status >= 400 and errors.append(f"{r.status} {r.url}"))
 
-    _login(page, web, "dana", "correct horse battery")
+    login(page, web, "dana", "correct horse battery")
     page.get_by_role("link", name="New experiment").first.click()
     page.get_by_label("Title").fill("browser lap")
     # Three rows are offered; add a fourth with the button, fill two, leave the rest empty.
@@ -123,8 +87,8 @@ def test_pages_fit_a_phone_and_a_laptop(browser, live_server, viewport):
     page = context.new_page()
     failed: list[str] = []
     page.on("response", lambda r: r.status >= 400 and failed.append(f"{r.status} {r.url}"))
-    _login(page, live_server.url, "eve", "correct horse battery")
-    for path in ("/", "/experiments/new/", "/book/"):
+    login(page, live_server.url, "eve", "correct horse battery")
+    for path in ("/", "/experiments/new/", "/book/", "/calendar/", "/calendar/feeds/"):
         page.goto(f"{live_server.url}{path}")
         assert page.evaluate("getComputedStyle(document.body).fontFamily") != "", path
         assert _no_horizontal_scroll(page), f"{path} scrolls sideways at {viewport}"

@@ -1,0 +1,178 @@
+// The booking calendar: FullCalendar in the testbed's time zone, talking to the REST API.
+(function () {
+  "use strict";
+  const el = document.getElementById("calendar");
+  if (!el || typeof FullCalendar === "undefined") return;
+  const zone = el.dataset.zone;
+  const DateTime = luxon.DateTime;
+  const csrf = document.querySelector("[name=csrfmiddlewaretoken]").value;
+  const filter = document.getElementById("resource-filter");
+  const dialog = document.getElementById("booking-dialog");
+  const form = document.getElementById("booking-form");
+  const feedback = document.getElementById("booking-feedback");
+  const eventDialog = document.getElementById("event-dialog");
+  let selected = null;
+
+  async function api(method, url, body, extraHeaders) {
+    const response = await fetch(url, {
+      method,
+      headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" }, extraHeaders || {}),
+      body: body === undefined ? undefined : JSON.stringify(body),
+      credentials: "same-origin",
+    });
+    let data = null;
+    try { data = await response.json(); } catch (e) { data = null; }
+    return { ok: response.ok, status: response.status, data };
+  }
+
+  function explain(data) {
+    if (!data) return "The server did not answer clearly; try again.";
+    const parts = [data.detail || ""];
+    if (data.fields) {
+      for (const [field, messages] of Object.entries(data.fields)) {
+        for (const m of [].concat(messages)) if (m && m !== data.detail) parts.push(field === "quota" ? m : `${field}: ${m}`);
+      }
+    }
+    return parts.filter(Boolean).join(" ");
+  }
+
+  // datetime-local values are wall-clock times in the testbed's zone.
+  const toLocalInput = (date) => DateTime.fromJSDate(date, { zone }).toFormat("yyyy-LL-dd'T'HH:mm");
+  const fromLocalInput = (value) => DateTime.fromISO(value, { zone }).toISO();
+
+  function bookingBody() {
+    const resources = Array.from(form.resources.selectedOptions).map((o) => o.value);
+    const body = { resources, start_at: fromLocalInput(form.start.value), end_at: fromLocalInput(form.end.value) };
+    if (form.experiment.value) body.experiment = Number(form.experiment.value);
+    if (form.title.value) body.title = form.title.value;
+    return body;
+  }
+
+  let checkTimer = null;
+  async function liveCheck() {
+    const body = bookingBody();
+    if (!body.resources.length || !body.start_at || !body.end_at) {
+      feedback.textContent = "Choose at least one resource.";
+      feedback.className = "";
+      return;
+    }
+    const result = await api("POST", "/api/v1/quota/check/", { resources: body.resources, start_at: body.start_at, end_at: body.end_at });
+    if (!result.ok) { feedback.textContent = explain(result.data); feedback.className = "error"; return; }
+    const d = result.data;
+    const problems = [].concat(d.conflicts, d.blackouts.map((b) => "Maintenance: " + b), d.quota);
+    feedback.textContent = d.fits ? "Free, and within your quota." : problems.join(" ");
+    feedback.className = d.fits ? "ok" : "error";
+  }
+  form.addEventListener("change", () => { clearTimeout(checkTimer); checkTimer = setTimeout(liveCheck, 150); });
+
+  function openBooking(start, end) {
+    selected = { start, end };
+    form.reset();
+    const shown = filter.value;
+    for (const option of form.resources.options) option.selected = shown ? option.value === shown : false;
+    form.start.value = toLocalInput(start);
+    form.end.value = toLocalInput(end);
+    feedback.textContent = "";
+    dialog.showModal();
+    liveCheck();
+  }
+
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const button = document.getElementById("booking-confirm");
+    button.setAttribute("aria-busy", "true");
+    button.disabled = true;
+    const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
+    const result = await api("POST", "/api/v1/reservations/", bookingBody(), { "X-Idempotency-Key": key });
+    button.removeAttribute("aria-busy");
+    button.disabled = false;
+    if (result.ok) {
+      dialog.close();
+      calendar.refetchEvents();
+      flash(result.data.state === "requested" ? "Requested: an admin will confirm it." : "Booked.");
+    } else {
+      feedback.textContent = explain(result.data);
+      feedback.className = "error";
+    }
+  });
+  document.getElementById("booking-cancel").addEventListener("click", () => { dialog.close(); calendar.unselect(); });
+
+  function flash(text) {
+    let box = document.getElementById("calendar-flash");
+    if (!box) {
+      box = document.createElement("p");
+      box.id = "calendar-flash";
+      box.className = "flash";
+      box.setAttribute("role", "status");
+      el.parentNode.insertBefore(box, el);
+    }
+    box.textContent = text;
+  }
+
+  async function move(info) {
+    const id = info.event.extendedProps.reservation;
+    const result = await api("PATCH", `/api/v1/reservations/${id}/`, { start_at: info.event.start.toISOString(), end_at: info.event.end.toISOString() });
+    if (!result.ok) { info.revert(); flash("Not moved: " + explain(result.data)); } else { flash("Moved."); calendar.refetchEvents(); }
+  }
+
+  let current = null;
+  function showEvent(info) {
+    const props = info.event.extendedProps;
+    if (props.kind !== "own" && props.kind !== "other") return;
+    current = info.event;
+    document.getElementById("event-title").textContent = info.event.title;
+    const fmt = (d) => DateTime.fromJSDate(d, { zone }).toFormat("yyyy-LL-dd HH:mm");
+    document.getElementById("event-when").textContent = `${fmt(info.event.start)} – ${fmt(info.event.end)} (${zone})`;
+    document.getElementById("event-state").textContent = "State: " + props.state;
+    const run = document.getElementById("event-run");
+    run.hidden = !props.url;
+    run.href = props.url || "#";
+    document.getElementById("event-cancel").hidden = !(props.state === "confirmed" || props.state === "requested");
+    document.getElementById("event-feedback").textContent = "";
+    eventDialog.showModal();
+  }
+  document.getElementById("event-close").addEventListener("click", () => eventDialog.close());
+  document.getElementById("event-cancel").addEventListener("click", async () => {
+    if (!current || !window.confirm("Cancel this booking?")) return;
+    const result = await api("DELETE", `/api/v1/reservations/${current.extendedProps.reservation}/`, {});
+    if (result.ok) { eventDialog.close(); calendar.refetchEvents(); flash("Cancelled."); }
+    else document.getElementById("event-feedback").textContent = explain(result.data);
+  });
+
+  const narrow = window.matchMedia("(max-width: 640px)").matches;
+  const calendar = new FullCalendar.Calendar(el, {
+    timeZone: zone,
+    initialView: narrow ? "timeGridDay" : "timeGridWeek",
+    headerToolbar: narrow
+      ? { left: "prev,next", center: "title", right: "timeGridDay,listWeek" }
+      : { left: "prev,next today", center: "title", right: "dayGridMonth,timeGridWeek,timeGridDay,listWeek" },
+    firstDay: 1,
+    nowIndicator: true,
+    selectable: true,
+    selectMirror: true,
+    selectOverlap: (event) => event.display === "background" ? false : event.extendedProps.kind === "own",
+    editable: false,
+    eventOverlap: false,
+    allDaySlot: false,
+    slotDuration: "00:30:00",
+    scrollTime: "08:00:00",
+    contentHeight: narrow ? 520 : 640,
+    expandRows: true,
+    slotLabelFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
+    eventTimeFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
+    dayHeaderFormat: { weekday: "short", day: "numeric", month: "short" },
+    events: (info, success, failure) => {
+      const params = new URLSearchParams({ start: info.startStr, end: info.endStr });
+      if (filter.value) params.set("resource", filter.value);
+      fetch(`${el.dataset.events}?${params}`, { credentials: "same-origin" })
+        .then((r) => (r.ok ? r.json() : Promise.reject(new Error(r.statusText))))
+        .then(success, failure);
+    },
+    select: (info) => openBooking(info.start, info.end),
+    eventDrop: move,
+    eventResize: move,
+    eventClick: showEvent,
+  });
+  filter.addEventListener("change", () => calendar.refetchEvents());
+  calendar.render();
+})();

@@ -1,0 +1,105 @@
+"""The booking calendar in Chromium: drag a slot, choose an experiment, confirm, see, cancel."""
+
+from __future__ import annotations
+
+import pytest
+from playwright.sync_api import Page, expect
+
+from bookings.models import Reservation
+from tests.browser.conftest import SCREENSHOTS, login
+from tests.factories import (
+    ExperimentFactory,
+    FixedResourceFactory,
+    MobileResourceFactory,
+    UserFactory,
+)
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+
+def _drag(page: Page, date: str, from_time: str, to_time: str) -> None:
+    page.locator(f"td.fc-timegrid-slot-lane[data-time='{to_time}']").scroll_into_view_if_needed()
+    column = page.locator(f".fc-timegrid-col[data-date='{date}']").bounding_box()
+    top = page.locator(f"td.fc-timegrid-slot-lane[data-time='{from_time}']").bounding_box()
+    bottom = page.locator(f"td.fc-timegrid-slot-lane[data-time='{to_time}']").bounding_box()
+    assert column
+    assert top
+    assert bottom
+    x = column["x"] + column["width"] / 2
+    page.mouse.move(x, top["y"] + 3)
+    page.mouse.down()
+    page.mouse.move(x, (top["y"] + bottom["y"]) / 2, steps=5)
+    page.mouse.move(x, bottom["y"] + bottom["height"] - 3, steps=5)
+    page.mouse.up()
+
+
+def test_book_by_dragging_on_the_calendar_then_cancel(browser, live_server):
+    user = UserFactory(username="fran")
+    MobileResourceFactory()
+    FixedResourceFactory(name="node-01")
+    ExperimentFactory(owner=user, title="loop test")
+    context = browser.new_context(
+        viewport={"width": 1280, "height": 1000}, timezone_id="Europe/Lisbon"
+    )
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.on("dialog", lambda dialog: dialog.accept())
+
+    login(page, live_server.url, "fran", "correct horse battery")
+    page.get_by_role("link", name="Calendar").click()
+    expect(page.get_by_test_id("calendar-zone")).to_have_text("Europe/Lisbon")
+    page.locator(".fc-next-button").click()  # next week: every slot is in the future
+    wednesday = page.locator(".fc-timegrid-col[data-date]").nth(2).get_attribute("data-date")
+    _drag(page, wednesday, "10:00:00", "10:30:00")
+
+    dialog = page.locator("#booking-dialog")
+    expect(dialog).to_be_visible()
+    expect(dialog.get_by_label("Start")).to_have_value(f"{wednesday}T10:00")
+    expect(dialog.get_by_label("End")).to_have_value(f"{wednesday}T11:00")
+    dialog.get_by_label("resources").select_option(["mobile-1"])
+    expect(page.locator("#booking-feedback")).to_contain_text("Free, and within your quota")
+    dialog.get_by_label("experiment").select_option(label="loop test (6 s)")
+    dialog.get_by_role("button", name="Confirm booking").click()
+    expect(dialog).to_be_hidden()
+    event = page.locator(".fc-event", has_text="loop test")
+    expect(event).to_be_visible()
+    reservation = Reservation.objects.get()
+    assert reservation.run.experiment.title == "loop test"
+    page.screenshot(path=str(SCREENSHOTS / "calendar.png"))
+
+    event.click()
+    expect(page.locator("#event-dialog")).to_be_visible()
+    page.get_by_role("button", name="Cancel booking").click()
+    expect(page.locator(".fc-event", has_text="loop test")).to_have_count(0)
+    reservation.refresh_from_db()
+    assert reservation.state == "cancelled"
+    assert not errors, errors
+    context.close()
+
+
+def test_the_calendar_explains_a_refusal_in_the_dialog(browser, live_server):
+    from bookings.models import QuotaPolicy
+
+    user = UserFactory(username="gil")
+    FixedResourceFactory(name="node-01")
+    QuotaPolicy.objects.create(name="Short slots", user=user, max_length_s=1800)
+    context = browser.new_context(
+        viewport={"width": 1280, "height": 1000}, timezone_id="Europe/Lisbon"
+    )
+    page = context.new_page()
+    login(page, live_server.url, "gil", "correct horse battery")
+    page.goto(f"{live_server.url}/calendar/")
+    page.locator(".fc-next-button").click()
+    day = page.locator(".fc-timegrid-col[data-date]").nth(1).get_attribute("data-date")
+    _drag(page, day, "09:00:00", "09:30:00")
+    dialog = page.locator("#booking-dialog")
+    dialog.get_by_label("resources").select_option(["node-01"])
+    expect(page.locator("#booking-feedback")).to_contain_text(
+        "“Short slots” allows reservations of at most 30 min"
+    )
+    dialog.get_by_role("button", name="Confirm booking").click()
+    expect(page.locator("#booking-feedback")).to_contain_text("at most 30 min")
+    expect(dialog).to_be_visible()
+    assert not Reservation.objects.exists()
+    context.close()
