@@ -40,12 +40,13 @@ def _fresh_run() -> Any:
     )
     start = timezone.now() + timedelta(days=Reservation.objects.count() + 1)
     reservation = Reservation.objects.create(
-        resource=resource, owner=user, start_at=start, end_at=start + timedelta(hours=1)
+        owner=user, start_at=start, end_at=start + timedelta(hours=1)
     )
     segments = [{"velocity_mps": 1.0, "direction": "cw", "duration_s": 3600.0}]
     experiment = Experiment.objects.create(owner=user, title="bench", segments=segments)
     return Run.objects.create(
         reservation=reservation,
+        resource=resource,
         experiment=experiment,
         title="bench",
         segments=segments,

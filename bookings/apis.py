@@ -3,6 +3,7 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 from typing import Any
 
+from django.db.models import Prefetch, prefetch_related_objects
 from django.shortcuts import get_object_or_404
 from django.utils import timezone
 from drf_spectacular.utils import OpenApiParameter, extend_schema
@@ -14,7 +15,14 @@ from rest_framework.views import APIView
 
 from bookings import services
 from bookings.choices import QuotaPeriod, ReservationState
-from bookings.models import Blackout, QuotaPolicy, Reservation, Resource, ResourceGroup
+from bookings.models import (
+    Blackout,
+    QuotaPolicy,
+    Reservation,
+    ReservationItem,
+    Resource,
+    ResourceGroup,
+)
 from bookings.quotas import quota_summary, quota_violations
 from bookings.selectors import (
     blackouts_overlapping,
@@ -211,6 +219,9 @@ class ReservationListApi(APIView):
             experiment = get_object_or_404(experiments_visible(user=user), pk=experiment_id)
         reservation = services.reservation_create(
             owner=owner, by=user, experiment=experiment, ip=client_ip(request), **data
+        )
+        prefetch_related_objects(
+            [reservation], Prefetch("items", ReservationItem.objects.select_related("resource"))
         )
         return Response(ReservationOutput(reservation).data, status=status.HTTP_201_CREATED)
 

@@ -68,14 +68,12 @@ def overlap_s(a_start: datetime, a_end: datetime, b_start: datetime, b_end: date
 
 
 def policies_for(*, user: User, resources: Iterable[Resource]) -> list[QuotaPolicy]:
-    resources = list(resources)
+    # One query: the user's groups and the resources' groups are subqueries.
     resource_ids = [r.pk for r in resources]
-    group_ids = list(user.groups.values_list("pk", flat=True))
-    resource_group_ids = list(
-        Resource.groups.through.objects.filter(resource_id__in=resource_ids).values_list(
-            "resourcegroup_id", flat=True
-        )
-    )
+    group_ids = user.groups.values("pk")
+    resource_group_ids = Resource.groups.through.objects.filter(
+        resource_id__in=resource_ids
+    ).values("resourcegroup_id")
     return list(
         QuotaPolicy.objects.filter(active=True)
         .filter(Q(user__isnull=True) | Q(user=user))
