@@ -415,22 +415,7 @@ class QuotaPolicySerializer(serializers.ModelSerializer):
 
     class Meta:
         model = QuotaPolicy
-        fields = [
-            "id",
-            "name",
-            "user",
-            "group",
-            "resource",
-            "resource_group",
-            "period",
-            "max_hours",
-            "max_count",
-            "max_length_s",
-            "min_notice_s",
-            "max_advance_s",
-            "max_future",
-            "active",
-        ]
+        fields = ["id", *services.QUOTA_FIELDS]
 
 
 class QuotaPolicyListApi(APIView):
