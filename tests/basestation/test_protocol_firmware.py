@@ -29,99 +29,15 @@ from basestation.protocol import (
     encode_command,
     encode_frame,
 )
+from basestation.sim.firmware import AmzFrame as AnyFrame
+from basestation.sim.firmware import AmzMotionOutput as MotionOutput
+from basestation.sim.firmware import AmzRobotConfig as RobotConfig
 
 REPO = Path(__file__).resolve().parents[2]
 LIBRARY = REPO / "firmware" / "host" / "build" / "libamazing_robot.so"
 VECTORS: dict[str, Any] = json.loads(
     (REPO / "tests" / "vectors" / "protocol.json").read_text(encoding="utf-8")
 )
-
-
-class Command(ctypes.Structure):
-    _fields_ = [
-        ("to_node", ctypes.c_uint8),
-        ("from_node", ctypes.c_uint8),
-        ("seq", ctypes.c_uint16),
-        ("velocity_mm_s", ctypes.c_uint16),
-        ("direction", ctypes.c_uint8),
-        ("flags", ctypes.c_uint8),
-        ("ttl_ms", ctypes.c_uint16),
-    ]
-
-
-class Telemetry(ctypes.Structure):
-    _fields_ = [
-        ("to_node", ctypes.c_uint8),
-        ("from_node", ctypes.c_uint8),
-        ("seq", ctypes.c_uint16),
-        ("echo_seq", ctypes.c_uint16),
-        ("robot_clock_ms", ctypes.c_uint32),
-        ("velocity_mm_s", ctypes.c_uint16),
-        ("direction", ctypes.c_uint8),
-        ("battery_10mv", ctypes.c_uint16),
-        ("lat_e7", ctypes.c_int32),
-        ("lon_e7", ctypes.c_int32),
-        ("fix_quality", ctypes.c_uint8),
-        ("satellites", ctypes.c_uint8),
-        ("status", ctypes.c_uint8),
-        ("rssi_dbm", ctypes.c_int8),
-    ]
-
-
-class Config(ctypes.Structure):
-    _fields_ = [
-        ("to_node", ctypes.c_uint8),
-        ("from_node", ctypes.c_uint8),
-        ("seq", ctypes.c_uint16),
-        ("max_velocity_mm_s", ctypes.c_uint16),
-        ("accel_mm_s2", ctypes.c_uint16),
-    ]
-
-
-class AnyFrame(ctypes.Structure):
-    _fields_ = [
-        ("type", ctypes.c_uint8),
-        ("command", Command),
-        ("telemetry", Telemetry),
-        ("config", Config),
-    ]
-
-
-class MotionOutput(ctypes.Structure):
-    _fields_ = [
-        ("duty", ctypes.c_uint8),
-        ("direction", ctypes.c_uint8),
-        ("drive_enabled", ctypes.c_uint8),
-        ("status", ctypes.c_uint8),
-        ("velocity_mm_s", ctypes.c_int32),
-    ]
-
-
-class RobotConfig(ctypes.Structure):
-    _fields_ = [
-        ("node", ctypes.c_uint8),
-        ("base_node", ctypes.c_uint8),
-        ("max_velocity_mm_s", ctypes.c_uint16),
-        ("accel_mm_s2", ctypes.c_uint16),
-        ("stop_decel_mm_s2", ctypes.c_uint16),
-        ("dead_man_ms", ctypes.c_uint16),
-        ("reverse_dwell_ms", ctypes.c_uint16),
-        ("full_scale_mm_s", ctypes.c_uint16),
-        ("duty_min", ctypes.c_uint8),
-        ("duty_max", ctypes.c_uint8),
-        ("hard_max_velocity_mm_s", ctypes.c_uint16),
-        ("accel_min_mm_s2", ctypes.c_uint16),
-        ("accel_max_mm_s2", ctypes.c_uint16),
-        ("battery_vref_mv", ctypes.c_uint16),
-        ("battery_divider_num", ctypes.c_uint16),
-        ("battery_divider_den", ctypes.c_uint16),
-        ("battery_adc_full_scale", ctypes.c_uint16),
-        ("battery_median_window", ctypes.c_uint8),
-        ("low_battery_10mv", ctypes.c_uint16),
-        ("low_battery_hysteresis_10mv", ctypes.c_uint16),
-        ("gps_stale_ms", ctypes.c_uint16),
-        ("wheel_stale_ms", ctypes.c_uint16),
-    ]
 
 
 MEMBER = {1: "command", 2: "telemetry", 3: "config"}
