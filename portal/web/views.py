@@ -129,7 +129,11 @@ def book(request: HttpRequest) -> HttpResponse:
         if "experiment" in request.GET:
             initial["experiment"] = request.GET["experiment"]
         form = BookingForm(initial=initial, user=user)
-    return render(request, "web/book.html", {"form": form})
+    return render(
+        request,
+        "web/book.html",
+        {"form": form, "quota": quota_summary(user=user, now=timezone.now())},
+    )
 
 
 @login_required

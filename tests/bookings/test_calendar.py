@@ -194,3 +194,14 @@ def test_the_usage_report_sums_clipped_hours_and_exports_csv(client, owner, othe
     assert client.get("/usage/", {"from": "garbage"}).status_code == 400
     client.force_login(owner)
     assert client.get("/usage/").status_code == 403
+
+
+def test_the_booking_pages_show_the_remaining_quota(client, owner):
+    from bookings.models import QuotaPolicy
+
+    QuotaPolicy.objects.create(name="Weekly robot time", user=owner, period="week", max_hours=4)
+    client.force_login(owner)
+    for path in ("/book/", "/calendar/"):
+        page = client.get(path).content.decode()
+        assert "Weekly robot time" in page, path
+        assert "4.0 of 4.0 h left this week" in page, path
