@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from datetime import datetime, timedelta
+from datetime import date, datetime, timedelta
 from typing import Any
 
 from django.db.models import Prefetch, prefetch_related_objects
@@ -13,7 +13,7 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from bookings import services
+from bookings import robot, services
 from bookings.choices import QuotaPeriod, ReservationState
 from bookings.models import (
     Blackout,
@@ -444,3 +444,97 @@ class QuotaPolicyDetailApi(APIView):
             by=_user(request), policy=policy, ip=client_ip(request), **serializer.validated_data
         )
         return Response(QuotaPolicySerializer(policy).data)
+
+
+class RobotDriveInput(serializers.Serializer):
+    velocity_mps = serializers.FloatField()
+    direction = serializers.ChoiceField(choices=["cw", "ccw"])
+    ttl_s = serializers.FloatField(default=1.0)
+    force = serializers.BooleanField(default=False)
+    reason = serializers.CharField(allow_blank=True, default="")
+
+
+class ReasonInput(serializers.Serializer):
+    reason = serializers.CharField(allow_blank=True, default="")
+
+
+class ServiceInput(serializers.Serializer):
+    enabled = serializers.BooleanField()
+    reason = serializers.CharField(allow_blank=True, default="")
+
+
+def _mobile_named(name: str) -> Resource:
+    return get_object_or_404(Resource, name=name)
+
+
+class RobotStatusApi(APIView):
+    permission_classes = [IsAdminUser]
+
+    @extend_schema(responses={200: dict})
+    def get(self, request: Request, name: str) -> Response:
+        return Response(robot.robot_status(resource=_mobile_named(name)))
+
+
+class RobotDriveApi(APIView):
+    permission_classes = [IsAdminUser]
+
+    @extend_schema(request=RobotDriveInput, responses={200: dict})
+    def post(self, request: Request, name: str) -> Response:
+        data = _valid(RobotDriveInput, request.data)
+        return Response(
+            robot.robot_drive(
+                resource=_mobile_named(name), by=_user(request), ip=client_ip(request), **data
+            )
+        )
+
+
+class RobotStopApi(APIView):
+    permission_classes = [IsAdminUser]
+
+    @extend_schema(request=ReasonInput, responses={200: dict})
+    def post(self, request: Request, name: str) -> Response:
+        data = _valid(ReasonInput, request.data or {})
+        return Response(
+            robot.robot_stop(
+                resource=_mobile_named(name), by=_user(request), ip=client_ip(request), **data
+            )
+        )
+
+
+class RobotReleaseApi(APIView):
+    permission_classes = [IsAdminUser]
+
+    @extend_schema(request=ReasonInput, responses={200: dict})
+    def post(self, request: Request, name: str) -> Response:
+        data = _valid(ReasonInput, request.data or {})
+        return Response(
+            robot.robot_release(
+                resource=_mobile_named(name), by=_user(request), ip=client_ip(request), **data
+            )
+        )
+
+
+class RobotLogApi(APIView):
+    permission_classes = [IsAdminUser]
+
+    @extend_schema(responses={200: dict})
+    def get(self, request: Request, name: str, day: str) -> Response:
+        try:
+            parsed = date.fromisoformat(day)
+        except ValueError:
+            return Response({"error": "invalid", "detail": "The day is YYYY-MM-DD."}, status=400)
+        return Response(
+            robot.robot_day_log(resource=_mobile_named(name), by=_user(request), day=parsed)
+        )
+
+
+class ResourceServiceApi(APIView):
+    permission_classes = [IsAdminUser]
+
+    @extend_schema(request=ServiceInput, responses=ResourceOutput)
+    def post(self, request: Request, name: str) -> Response:
+        data = _valid(ServiceInput, request.data)
+        resource = robot.resource_set_service(
+            resource=_mobile_named(name), by=_user(request), ip=client_ip(request), **data
+        )
+        return Response(ResourceOutput(resource).data)

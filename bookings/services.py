@@ -49,14 +49,21 @@ def _notify(kind: str, reservation_id: int, **extra: Any) -> None:
 
 
 def _lock(owner: User, resources: Sequence[Resource]) -> None:
-    """Serialise bookings per user (quotas) and per resource (overlaps), in a fixed order."""
+    """Serialise bookings per user (quotas) and per resource (overlaps), in a fixed order.
+
+    Whether a resource is in service is read under the lock: taking it out of service while
+    someone books it must not let the booking through.
+    """
     list(User.objects.select_for_update().filter(pk=owner.pk).values_list("pk"))
-    list(
+    in_service = dict(
         Resource.objects.select_for_update()
         .filter(pk__in=[r.pk for r in resources])
         .order_by("pk")
-        .values_list("pk")
+        .values_list("name", "enabled")
     )
+    for name, enabled in sorted(in_service.items()):
+        if not enabled:
+            raise InvalidInput.on_field("resources", f"{name} is out of service.")
 
 
 def _validate_window(start_at: datetime, end_at: datetime, now: datetime) -> None:

@@ -7,4 +7,13 @@ from django.http import HttpRequest
 
 
 def testbed(request: HttpRequest) -> dict[str, Any]:
-    return {"TESTBED_TIME_ZONE": settings.TIME_ZONE}
+    context: dict[str, Any] = {"TESTBED_TIME_ZONE": settings.TIME_ZONE}
+    user = getattr(request, "user", None)
+    if user is not None and user.is_authenticated and user.is_staff:
+        from bookings.models import Resource
+
+        # Admins get a console link per robot.
+        context["MOBILE_NODES"] = list(
+            Resource.objects.filter(kind="mobile").values_list("name", flat=True)
+        )
+    return context

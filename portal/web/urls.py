@@ -17,5 +17,6 @@ urlpatterns = [
     path("calendar/feed/<str:token>.ics", views.ical_personal, name="ical-personal"),
     path("calendar/feed/<str:token>/<slug:name>.ics", views.ical_resource, name="ical-resource"),
     path("approvals/", views.approvals, name="approvals"),
+    path("robot/<slug:name>/", views.robot_console, name="robot"),
     path("usage/", views.usage_report, name="usage"),
 ]

@@ -316,6 +316,12 @@ def ical_resource(request: HttpRequest, token: str, name: str) -> HttpResponse:
 
 
 @admin_required
+def robot_console(request: HttpRequest, name: str) -> HttpResponse:
+    resource = get_object_or_404(Resource, name=name, kind="mobile")
+    return render(request, "web/robot.html", {"resource": resource})
+
+
+@admin_required
 def approvals(request: HttpRequest) -> HttpResponse:
     if request.method == "POST":
         reservation = get_object_or_404(Reservation, pk=request.POST.get("reservation"))

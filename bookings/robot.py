@@ -1,0 +1,210 @@
+"""Admins' hands on a mobile node: status, manual drive, emergency stop, daily log, service.
+
+Every command goes to the node's agent through its REST client and into the audit log with
+who, when, from where and why — including commands the agent refused.
+"""
+
+from __future__ import annotations
+
+from datetime import date
+from typing import Any
+
+from django.db import transaction
+
+from basestation.client import AgentConflict, AgentError, AgentRejected
+from bookings.agents import agent_client_for
+from bookings.models import Resource
+from portal.accounts.models import User
+from portal.audit.services import audit_record
+from portal.errors import Conflict, DomainError, InvalidInput, NotAllowed
+
+MAX_MANUAL_TTL_S = 10.0
+
+
+class AgentUnavailable(DomainError):
+    http_status = 503
+    code = "agent_unavailable"
+
+
+def _admin(by: User) -> None:
+    if not by.is_testbed_admin:
+        raise NotAllowed("Only admins command the robot.")
+
+
+def _mobile(resource: Resource) -> None:
+    if not resource.is_mobile:
+        raise InvalidInput.on_field("resource", f"{resource.name} is not a mobile node.")
+
+
+def _call(
+    action: str, resource: Resource, by: User, ip: str | None, reason: str, fn: Any, **data: Any
+) -> dict[str, Any]:
+    """Run one agent call and audit it, whatever the agent answered."""
+    try:
+        result: dict[str, Any] = fn()
+    except AgentConflict as exc:
+        audit_record(
+            actor=by,
+            action=action,
+            target=resource,
+            ip=ip,
+            reason=reason,
+            refused=exc.message,
+            **data,
+        )
+        raise Conflict(
+            f"The base station refused: {exc.body.get('detail') or exc.message}"
+        ) from exc
+    except AgentRejected as exc:
+        audit_record(
+            actor=by,
+            action=action,
+            target=resource,
+            ip=ip,
+            reason=reason,
+            refused=exc.message,
+            **data,
+        )
+        raise InvalidInput(
+            f"The base station refused: {exc.body.get('detail') or exc.message}", fields=exc.fields
+        ) from exc
+    except AgentError as exc:
+        audit_record(
+            actor=by,
+            action=action,
+            target=resource,
+            ip=ip,
+            reason=reason,
+            failed=exc.message,
+            **data,
+        )
+        raise AgentUnavailable(
+            f"The base station of {resource.name} did not answer: {exc.message}"
+        ) from exc
+    audit_record(actor=by, action=action, target=resource, ip=ip, reason=reason, **data)
+    return result
+
+
+def robot_status(*, resource: Resource) -> dict[str, Any]:
+    _mobile(resource)
+    client = agent_client_for(resource)
+    try:
+        return {"status": client.status(), "battery": client.battery()}
+    except AgentError as exc:
+        raise AgentUnavailable(
+            f"The base station of {resource.name} did not answer: {exc.message}"
+        ) from exc
+
+
+def robot_drive(
+    *,
+    resource: Resource,
+    by: User,
+    velocity_mps: float,
+    direction: str,
+    ttl_s: float,
+    reason: str,
+    force: bool = False,
+    ip: str | None = None,
+) -> dict[str, Any]:
+    """Drive by hand for ``ttl_s`` seconds (dead-man: the agent stops the robot after it)."""
+    _admin(by)
+    _mobile(resource)
+    if not reason.strip():
+        raise InvalidInput.on_field("reason", "Say why you drive the robot by hand.")
+    if direction not in ("cw", "ccw"):
+        raise InvalidInput.on_field("direction", "Direction is cw or ccw.")
+    limit = resource.max_velocity_mps or 0.0
+    if not 0 <= velocity_mps <= limit:
+        raise InvalidInput.on_field(
+            "velocity_mps", f"Velocity is 0 to {limit:g} m/s on {resource.name}."
+        )
+    if not 0 < ttl_s <= MAX_MANUAL_TTL_S:
+        raise InvalidInput.on_field("ttl_s", f"Hold a command for at most {MAX_MANUAL_TTL_S:g} s.")
+    client = agent_client_for(resource)
+    return _call(
+        "robot.control",
+        resource,
+        by,
+        ip,
+        reason,
+        lambda: client.control(
+            user=by.get_username(),
+            velocity_mps=velocity_mps,
+            direction=direction,
+            ttl_s=ttl_s,
+            force=force,
+        ),
+        velocity_mps=velocity_mps,
+        direction=direction,
+        ttl_s=ttl_s,
+        force=force,
+    )
+
+
+def robot_stop(
+    *, resource: Resource, by: User, reason: str, ip: str | None = None
+) -> dict[str, Any]:
+    """Latch the emergency stop. Anyone admin may; a reason is asked for but never blocks it."""
+    _admin(by)
+    _mobile(resource)
+    client = agent_client_for(resource)
+    return _call(
+        "robot.stop",
+        resource,
+        by,
+        ip,
+        reason,
+        lambda: client.stop(user=by.get_username(), reason=reason or "emergency stop"),
+    )
+
+
+def robot_release(
+    *, resource: Resource, by: User, reason: str, ip: str | None = None
+) -> dict[str, Any]:
+    _admin(by)
+    _mobile(resource)
+    if not reason.strip():
+        raise InvalidInput.on_field("reason", "Say why it is safe to release the stop.")
+    client = agent_client_for(resource)
+    return _call(
+        "robot.release",
+        resource,
+        by,
+        ip,
+        reason,
+        lambda: client.release_stop(user=by.get_username()),
+    )
+
+
+def robot_day_log(*, resource: Resource, by: User, day: date) -> dict[str, Any]:
+    _admin(by)
+    _mobile(resource)
+    try:
+        return agent_client_for(resource).day_log(day)
+    except AgentError as exc:
+        raise AgentUnavailable(
+            f"The base station of {resource.name} did not answer: {exc.message}"
+        ) from exc
+
+
+def resource_set_service(
+    *, resource: Resource, by: User, enabled: bool, reason: str, ip: str | None = None
+) -> Resource:
+    """Take a resource out of service (no new bookings) or back in; audited."""
+    _admin(by)
+    if not reason.strip():
+        raise InvalidInput.on_field("reason", "Say why.")
+    with transaction.atomic():
+        # The same row lock bookings take: none is half-way through while this changes.
+        locked = Resource.objects.select_for_update().get(pk=resource.pk)
+        locked.enabled = enabled
+        locked.save(update_fields=["enabled"])
+        audit_record(
+            actor=by,
+            action="resource.in_service" if enabled else "resource.out_of_service",
+            target=locked,
+            ip=ip,
+            reason=reason,
+        )
+    return locked

@@ -1,0 +1,99 @@
+// Admin robot console: live status, manual drive, emergency stop, service, daily log.
+(function () {
+  "use strict";
+  const root = document.getElementById("robot");
+  if (!root) return;
+  const base = `/api/v1/resources/${root.dataset.name}`;
+  const csrf = root.querySelector("[name=csrfmiddlewaretoken]").value;
+  const feedback = document.getElementById("console-feedback");
+
+  function say(text, isError) {
+    feedback.hidden = false;
+    feedback.textContent = text;
+    feedback.className = "flash" + (isError ? " error" : "");
+  }
+  async function call(method, path, body) {
+    const response = await fetch(base + path, {
+      method,
+      headers: { "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" },
+      body: body === undefined ? undefined : JSON.stringify(body),
+      credentials: "same-origin",
+    });
+    let data = null;
+    try { data = await response.json(); } catch (e) { data = null; }
+    if (!response.ok) {
+      const detail = data && (data.detail || JSON.stringify(data.fields || data));
+      throw new Error(detail || response.statusText);
+    }
+    return data;
+  }
+  const set = (id, text) => { document.getElementById(id).textContent = text; };
+  const fmt = (value, unit, digits) => (value === null || value === undefined ? "—" : `${Number(value).toFixed(digits)} ${unit}`);
+
+  async function refresh() {
+    try {
+      const data = await call("GET", "/robot/");
+      const s = data.status;
+      const link = s.link || {};
+      set("st-link", `${link.state || "?"}${link.loss_pct !== undefined && link.loss_pct !== null ? `, ${Number(link.loss_pct).toFixed(0)} % loss` : ""}`);
+      set("st-battery", fmt(data.battery.filtered_v, "V", 1) + (data.battery.low ? " (LOW)" : ""));
+      const robot = s.robot || {};
+      set("st-velocity", robot.velocity_mps === null || robot.velocity_mps === undefined ? "—" : `${Number(robot.velocity_mps).toFixed(2)} m/s ${robot.direction || ""}`);
+      set("st-position", fmt(robot.track_m, "m", 1));
+      set("st-run", s.current_run || "none");
+      const estop = s.estop;
+      set("st-estop", estop && estop.latched ? `LATCHED${estop.reason ? ": " + estop.reason : ""}` : "released");
+      const host = s.host || {};
+      set("st-cpu", fmt(host.cpu_temp_c, "°C", 0));
+      set("st-disk", host.disk_free_bytes === null || host.disk_free_bytes === undefined ? "—" : fmt(host.disk_free_bytes / 1e6, "MB", 0));
+      set("status-age", "updated " + new Date().toLocaleTimeString());
+    } catch (error) {
+      set("status-age", "base station unreachable: " + error.message);
+    }
+  }
+
+  document.getElementById("estop").addEventListener("click", async () => {
+    try { await call("POST", "/robot/stop/", { reason: "emergency stop from the console" }); say("Emergency stop latched."); }
+    catch (error) { say("Stop failed: " + error.message, true); }
+    refresh();
+  });
+  document.getElementById("drive-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const f = event.target;
+    try {
+      await call("POST", "/robot/control/", {
+        velocity_mps: Number(f.velocity_mps.value), direction: f.direction.value,
+        ttl_s: Number(f.ttl_s.value), reason: f.reason.value, force: f.force.checked,
+      });
+      say(`Driving ${f.velocity_mps.value} m/s ${f.direction.value} for ${f.ttl_s.value} s.`);
+    } catch (error) { say("Not sent: " + error.message, true); }
+    refresh();
+  });
+  document.getElementById("release-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    try { await call("POST", "/robot/release/", { reason: event.target.reason.value }); say("Emergency stop released."); }
+    catch (error) { say("Not released: " + error.message, true); }
+    refresh();
+  });
+  document.getElementById("service-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const f = event.target;
+    try { await call("POST", "/service/", { enabled: f.enabled.value === "true", reason: f.reason.value }); window.location.reload(); }
+    catch (error) { say("Not changed: " + error.message, true); }
+  });
+  document.getElementById("log-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const rows = document.getElementById("log-rows");
+    rows.textContent = "";
+    try {
+      const log = await call("GET", `/robot/logs/${event.target.day.value}/`);
+      for (const entry of log.entries) {
+        const tr = rows.insertRow();
+        for (const key of ["user", "title", "start", "end"]) tr.insertCell().textContent = entry[key] || "";
+      }
+      if (!log.entries.length) rows.insertRow().insertCell().textContent = "Nothing that day.";
+    } catch (error) { say("Log not read: " + error.message, true); }
+  });
+  refresh();
+  setInterval(refresh, 2000);
+})();
