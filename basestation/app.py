@@ -33,6 +33,10 @@ def create_app(
     # settings are AgentConfig's and come only from AGENT_*.
     app.config.from_prefixed_env()
     app.config["MAX_CONTENT_LENGTH"] = MAX_BODY_BYTES
+    # Every answer is JSON: no automatic OPTIONS (no browser calls the agent; 405 instead),
+    # no redirect from '//' to '/' (a 404 instead of an HTML redirect page).
+    app.config["PROVIDE_AUTOMATIC_OPTIONS"] = False
+    app.url_map.merge_slashes = False
 
     runtime = AgentRuntime.open(config, robot=robot)
     app.extensions[EXTENSION_KEY] = runtime

@@ -8,6 +8,7 @@ says whether trying again later can help: connection errors, timeouts and 5xx ca
 from __future__ import annotations
 
 from collections.abc import Iterator
+from datetime import date
 from typing import Any
 from urllib.parse import quote
 
@@ -41,10 +42,10 @@ class AgentNotFound(AgentError):
 
 
 class AgentConflict(AgentError):
-    """409: different body for an existing id, overlapping window, or run already ended.
+    """409: the request contradicts the agent's state.
 
-    ``kind`` is the agent's ``conflict`` field: ``body_differs``, ``window_overlaps`` or
-    ``already_ended``.
+    ``kind`` is the agent's ``conflict`` field: ``body_differs``, ``window_overlaps``,
+    ``already_ended`` (runs), ``robot_busy`` or ``estop_latched`` (manual control).
     """
 
     @property
@@ -112,6 +113,45 @@ class AgentClient:
     def delete_run(self, run_id: str) -> dict[str, Any]:
         """Cancel a staged run or abort a running one; returns the run in its new state."""
         return self._request("DELETE", self._run_path(run_id))
+
+    def battery(self) -> dict[str, Any]:
+        """``{"filtered_v", "raw_v", "window", "age_s", "low_battery_v", "low"}``."""
+        return self._request("GET", f"{API_PREFIX}/battery")
+
+    def control(
+        self,
+        *,
+        user: str,
+        velocity_mps: float,
+        direction: str,
+        ttl_s: float | None = None,
+        force: bool = False,
+    ) -> dict[str, Any]:
+        """Manual drive (admins): hold the velocity for ``ttl_s`` (agent default 1 s).
+        Returns ``{"manual": {...} | None, "aborted_run": id | None}``."""
+        body: dict[str, Any] = {
+            "user": user,
+            "velocity_mps": velocity_mps,
+            "direction": direction,
+            "force": force,
+        }
+        if ttl_s is not None:
+            body["ttl_s"] = ttl_s
+        return self._request("POST", f"{API_PREFIX}/control", json=body)
+
+    def stop(self, *, user: str | None = None, reason: str | None = None) -> dict[str, Any]:
+        """Latch the emergency stop; returns ``{"estop": {...}, "aborted_run": ...}``."""
+        body = {k: v for k, v in (("user", user), ("reason", reason)) if v is not None}
+        return self._request("POST", f"{API_PREFIX}/stop", json=body)
+
+    def release_stop(self, *, user: str | None = None) -> dict[str, Any]:
+        """Release the emergency stop; returns ``{"estop": {...}, "released": bool}``."""
+        body = {"user": user} if user is not None else {}
+        return self._request("POST", f"{API_PREFIX}/stop/release", json=body)
+
+    def day_log(self, day: date) -> dict[str, Any]:
+        """The usage log of one UTC day: ``{"date", "timezone", "entries": [...]}``."""
+        return self._request("GET", f"{API_PREFIX}/logs/{day.isoformat()}")
 
     def samples(self, run_id: str, after_seq: int = 0, limit: int = 1000) -> dict[str, Any]:
         """One page: ``{"run_id", "state", "samples", "last_seq", "more"}``."""

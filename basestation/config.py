@@ -14,6 +14,14 @@ from pathlib import Path
 
 ENV_PREFIX = "AGENT_"
 DEFAULT_DATA_DIR = Path("./var/agent")
+DEFAULT_CPU_TEMP_PATH = Path("/sys/class/thermal/thermal_zone0/temp")
+# Five 12 V lead-acid batteries in series: 50 V is 10 V a block, the deep-discharge limit
+# that shortens their life; the robot still has enough to brake and reach its dock.
+DEFAULT_LOW_BATTERY_V = 50.0
+DEFAULT_MIN_FREE_DISK_MB = 200.0
+DEFAULT_RETENTION_DAYS = 90.0
+# Low among real-time priorities (1-99): above every normal thread, below the kernel's own.
+DEFAULT_RT_PRIORITY = 10
 
 
 class ConfigError(Exception):
@@ -30,6 +38,17 @@ class AgentConfig:
     max_accel_mps2: float = 1.0
     rail_length_m: float = 120.0
     resource: str = "mobile-1"
+    # Filtered battery voltage under which no run starts and a running one is aborted
+    # (0 switches the check off).
+    low_battery_v: float = DEFAULT_LOW_BATTERY_V
+    # New runs are refused when staging them would leave less than this free on the disk of
+    # the run store (0 switches the guard off).
+    min_free_disk_mb: float = DEFAULT_MIN_FREE_DISK_MB
+    # Ended runs (and their samples) are deleted this long after their end (0 keeps them).
+    retention_days: float = DEFAULT_RETENTION_DAYS
+    cpu_temp_path: Path = DEFAULT_CPU_TEMP_PATH
+    # SCHED_FIFO priority of the control loop's thread (0: normal scheduling).
+    rt_priority: int = DEFAULT_RT_PRIORITY
 
     def __post_init__(self) -> None:
         # Checked here too so that configs built in code (tests, benchmarks) obey the same rules.
@@ -40,6 +59,10 @@ class AgentConfig:
         _check_range("rail_length_m", self.rail_length_m, low=1.0, high=100_000.0)
         if not self.resource.strip():
             raise ConfigError("resource must not be empty")
+        _check_range("low_battery_v", self.low_battery_v, low=0.0, high=1000.0)
+        _check_range("min_free_disk_mb", self.min_free_disk_mb, low=0.0, high=10_000_000.0)
+        _check_retention("retention_days", self.retention_days)
+        _check_range("rt_priority", self.rt_priority, low=0, high=99)
 
     @property
     def control_period_s(self) -> float:
@@ -55,12 +78,16 @@ class AgentConfig:
             f"AgentConfig(token=<hidden>, data_dir={self.data_dir!r}, "
             f"control_hz={self.control_hz}, max_velocity_mps={self.max_velocity_mps}, "
             f"max_accel_mps2={self.max_accel_mps2}, rail_length_m={self.rail_length_m}, "
-            f"resource={self.resource!r})"
+            f"resource={self.resource!r}, low_battery_v={self.low_battery_v}, "
+            f"min_free_disk_mb={self.min_free_disk_mb}, retention_days={self.retention_days}, "
+            f"cpu_temp_path={self.cpu_temp_path!r}, rt_priority={self.rt_priority})"
         )
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> AgentConfig:
         env = os.environ if environ is None else environ
+        low_battery_v = _float_env(env, "LOW_BATTERY_V", DEFAULT_LOW_BATTERY_V, low=0, high=1000)
+        min_free_mb = _float_env(env, "MIN_FREE_DISK_MB", DEFAULT_MIN_FREE_DISK_MB, low=0, high=1e7)
         return cls(
             token=_token_from_env(env),
             data_dir=Path(env.get(f"{ENV_PREFIX}DATA_DIR", "").strip() or DEFAULT_DATA_DIR),
@@ -69,7 +96,18 @@ class AgentConfig:
             max_accel_mps2=_float_env(env, "MAX_ACCEL_MPS2", 1.0, low=0.01, high=20.0),
             rail_length_m=_float_env(env, "RAIL_LENGTH_M", 120.0, low=1.0, high=100_000.0),
             resource=_resource_from_env(env),
+            low_battery_v=low_battery_v,
+            min_free_disk_mb=min_free_mb,
+            retention_days=_retention_from_env(env),
+            rt_priority=_rt_priority_from_env(env),
+            cpu_temp_path=Path(
+                env.get(f"{ENV_PREFIX}CPU_TEMP_PATH", "").strip() or DEFAULT_CPU_TEMP_PATH
+            ),
         )
+
+    @property
+    def retention_s(self) -> float | None:
+        return None if self.retention_days == 0 else self.retention_days * 86_400.0
 
 
 def _token_from_env(env: Mapping[str, str]) -> str:
@@ -127,3 +165,33 @@ def _resource_from_env(env: Mapping[str, str]) -> str:
     if not raw.strip():
         raise ConfigError(f"{ENV_PREFIX}RESOURCE must not be empty")
     return raw.strip()
+
+
+def _check_retention(name: str, value: float) -> None:
+    # Under a day would delete runs the portal may not have collected yet (it collects
+    # within minutes, but an outage of the portal can last a night).
+    if not math.isfinite(value) or not (value == 0 or 1.0 <= value <= 36_500.0):
+        raise ConfigError(f"{name}={value!r} must be 0 (keep every run) or 1 to 36500 days")
+
+
+def _retention_from_env(env: Mapping[str, str]) -> float:
+    name = f"{ENV_PREFIX}RETENTION_DAYS"
+    raw = env.get(name, "").strip()
+    if not raw:
+        return DEFAULT_RETENTION_DAYS
+    try:
+        value = float(raw)
+    except ValueError:
+        raise ConfigError(f"{name}={raw!r} is not a number") from None
+    _check_retention(name, value)
+    return value
+
+
+def _rt_priority_from_env(env: Mapping[str, str]) -> int:
+    name = f"{ENV_PREFIX}RT_PRIORITY"
+    raw = env.get(name, "").strip()
+    if not raw:
+        return DEFAULT_RT_PRIORITY
+    if not raw.isdigit() or not 0 <= int(raw) <= 99:
+        raise ConfigError(f"{name}={raw!r} must be an integer from 0 (off) to 99")
+    return int(raw)

@@ -5,12 +5,17 @@ delays only itself and the rate never drifts. A tick that wakes more than one pe
 its deadline counts as late (its slot was missed), and the loop then skips the missed
 slots instead of firing a burst of ticks to catch up: a burst of command frames would only
 crowd the radio.
+
+Each tick's lateness (wake-up minus deadline) and duration go into a ring holding the last
+minute of ticks; :meth:`ControlLoop.stats` reads percentiles from it. Writing a slot is all
+the loop pays; the sorting is done by whoever asks, at most once per tick.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -19,15 +24,35 @@ from dataclasses import dataclass
 logger = logging.getLogger(__name__)
 
 
+# The percentiles cover the last minute of ticks: long enough for a p99 to mean something
+# (1200 ticks at 20 Hz), short enough to show what the loop does now.
+STATS_WINDOW_S = 60.0
+
+
+@dataclass(frozen=True)
+class WindowStats:
+    """Lateness and duration percentiles over the last ``ticks`` ticks (nearest rank)."""
+
+    ticks: int = 0
+    lateness_p50_s: float | None = None
+    lateness_p99_s: float | None = None
+    lateness_max_s: float | None = None
+    duration_p50_s: float | None = None
+    duration_p99_s: float | None = None
+    duration_max_s: float | None = None
+
+
 @dataclass(frozen=True)
 class ControlStats:
     hz: float
     running: bool
     ticks: int
-    late_ticks: int
-    skipped_ticks: int
+    late_ticks: int  # ticks that woke more than one period after their deadline
+    skipped_ticks: int  # slots that got no tick at all (the missed ticks)
     tick_errors: int
-    max_lateness_s: float
+    max_lateness_s: float  # since start
+    window: WindowStats = WindowStats()
+    window_s: float = STATS_WINDOW_S
 
 
 class ControlLoop:
@@ -38,8 +63,14 @@ class ControlLoop:
         hz: float,
         monotonic: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
+        rt_priority: int = 0,
     ) -> None:
+        """``rt_priority`` > 0 runs the loop's thread under SCHED_FIFO at that priority
+        (needs CAP_SYS_NICE or RLIMIT_RTPRIO, e.g. systemd's LimitRTPRIO=); without the
+        right it logs a warning and runs at normal priority."""
         self._tick = tick
+        self.rt_priority = rt_priority
+        self.realtime = False
         self.hz = hz
         self.period_s = 1.0 / hz
         self._monotonic = monotonic
@@ -51,6 +82,10 @@ class ControlLoop:
         self.skipped_ticks = 0
         self.tick_errors = 0
         self.max_lateness_s = 0.0
+        self._ring_size = max(1, math.ceil(STATS_WINDOW_S * hz))
+        self._lateness_ring = [0.0] * self._ring_size
+        self._duration_ring = [0.0] * self._ring_size
+        self._window_cache: tuple[int, WindowStats] = (0, WindowStats())
 
     def start(self) -> None:
         if self._thread is not None:
@@ -78,9 +113,53 @@ class ControlLoop:
             skipped_ticks=self.skipped_ticks,
             tick_errors=self.tick_errors,
             max_lateness_s=self.max_lateness_s,
+            window=self.window_stats(),
         )
 
+    def window_stats(self) -> WindowStats:
+        ticks = self.ticks
+        cached_ticks, cached = self._window_cache
+        if cached_ticks == ticks:
+            return cached
+        n = min(ticks, self._ring_size)
+        # Slicing copies the list in one step under the GIL; a slot written meanwhile is
+        # either in this copy or in the next.
+        lateness = sorted(self._lateness_ring[:n])
+        duration = sorted(self._duration_ring[:n])
+        stats = WindowStats(
+            ticks=n,
+            lateness_p50_s=_nearest_rank(lateness, 0.50),
+            lateness_p99_s=_nearest_rank(lateness, 0.99),
+            lateness_max_s=lateness[-1] if lateness else None,
+            duration_p50_s=_nearest_rank(duration, 0.50),
+            duration_p99_s=_nearest_rank(duration, 0.99),
+            duration_max_s=duration[-1] if duration else None,
+        )
+        self._window_cache = (ticks, stats)
+        return stats
+
+    def _become_realtime(self) -> None:
+        """Why real-time helps a Python thread: under HTTP load the loop's thread waits
+        for the GIL, not for a CPU. When the GIL is dropped, the kernel wakes the waiting
+        threads in priority order, and only real-time priority counts for that: the loop
+        gets the GIL at the next hand-over instead of competing with every busy thread."""
+        if self.rt_priority <= 0:
+            return
+        try:
+            # pid 0 is the calling thread: only this thread becomes real-time.
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+        except (OSError, AttributeError) as exc:
+            logger.warning(
+                "control loop stays at normal priority (SCHED_FIFO %d refused: %s); allow "
+                "it with LimitRTPRIO= in the systemd unit",
+                self.rt_priority,
+                exc,
+            )
+            return
+        self.realtime = True
+
     def _run(self) -> None:
+        self._become_realtime()
         start_s = self._monotonic()
         k = 0
         while True:
@@ -91,7 +170,8 @@ class ControlLoop:
                 return
             if self._stop.is_set():
                 return
-            lateness_s = self._monotonic() - deadline_s
+            woke_s = self._monotonic()
+            lateness_s = woke_s - deadline_s
             self.max_lateness_s = max(self.max_lateness_s, lateness_s)
             if lateness_s > self.period_s:
                 # This tick missed its slot (the previous tick ran long, or the thread was
@@ -106,5 +186,14 @@ class ControlLoop:
                 # One bad tick must not stop the robot's command stream for good.
                 self.tick_errors += 1
                 logger.exception("control tick failed")
+            slot = self.ticks % self._ring_size
+            self._lateness_ring[slot] = lateness_s
+            self._duration_ring[slot] = self._monotonic() - woke_s
             self.ticks += 1
             k += 1
+
+
+def _nearest_rank(ordered: list[float], fraction: float) -> float | None:
+    if not ordered:
+        return None
+    return ordered[max(0, math.ceil(fraction * len(ordered)) - 1)]

@@ -2,20 +2,28 @@
 
 :meth:`RunManager.tick` is the whole behaviour of the agent in time. It is called by the
 control loop thread, and directly by tests with a fake clock. HTTP threads never drive the
-robot: they change runs in the store and call :meth:`RunManager.notify_runs_changed`; the
-next tick picks the change up.
+robot: they change runs in the store and call :meth:`RunManager.notify_runs_changed`, or
+hand over a manual command or the e-stop latch (:meth:`RunManager.drive_manually`,
+:meth:`RunManager.latch_estop`); the next tick picks the change up.
+
+What the robot is told, in order of precedence: the e-stop latch (stop flag, velocity 0);
+the running run's program, only inside its booked window; an admin's manual command until
+its time-to-live runs out; otherwise velocity 0.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import sqlite3
-import statistics
 import threading
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 from basestation.config import AgentConfig
+from basestation.errors import RunConflict
+from basestation.program import format_epoch
 from basestation.robot import (
     Command,
     Direction,
@@ -25,6 +33,7 @@ from basestation.robot import (
     signed_velocity_mps,
 )
 from basestation.store import (
+    ABORTED,
     COMPLETED,
     FAILED,
     INTERRUPTED,
@@ -34,6 +43,8 @@ from basestation.store import (
     RunStore,
     Sample,
 )
+from basestation.telemetry.battery import BatteryFilter
+from basestation.writer import StoreWriter, WriterFull
 
 logger = logging.getLogger(__name__)
 
@@ -43,9 +54,45 @@ STOPPED_BELOW_MPS = 0.02
 # The battery reading is median-filtered (thesis fig. 3.20: a median rejects the spikes that
 # a mean smears); 9 samples is under half a second at 20 Hz.
 BATTERY_WINDOW = 9
+# A running run is aborted only when the filtered battery stays low this long: the voltage
+# sags for a moment while the robot accelerates, and a false abort costs an experiment.
+LOW_BATTERY_HOLD_S = 2.0
 # The schedule is re-read at least this often even without a change notice, so a missed
 # notice can delay a start by at most this much.
 REFRESH_INTERVAL_S = 1.0
+# Link loss is counted over the last this many exchanges (5 s at 20 Hz).
+LOSS_WINDOW = 100
+
+
+@dataclass(frozen=True)
+class ManualDrive:
+    """An admin's manual command, held until ``expires_at_s`` (the dead-man)."""
+
+    user: str
+    velocity_mps: float
+    direction: Direction
+    session_started_at_s: float
+    expires_at_s: float
+    session_id: int
+
+    def to_json_dict(self, now_s: float) -> dict[str, Any]:
+        return {
+            "user": self.user,
+            "velocity_mps": self.velocity_mps,
+            "direction": self.direction,
+            "since": format_epoch(self.session_started_at_s),
+            "expires_at": format_epoch(self.expires_at_s),
+            "ttl_s": max(0.0, self.expires_at_s - now_s),
+        }
+
+
+@dataclass(frozen=True)
+class EstopLatch:
+    since_s: float
+    reason: str
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {"latched": True, "since": format_epoch(self.since_s), "reason": self.reason}
 
 
 @dataclass(frozen=True)
@@ -57,7 +104,11 @@ class AgentSnapshot:
     telemetry: Telemetry | None = None
     telemetry_at_s: float | None = None  # agent clock of the last telemetry frame
     battery_v: float | None = None  # median-filtered
+    battery_raw_v: float | None = None  # the last frame's reading
+    battery_low: bool = False  # filtered voltage under AGENT_LOW_BATTERY_V
+    loss_pct: float | None = None  # exchanges without telemetry, over the last LOSS_WINDOW
     current_run: str | None = None
+    command: Command | None = None  # what the last tick sent
 
 
 class RunManager:
@@ -65,6 +116,13 @@ class RunManager:
         self.store = store
         self.robot = robot
         self.config = config
+        # The tick's writes (samples, run transitions) go through the writer: inline until
+        # the runtime starts its thread (see basestation.writer).
+        self.writer = StoreWriter(
+            store,
+            capacity=max(1, math.ceil(60 * config.control_hz)),
+            on_refused=lambda run_id: self.notify_runs_changed(),
+        )
         self._tick_lock = threading.Lock()
         self._runs_changed = threading.Event()
         self._schedule: list[RunRecord] = []
@@ -76,8 +134,32 @@ class RunManager:
         # limit when that is gentler than the robot's own ramp.
         self._setpoint_signed_mps = 0.0
         self._direction: Direction = "cw"
-        self._battery_window: deque[float] = deque(maxlen=BATTERY_WINDOW)
+        self._battery = BatteryFilter(BATTERY_WINDOW)
+        self._low_battery_since_s: float | None = None
+        self._answered: deque[bool] = deque(maxlen=LOSS_WINDOW)
+        # Set by HTTP threads, read by the tick: whole objects swapped, never mutated.
+        # _api_lock serialises the HTTP-side operations; _manual_lock only guards the
+        # compare-and-swap of _manual between them and the tick (held for no I/O).
+        self._api_lock = threading.Lock()
+        self._manual_lock = threading.Lock()
+        self._manual: ManualDrive | None = None
+        latched = store.get_estop()
+        self._estop: EstopLatch | None = (
+            None if latched is None else EstopLatch(since_s=latched[0], reason=latched[1])
+        )
+        # Every accepted stop request puts at least one stop frame on air, even when it is
+        # released again before the next tick.
+        self._estop_frame_owed = self._estop is not None
         self.snapshot = AgentSnapshot()
+
+    @property
+    def estop(self) -> EstopLatch | None:
+        return self._estop
+
+    def manual(self, now_s: float) -> ManualDrive | None:
+        """The manual command in force at ``now_s``, if any."""
+        manual = self._manual
+        return manual if manual is not None and now_s < manual.expires_at_s else None
 
     def notify_runs_changed(self) -> None:
         """Called by HTTP threads after they commit a change to the runs."""
@@ -92,19 +174,147 @@ class RunManager:
         """Command the robot to zero and close the current run (the agent is stopping)."""
         with self._tick_lock:
             try:
-                self.robot.exchange(Command(velocity_mps=0.0, direction=self._direction), now_s)
+                self.robot.exchange(
+                    Command(
+                        velocity_mps=0.0, direction=self._direction, estop=self._estop is not None
+                    ),
+                    now_s,
+                )
             except RobotLinkError:
                 # The firmware's dead-man stops the robot within 500 ms of our silence anyway.
                 logger.warning("no answer to the final stop command")
+            manual = self._take_manual(None)
+            if manual is not None:
+                self.store.manual_session_end(manual.session_id, ended_at_s=now_s)
             if self._active is not None:
-                self.store.transition(
-                    self._active.id,
-                    from_states=[RUNNING],
-                    to_state=INTERRUPTED,
-                    reason="agent stopped during run",
-                    now_s=now_s,
+                self._transition(
+                    self._active.id, RUNNING, INTERRUPTED, "agent stopped during run", now_s
                 )
                 self._active = None
+            self.writer.flush()
+
+    # -- operations called by HTTP threads ---------------------------------------------------
+
+    def latch_estop(self, *, now_s: float, reason: str) -> tuple[EstopLatch, str | None]:
+        """Latch the e-stop: the next tick sends the stop flag (at most one period from now),
+        manual control ends, a running run is aborted. Returns (latch, aborted run id).
+        Latching again keeps the first latch's time and reason."""
+        with self._api_lock:
+            latch = self._estop
+            if latch is None:
+                latch = EstopLatch(since_s=now_s, reason=reason)
+                # Memory first, so the very next tick stops the robot; the store keeps the
+                # latch across a restart of the agent.
+                self._estop = latch
+                self._estop_frame_owed = True
+                self.store.set_estop(since_s=now_s, reason=reason)
+                logger.warning("e-stop latched: %s", reason)
+            manual = self._take_manual(None)
+            if manual is not None:
+                self.store.manual_session_end(manual.session_id, ended_at_s=now_s)
+            aborted = self._abort_running(now_s, f"emergency stop: {latch.reason}")
+        return latch, aborted
+
+    def release_estop(self, *, now_s: float) -> bool:
+        """Release the latch (also the robot's own, e.g. one kept across its restart).
+        Returns False when it was not latched. The robot moves again only on a later
+        command: a run due meanwhile starts, late, at the next tick."""
+        with self._api_lock:
+            release_robot = getattr(self.robot, "release_estop", None)
+            if callable(release_robot):
+                release_robot()
+            if self._estop is None:
+                return False
+            # Store first: a crash in between leaves the agent latched, the safe side.
+            self.store.clear_estop()
+            self._estop = None
+            logger.warning("e-stop released")
+            self.notify_runs_changed()
+            return True
+
+    def drive_manually(
+        self,
+        *,
+        now_s: float,
+        user: str,
+        velocity_mps: float,
+        direction: Direction,
+        ttl_s: float,
+        force: bool,
+    ) -> tuple[ManualDrive | None, str | None]:
+        """Hold ``velocity_mps`` in ``direction`` for ``ttl_s`` (each command renews the
+        dead-man); velocity 0 ends manual control. Returns (manual command in force, id of
+        the run aborted to make way).
+
+        Raises :class:`RunConflict` ``estop_latched``, or ``robot_busy`` while a run is
+        running unless ``force`` (which aborts the run).
+        """
+        with self._api_lock:
+            if self._estop is not None:
+                raise RunConflict(
+                    "estop_latched",
+                    "the emergency stop is latched: release it (POST /stop/release) first",
+                )
+            aborted = None
+            running = self.store.running_run_id()
+            if running is not None:
+                if not force:
+                    raise RunConflict(
+                        "robot_busy",
+                        f'run {running} holds the robot; send "force": true to abort it '
+                        "and take over",
+                    )
+                aborted = self._abort_running(now_s, f"aborted: {user} took manual control")
+            current = self.manual(now_s)
+            if velocity_mps == 0:
+                if current is not None and self._take_manual(current) is current:
+                    self.store.manual_session_end(current.session_id, ended_at_s=now_s)
+                return None, aborted
+            expires_at_s = now_s + ttl_s
+            if current is not None and current.user == user:
+                self.store.manual_session_extend(current.session_id, until_s=expires_at_s)
+                drive = replace(
+                    current,
+                    velocity_mps=velocity_mps,
+                    direction=direction,
+                    expires_at_s=expires_at_s,
+                )
+            else:
+                if current is not None:
+                    self.store.manual_session_end(current.session_id, ended_at_s=now_s)
+                session_id = self.store.manual_session_open(
+                    user=user, started_at_s=now_s, until_s=expires_at_s
+                )
+                drive = ManualDrive(
+                    user=user,
+                    velocity_mps=velocity_mps,
+                    direction=direction,
+                    session_started_at_s=now_s,
+                    expires_at_s=expires_at_s,
+                    session_id=session_id,
+                )
+            with self._manual_lock:
+                self._manual = drive
+            return drive, aborted
+
+    def _abort_running(self, now_s: float, reason: str) -> str | None:
+        run_id = self.store.running_run_id()
+        if run_id is not None and self.store.transition(
+            run_id, from_states=[RUNNING], to_state=ABORTED, reason=reason, now_s=now_s
+        ):
+            self.notify_runs_changed()
+            return run_id
+        return None
+
+    def _take_manual(self, expected: ManualDrive | None) -> ManualDrive | None:
+        """Clear the manual command if it is still ``expected`` (None: whatever it is);
+        returns what was cleared."""
+        with self._manual_lock:
+            current = self._manual
+            if current is None or (expected is not None and current is not expected):
+                return None
+            self._manual = None
+            return current
 
     # -- the tick ------------------------------------------------------------------------------
 
@@ -117,22 +327,70 @@ class RunManager:
             self._runs_changed.clear()
             self._refresh(now_s)
 
+        estop = self._estop
         run = self._active
+        if run is not None and estop is not None:
+            # The HTTP thread that latched it has aborted the run already; this covers a
+            # latch that found no run yet in the store.
+            self._abort(run, now_s, f"emergency stop: {estop.reason}")
+            run = None
         if run is not None and now_s >= run.spec.end_at_s:
             # The booked window is over: no more motion for this run, whatever its state.
             self._finish(run, now_s, "booked window ended before the robot had stopped")
             run = None
+        if run is not None and self._battery_low_for(now_s) >= LOW_BATTERY_HOLD_S:
+            battery_v = self.snapshot.battery_v
+            self._abort(
+                run,
+                now_s,
+                f"battery low: {battery_v:.1f} V, below {self.config.low_battery_v:g} V "
+                "(AGENT_LOW_BATTERY_V)",
+            )
+            run = None
         if run is None:
-            run = self._start_due_run(now_s)
+            if estop is None:
+                run = self._start_due_run(now_s)
+            else:
+                self._fail_passed_runs(
+                    now_s, "the booked window passed while the emergency stop was latched"
+                )
+
+        manual = self.manual(now_s)
+        if manual is not None and (run is not None or estop is not None):
+            # A booked run takes the robot from manual control (an e-stop ends it too).
+            if self._take_manual(manual) is manual:
+                session_id = manual.session_id
+                self.writer.submit(
+                    lambda: self.store.manual_session_end(session_id, ended_at_s=now_s)
+                )
+                logger.info(
+                    "manual control by %s ended: %s",
+                    manual.user,
+                    "e-stop latched" if run is None else f"run {run.id} starts",
+                )
+            manual = None
 
         segment: int | None = None
         commanded_mps = 0.0
         accel_mps2 = self.config.max_accel_mps2
         if run is not None:
-            segment, commanded_mps, self._direction = run.spec.program_at(now_s)
+            # Motion for a run only inside its booked window (a clock stepped back must not
+            # replay the program early).
+            if run.spec.start_at_s <= now_s < run.spec.end_at_s:
+                segment, commanded_mps, self._direction = run.spec.program_at(now_s)
             accel_mps2 = min(accel_mps2, run.spec.limits.max_accel_mps2)
+        elif manual is not None:
+            commanded_mps, self._direction = manual.velocity_mps, manual.direction
 
-        command = self._slew(now_s, signed_velocity_mps(commanded_mps, self._direction), accel_mps2)
+        if estop is not None or self._estop_frame_owed:
+            # The robot brakes by itself on the flag; our ramp restarts from zero after release.
+            self._estop_frame_owed = False
+            self._setpoint_signed_mps = 0.0
+            command = Command(velocity_mps=0.0, direction=self._direction, estop=True)
+        else:
+            command = self._slew(
+                now_s, signed_velocity_mps(commanded_mps, self._direction), accel_mps2
+            )
         self._last_tick_s = now_s
         telemetry: Telemetry | None
         try:
@@ -141,9 +399,11 @@ class RunManager:
             # No frame, no sample: nothing is invented. The link age in /status shows it.
             logger.debug("no telemetry at %.3f: %s", now_s, exc)
             telemetry = None
+        self._answered.append(telemetry is not None)
 
         if telemetry is not None:
-            self._battery_window.append(telemetry.battery_v)
+            if math.isfinite(telemetry.battery_v):
+                self._battery.add(telemetry.battery_v)
             if run is not None:
                 self._record(run, now_s, segment, commanded_mps, telemetry)
                 program_over = now_s >= run.spec.start_at_s + run.spec.program_duration_s
@@ -154,15 +414,33 @@ class RunManager:
                 ):
                     self._finish(run, now_s, "program finished")
 
+        battery_v = self._battery.battery_v
+        threshold_v = self.config.low_battery_v
+        low = threshold_v > 0 and battery_v is not None and battery_v < threshold_v
+        if not low:
+            self._low_battery_since_s = None
+        elif self._low_battery_since_s is None:
+            self._low_battery_since_s = now_s
         previous = self.snapshot
+        answered = self._answered
         self.snapshot = AgentSnapshot(
             ticks=previous.ticks + 1,
             link_errors=previous.link_errors + (1 if telemetry is None else 0),
             telemetry=telemetry if telemetry is not None else previous.telemetry,
             telemetry_at_s=now_s if telemetry is not None else previous.telemetry_at_s,
-            battery_v=(statistics.median(self._battery_window) if self._battery_window else None),
+            battery_v=battery_v,
+            battery_raw_v=(
+                telemetry.battery_v if telemetry is not None else previous.battery_raw_v
+            ),
+            battery_low=low,
+            loss_pct=100.0 * answered.count(False) / len(answered),
             current_run=self._active.id if self._active is not None else None,
+            command=command,
         )
+
+    def _battery_low_for(self, now_s: float) -> float:
+        since_s = self._low_battery_since_s
+        return 0.0 if since_s is None else now_s - since_s
 
     def _slew(self, now_s: float, target_signed_mps: float, accel_mps2: float) -> Command:
         period_s = self.config.control_period_s
@@ -200,29 +478,32 @@ class RunManager:
             track_m=telemetry.track_m,
         )
         try:
-            stored = self.store.append_samples(run.id, [sample])
-        except sqlite3.Error:
+            stored = self.writer.append(run.id, sample)
+        except (sqlite3.Error, WriterFull):
             # The seq is spent anyway: a gap tells the portal exactly what is missing,
             # where silently reusing it would hide the loss.
             logger.exception("run %s: sample %d not stored", run.id, sample.seq)
             self._next_seq += 1
             return
-        if stored:
-            self._next_seq += 1
-        else:
+        if stored is False:
             # Someone ended the run under us (an abort from the API): let go of it, and the
-            # next ticks command zero.
+            # next ticks command zero. (Queued writes learn it later: the writer's refusal
+            # triggers a refresh, which lets go of the run the same way.)
             self._active = None
+        else:
+            self._next_seq += 1
 
     # -- the schedule ----------------------------------------------------------------------------
 
     def _refresh(self, now_s: float) -> None:
         self._last_refresh_s = now_s
-        self._schedule = self.store.staged_runs()
         if self._active is not None:
             current = self.store.get_run(self._active.id)
-            if current is None or current.state != RUNNING:
+            # Still "staged" in the store: our start is queued with the writer, not lost.
+            if current is None or current.state not in (RUNNING, STAGED):
                 self._active = None
+        active_id = None if self._active is None else self._active.id
+        self._schedule = [run for run in self.store.staged_runs() if run.id != active_id]
 
     def _start_due_run(self, now_s: float) -> RunRecord | None:
         for record in list(self._schedule):
@@ -230,27 +511,54 @@ class RunManager:
                 break  # the schedule is ordered by start: nothing later is due either
             self._schedule.remove(record)
             if record.spec.end_at_s <= now_s:
-                self.store.transition(
-                    record.id,
-                    from_states=[STAGED],
-                    to_state=FAILED,
-                    reason="the booked window passed while the agent was not running",
-                    now_s=now_s,
+                reason = "the booked window passed while the agent was not running"
+                self._transition(record.id, STAGED, FAILED, reason, now_s)
+                continue
+            if self.snapshot.battery_low:
+                reason = (
+                    f"not started: battery at {self.snapshot.battery_v:.1f} V, below "
+                    f"{self.config.low_battery_v:g} V (AGENT_LOW_BATTERY_V)"
                 )
+                self._transition(record.id, STAGED, FAILED, reason, now_s)
                 continue
             late_s = now_s - record.spec.start_at_s
             reason = "started" if late_s < 1.0 else f"started {late_s:.1f} s late"
-            if self.store.transition(
-                record.id, from_states=[STAGED], to_state=RUNNING, reason=reason, now_s=now_s
-            ):
+            # Queued with the writer, the start is optimistic: should an HTTP thread have
+            # cancelled the run a moment ago, the writer refuses its samples and the next
+            # refresh lets go of it. A run starts once, so its samples begin at seq 1.
+            if self._transition(record.id, STAGED, RUNNING, reason, now_s) is not False:
                 self._active = record
-                last_seq = self.store.sample_stats(record.id).last_seq
-                self._next_seq = 1 if last_seq is None else last_seq + 1
+                self._next_seq = 1
                 return record
         return None
 
+    def _transition(
+        self, run_id: str, from_state: str, to_state: str, reason: str, now_s: float
+    ) -> bool | None:
+        """A run transition in order with the samples (None: queued, applied later)."""
+
+        def apply() -> bool:
+            return self.store.transition(
+                run_id, from_states=[from_state], to_state=to_state, reason=reason, now_s=now_s
+            )
+
+        result = self.writer.submit(apply)
+        return None if result is None else bool(result)
+
+    def _fail_passed_runs(self, now_s: float, reason: str) -> None:
+        """Runs due but held back (e-stop) stay staged until their window has passed."""
+        for record in list(self._schedule):
+            if record.spec.start_at_s > now_s:
+                break
+            if record.spec.end_at_s <= now_s:
+                self._schedule.remove(record)
+                self._transition(record.id, STAGED, FAILED, reason, now_s)
+
     def _finish(self, run: RunRecord, now_s: float, reason: str) -> None:
-        self.store.transition(
-            run.id, from_states=[RUNNING], to_state=COMPLETED, reason=reason, now_s=now_s
-        )
+        self._transition(run.id, RUNNING, COMPLETED, reason, now_s)
+        self._active = None
+
+    def _abort(self, run: RunRecord, now_s: float, reason: str) -> None:
+        """End the run now; the following ticks ramp the robot to zero (no run, no manual)."""
+        self._transition(run.id, RUNNING, ABORTED, reason, now_s)
         self._active = None

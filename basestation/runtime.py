@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
 from flask import Flask, current_app
 
 from basestation.config import AgentConfig
 from basestation.control import ControlLoop, ControlStats
+from basestation.housekeeping import Housekeeper
 from basestation.manager import RunManager
 from basestation.robot import Robot, SimpleSimulatedRobot
 from basestation.store import RunStore
+from basestation.system import DiskSpace, disk_space
 
 logger = logging.getLogger(__name__)
 
@@ -32,6 +36,9 @@ class AgentRuntime:
     robot: Robot
     manager: RunManager
     control_loop: ControlLoop | None = None
+    housekeeper: Housekeeper | None = None
+    # Replaceable so that tests can play a full disk.
+    disk_probe: Callable[[Path], DiskSpace | None] = field(default=disk_space)
     closed: bool = False
 
     @classmethod
@@ -50,8 +57,17 @@ class AgentRuntime:
         return cls(config=config, store=store, robot=robot, manager=manager)
 
     def start_control_loop(self) -> None:
-        self.control_loop = ControlLoop(self.manager.tick, hz=self.config.control_hz)
+        """Start the control loop, the store writer and the store's housekeeping (threads)."""
+        self.manager.writer.start()
+        self.control_loop = ControlLoop(
+            self.manager.tick, hz=self.config.control_hz, rt_priority=self.config.rt_priority
+        )
         self.control_loop.start()
+        self.housekeeper = Housekeeper(self.store, retention_s=self.config.retention_s)
+        self.housekeeper.start()
+
+    def disk(self) -> DiskSpace | None:
+        return self.disk_probe(self.config.data_dir)
 
     def control_stats(self) -> ControlStats:
         if self.control_loop is not None:
@@ -74,9 +90,12 @@ class AgentRuntime:
         self.closed = True
         if self.control_loop is not None:
             self.control_loop.stop()
+        if self.housekeeper is not None:
+            self.housekeeper.stop()
         try:
             self.manager.shutdown(time.time())
         finally:
+            self.manager.writer.stop()
             self.store.close()
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import signal
 import sys
@@ -17,6 +18,14 @@ from basestation.runtime import get_runtime
 logger = logging.getLogger("basestation.serve")
 
 EXIT_CONFIG_ERROR = 2
+# How long a thread may hold the GIL while another waits for it. Python's default of 5 ms
+# is the whole lateness budget of a control tick: an HTTP thread busy serialising a page of
+# samples would make the waking control loop wait that long. 1 ms costs the HTTP threads a
+# little throughput in switches.
+GIL_SWITCH_INTERVAL_S = 0.001
+# waitress buffers a request body before the app sees it; the app refuses anything over
+# 64 KiB anyway, so there is no point in buffering more than this.
+MAX_REQUEST_BODY_BYTES = 1024 * 1024
 
 
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -30,6 +39,12 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--threads", type=int, default=8, help="HTTP worker threads")
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ...")
+    parser.add_argument(
+        "--gil-switch-ms",
+        type=float,
+        default=GIL_SWITCH_INTERVAL_S * 1000,
+        help="Python's thread switch interval (default 1 ms; Python's own default is 5)",
+    )
     return parser.parse_args(argv)
 
 
@@ -54,10 +69,24 @@ def main(argv: list[str] | None = None) -> int:
         print(f"amazing-agent: configuration error: {exc}", file=sys.stderr)
         return EXIT_CONFIG_ERROR
 
+    if not 0.1 <= args.gil_switch_ms <= 100:
+        print("amazing-agent: --gil-switch-ms must be between 0.1 and 100", file=sys.stderr)
+        return EXIT_CONFIG_ERROR
+    sys.setswitchinterval(args.gil_switch_ms / 1000)
     app = create_app(config)
+    # Everything loaded so far lives as long as the process: keep it out of the collector's
+    # full passes, which hold the GIL (and so the control loop) for their whole length.
+    gc.collect()
+    gc.freeze()
     runtime = get_runtime(app)
     try:
-        server = create_server(app, host=args.host, port=args.port, threads=args.threads)
+        server = create_server(
+            app,
+            host=args.host,
+            port=args.port,
+            threads=args.threads,
+            max_request_body_size=MAX_REQUEST_BODY_BYTES,
+        )
     except OSError as exc:
         logger.error("cannot listen on %s:%s: %s", args.host, args.port, exc)
         runtime.close()

@@ -13,9 +13,11 @@ also makes every check-then-write below atomic.
 
 from __future__ import annotations
 
+import json
 import logging
 import sqlite3
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -39,8 +41,11 @@ END_STATES: Final = (COMPLETED, CANCELLED, ABORTED, INTERRUPTED, FAILED)
 
 logger = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: manual_sessions and agent_state (created on the first start of v2)
 BUSY_TIMEOUT_MS = 5_000
+# Retention deletes this many samples per transaction, so that the control loop's next
+# commit never waits long for the write lock.
+PURGE_BATCH_ROWS = 2_000
 
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS runs (
@@ -70,6 +75,21 @@ CREATE TABLE IF NOT EXISTS samples (
     track_m REAL NOT NULL,
     PRIMARY KEY (run_id, seq)
 ) WITHOUT ROWID;
+-- Admins driving the robot by hand (POST /control), for the daily usage log.
+CREATE TABLE IF NOT EXISTS manual_sessions (
+    id INTEGER PRIMARY KEY,
+    user TEXT NOT NULL,
+    started_at REAL NOT NULL,
+    -- While the session lasts: the expiry of its last command (the robot is stopped by then
+    -- whatever happens to the agent), so a crash leaves an upper bound, never an open end.
+    ended_at REAL NOT NULL
+);
+CREATE INDEX IF NOT EXISTS manual_sessions_started ON manual_sessions (started_at);
+-- Small pieces of agent state that must survive a restart (the latched e-stop).
+CREATE TABLE IF NOT EXISTS agent_state (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
 """
 
 
@@ -136,6 +156,37 @@ class RunRecord:
             "started_at": format_epoch(self.started_at_s),
             "ended_at": format_epoch(self.ended_at_s),
         }
+
+
+@dataclass(frozen=True)
+class UsageEntry:
+    """One line of the daily usage log: who had the robot, from when to when."""
+
+    kind: str  # "run" | "manual"
+    user: str
+    title: str
+    start_s: float
+    end_s: float | None  # None while the run is still running
+    run_id: str | None
+    state: str | None  # the run's state; None for manual control
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "user": self.user,
+            "title": self.title,
+            "start": format_epoch(self.start_s),
+            "end": format_epoch(self.end_s),
+            "run_id": self.run_id,
+            "state": self.state,
+        }
+
+
+@dataclass(frozen=True)
+class PurgeResult:
+    runs: int = 0
+    samples: int = 0
+    manual_sessions: int = 0
 
 
 class StoreClosed(Exception):
@@ -339,6 +390,176 @@ class RunStore:
             "SELECT * FROM runs WHERE state = 'staged' ORDER BY start_at, id"
         )
         return [_record(row) for row in rows]
+
+    def running_run_id(self) -> str | None:
+        row = self._conn().execute("SELECT id FROM runs WHERE state = 'running' LIMIT 1").fetchone()
+        return None if row is None else str(row["id"])
+
+    def active_seconds_ahead(self, now_s: float) -> float:
+        """Seconds of staged or running windows still ahead of ``now_s`` (disk planning)."""
+        row = (
+            self._conn()
+            .execute(
+                "SELECT COALESCE(SUM(MAX(end_at - MAX(start_at, ?), 0)), 0) AS ahead "
+                "FROM runs WHERE state IN ('staged', 'running')",
+                (now_s,),
+            )
+            .fetchone()
+        )
+        return float(row["ahead"])
+
+    # -- e-stop latch ------------------------------------------------------------------------
+
+    def get_estop(self) -> tuple[float, str] | None:
+        """(since, reason) of the latched e-stop, or None when released."""
+        row = self._conn().execute("SELECT value FROM agent_state WHERE key = 'estop'").fetchone()
+        if row is None:
+            return None
+        value = json.loads(row["value"])
+        return float(value["since_s"]), str(value["reason"])
+
+    def set_estop(self, *, since_s: float, reason: str) -> None:
+        value = json.dumps({"since_s": since_s, "reason": reason})
+        with self._write() as tx:
+            tx.execute(
+                "INSERT INTO agent_state (key, value) VALUES ('estop', ?) "
+                "ON CONFLICT (key) DO NOTHING",
+                (value,),
+            )
+
+    def clear_estop(self) -> None:
+        with self._write() as tx:
+            tx.execute("DELETE FROM agent_state WHERE key = 'estop'")
+
+    # -- manual control sessions and the usage log ---------------------------------------------
+
+    def manual_session_open(self, *, user: str, started_at_s: float, until_s: float) -> int:
+        with self._write() as tx:
+            cursor = tx.execute(
+                "INSERT INTO manual_sessions (user, started_at, ended_at) VALUES (?, ?, ?)",
+                (user, started_at_s, until_s),
+            )
+        assert cursor.lastrowid is not None
+        return cursor.lastrowid
+
+    def manual_session_extend(self, session_id: int, *, until_s: float) -> None:
+        with self._write() as tx:
+            tx.execute(
+                "UPDATE manual_sessions SET ended_at = MAX(ended_at, ?) WHERE id = ?",
+                (until_s, session_id),
+            )
+
+    def manual_session_end(self, session_id: int, *, ended_at_s: float) -> None:
+        """End a session early (never later than its last command's expiry)."""
+        with self._write() as tx:
+            tx.execute(
+                "UPDATE manual_sessions SET ended_at = MIN(ended_at, MAX(started_at, ?)) "
+                "WHERE id = ?",
+                (ended_at_s, session_id),
+            )
+
+    def usage_between(self, start_s: float, end_s: float) -> list[UsageEntry]:
+        """Runs that moved the robot and manual sessions overlapping ``[start_s, end_s)``,
+        ordered by start."""
+        with self._read() as conn:
+            runs = conn.execute(
+                "SELECT id, owner, title, state, started_at, ended_at FROM runs "
+                "WHERE started_at IS NOT NULL AND started_at < ? "
+                "AND (ended_at IS NULL OR ended_at >= ?)",
+                (end_s, start_s),
+            ).fetchall()
+            sessions = conn.execute(
+                "SELECT user, started_at, ended_at FROM manual_sessions "
+                "WHERE started_at < ? AND ended_at >= ?",
+                (end_s, start_s),
+            ).fetchall()
+        entries = [
+            UsageEntry(
+                kind="run",
+                user=row["owner"],
+                title=row["title"],
+                start_s=row["started_at"],
+                end_s=row["ended_at"],
+                run_id=row["id"],
+                state=row["state"],
+            )
+            for row in runs
+        ]
+        entries += [
+            UsageEntry(
+                kind="manual",
+                user=row["user"],
+                title="manual control",
+                start_s=row["started_at"],
+                end_s=row["ended_at"],
+                run_id=None,
+                state=None,
+            )
+            for row in sessions
+        ]
+        entries.sort(key=lambda e: (e.start_s, e.kind, e.run_id or ""))
+        return entries
+
+    # -- housekeeping --------------------------------------------------------------------------
+
+    def purge_ended_before(
+        self, cutoff_s: float, *, batch_rows: int = PURGE_BATCH_ROWS, pause_s: float = 0.0
+    ) -> PurgeResult:
+        """Delete runs that ended before ``cutoff_s``, with their samples, and manual
+        sessions that ended before it. Staged and running runs are never touched.
+
+        Samples go in batches of ``batch_rows``, one transaction each, ``pause_s`` apart
+        (the control loop's commits get the write lock in between); a run's row goes last,
+        so an interrupted purge leaves a run with fewer samples, never samples without a run.
+        """
+        runs = samples = 0
+        end_states = ", ".join(f"'{state}'" for state in END_STATES)
+        run_ids = [
+            row["id"]
+            for row in self._conn().execute(
+                f"SELECT id FROM runs WHERE state IN ({end_states}) "  # noqa: S608
+                "AND COALESCE(ended_at, updated_at) < ? ORDER BY ended_at",
+                (cutoff_s,),
+            )
+        ]
+        for run_id in run_ids:
+            while True:
+                with self._write() as tx:
+                    deleted = tx.execute(
+                        "DELETE FROM samples WHERE run_id = ? AND seq IN "
+                        "(SELECT seq FROM samples WHERE run_id = ? ORDER BY seq LIMIT ?)",
+                        (run_id, run_id, batch_rows),
+                    ).rowcount
+                samples += deleted
+                if deleted < batch_rows:
+                    break
+                if pause_s > 0:
+                    time.sleep(pause_s)
+            with self._write() as tx:
+                runs += tx.execute(
+                    f"DELETE FROM runs WHERE id = ? AND state IN ({end_states}) "  # noqa: S608
+                    "AND NOT EXISTS (SELECT 1 FROM samples WHERE run_id = ?)",
+                    (run_id, run_id),
+                ).rowcount
+        with self._write() as tx:
+            sessions = tx.execute(
+                "DELETE FROM manual_sessions WHERE ended_at < ?", (cutoff_s,)
+            ).rowcount
+        if runs or sessions:
+            logger.info(
+                "retention: deleted %d runs (%d samples) and %d manual sessions that ended "
+                "before %s",
+                runs,
+                samples,
+                sessions,
+                format_epoch(cutoff_s),
+            )
+        return PurgeResult(runs=runs, samples=samples, manual_sessions=sessions)
+
+    def checkpoint(self) -> None:
+        """Copy the WAL back into the database file without blocking writers (PASSIVE), so
+        that the automatic checkpoint never falls to the control loop's commit."""
+        self._conn().execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
 
     # -- samples -----------------------------------------------------------------------------
 

@@ -1,7 +1,9 @@
 """``make bench``: measure the numbers of DESIGN §6 and write them to docs/performance.md.
 
-Runs on a scratch PostgreSQL database (``<name>_bench`` next to the one in DATABASE_URL),
-created afresh and dropped at the end. Each benchmark compares the system with a baseline
+``python -m bench`` runs every benchmark; ``python -m bench agent`` (or ``telemetry``) only
+the ones named. The telemetry benchmark runs on a scratch PostgreSQL database
+(``<name>_bench`` next to the one in DATABASE_URL), created afresh and dropped at the end;
+the agent benchmark needs no database. Each benchmark compares the system with a baseline
 measured in the same run on the same machine, so the ratios travel between machines.
 """
 
@@ -74,10 +76,26 @@ def write_section(key: str, body: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(prog="python -m bench")
+    parser.add_argument(
+        "benchmarks",
+        nargs="*",
+        choices=["telemetry", "agent"],
+        help="which to run (default: all)",
+    )
     parser.add_argument("--samples", type=int, default=72_000, help="samples of the long run")
+    parser.add_argument(
+        "--agent-seconds", type=float, default=60.0, help="length of the agent's load phase"
+    )
     parser.add_argument("--no-report", action="store_true", help="print only")
     args = parser.parse_args()
+    which = args.benchmarks or ["telemetry", "agent"]
+    if "telemetry" in which:
+        _telemetry(args.samples, report=not args.no_report)
+    if "agent" in which:
+        _agent(args.agent_seconds, report=not args.no_report)
 
+
+def _telemetry(samples: int, *, report: bool) -> None:
     url, name = _scratch_database()
     _recreate(url, name)
     os.environ["DATABASE_URL"] = url
@@ -92,13 +110,25 @@ def main() -> None:
 
     stamp = f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {machine()}."
     try:
-        results = telemetry.run(samples=args.samples)
+        results = telemetry.run(samples=samples)
     finally:
         _drop(url, name)
     print(stamp)
     print(results)
-    if not args.no_report:
+    if report:
         write_section("telemetry", f"{results}\n\n{stamp}")
+        print(f"written to {REPORT.relative_to(REPO)}")
+
+
+def _agent(seconds: float, *, report: bool) -> None:
+    from bench import agent
+
+    stamp = f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {machine()}."
+    results = agent.run(duration_s=seconds, idle_s=seconds)
+    print(stamp)
+    print(results)
+    if report:
+        write_section("agent", f"{results}\n\n{stamp}")
         print(f"written to {REPORT.relative_to(REPO)}")
 
 

@@ -10,7 +10,7 @@ from typing import Any
 from flask import Flask, Response, jsonify
 from werkzeug.exceptions import HTTPException
 
-from basestation.errors import RunConflict, RunNotFound
+from basestation.errors import RunConflict, RunNotFound, StorageFull
 from basestation.program import FieldErrors, InvalidRunBody
 
 
@@ -59,9 +59,15 @@ def _conflict(exc: RunConflict) -> Response:
     return error_response(409, "conflict", exc.detail, conflict=exc.kind)
 
 
+def _storage_full(exc: StorageFull) -> Response:
+    # 507: a state of the agent that an operator can fix, after which a retry succeeds.
+    return error_response(507, "insufficient_storage", exc.detail)
+
+
 def register_error_handlers(app: Flask) -> None:
     # HTTPException also catches the InternalServerError Flask wraps unhandled errors in.
     app.register_error_handler(HTTPException, _http_error)
     app.register_error_handler(InvalidRunBody, _invalid)
     app.register_error_handler(RunNotFound, _not_found)
     app.register_error_handler(RunConflict, _conflict)
+    app.register_error_handler(StorageFull, _storage_full)

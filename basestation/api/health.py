@@ -13,6 +13,7 @@ bp = Blueprint("health", __name__)
 def healthz() -> tuple[Response, int]:
     runtime = get_runtime()
     loop = runtime.control_loop
-    # Unhealthy only when a loop was started and has died: then the robot gets no commands.
-    ok = loop is None or loop.running
+    # Unhealthy only when a loop was started and has died (the robot gets no commands), or
+    # the store writer has (samples are no longer stored).
+    ok = (loop is None or loop.running) and runtime.manager.writer.alive
     return jsonify({"ok": ok}), 200 if ok else 503

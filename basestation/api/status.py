@@ -1,4 +1,4 @@
-"""``GET /api/v1/status``: what the agent and the robot are doing now."""
+"""``GET /api/v1/status``: what the agent, the robot and the base station are doing now."""
 
 from __future__ import annotations
 
@@ -8,7 +8,10 @@ from typing import Any
 from flask import Blueprint, jsonify
 from flask.typing import ResponseReturnValue
 
+from basestation.api.control import estop_json
+from basestation.control import ControlStats
 from basestation.runtime import AGENT_VERSION, get_runtime
+from basestation.system import clock_synchronized, cpu_temp_c
 
 bp = Blueprint("status", __name__)
 
@@ -17,11 +20,39 @@ bp = Blueprint("status", __name__)
 LINK_DOWN_AFTER_S = 1.0
 
 
+def _ms(value_s: float | None) -> float | None:
+    return None if value_s is None else round(value_s * 1000.0, 3)
+
+
+def control_json(control: ControlStats) -> dict[str, Any]:
+    window = control.window
+    return {
+        "hz": control.hz,
+        "running": control.running,
+        "ticks": control.ticks,
+        "late_ticks": control.late_ticks,
+        "missed_ticks": control.skipped_ticks,
+        "tick_errors": control.tick_errors,
+        "max_lateness_ms": _ms(control.max_lateness_s),
+        "window": {
+            "seconds": control.window_s,
+            "ticks": window.ticks,
+            "lateness_p50_ms": _ms(window.lateness_p50_s),
+            "lateness_p99_ms": _ms(window.lateness_p99_s),
+            "lateness_max_ms": _ms(window.lateness_max_s),
+            "tick_p50_ms": _ms(window.duration_p50_s),
+            "tick_p99_ms": _ms(window.duration_p99_s),
+            "tick_max_ms": _ms(window.duration_max_s),
+        },
+    }
+
+
 @bp.get("/status")
 def status() -> ResponseReturnValue:
     runtime = get_runtime()
     now_s = time.time()
-    snapshot = runtime.manager.snapshot
+    manager = runtime.manager
+    snapshot = manager.snapshot
     telemetry = snapshot.telemetry
     robot: dict[str, Any] = {"velocity_mps": None, "direction": None, "track_m": None}
     if telemetry is not None:
@@ -30,25 +61,42 @@ def status() -> ResponseReturnValue:
             "direction": telemetry.direction,
             "track_m": telemetry.track_m,
         }
+    command = snapshot.command
+    robot["commanded_velocity_mps"] = None if command is None else command.velocity_mps
+    robot["commanded_direction"] = None if command is None else command.direction
     age_s = None if snapshot.telemetry_at_s is None else max(0.0, now_s - snapshot.telemetry_at_s)
-    control = runtime.control_stats()
+    rssi = getattr(telemetry, "rssi_dbm", None)
+    disk = runtime.disk()
+    manual = manager.manual(now_s)
+    threshold_v = runtime.config.low_battery_v
     return jsonify(
         {
             "version": AGENT_VERSION,
             "clock": now_s,
+            "clock_synchronized": clock_synchronized(),
             "resource": runtime.config.resource,
             "battery_v": snapshot.battery_v,
+            "battery": {
+                "filtered_v": snapshot.battery_v,
+                "raw_v": snapshot.battery_raw_v,
+                "low_battery_v": threshold_v if threshold_v > 0 else None,
+                "low": snapshot.battery_low,
+            },
             "robot": robot,
             "link": {
                 "state": "up" if age_s is not None and age_s <= LINK_DOWN_AFTER_S else "down",
                 "age_s": age_s,
+                "loss_pct": snapshot.loss_pct,
+                "rssi_dbm": rssi if isinstance(rssi, int | float) else None,
             },
             "current_run": snapshot.current_run,
-            "control": {
-                "hz": control.hz,
-                "running": control.running,
-                "ticks": control.ticks,
-                "late_ticks": control.late_ticks,
+            "manual": None if manual is None else manual.to_json_dict(now_s),
+            "estop": estop_json(manager.estop),
+            "host": {
+                "cpu_temp_c": cpu_temp_c(runtime.config.cpu_temp_path),
+                "disk_free_bytes": None if disk is None else disk.free_bytes,
+                "disk_total_bytes": None if disk is None else disk.total_bytes,
             },
+            "control": control_json(runtime.control_stats()),
         }
     )

@@ -55,7 +55,6 @@ from basestation.radio.registers import (
     REG_VERSION,
 )
 
-
 SPI_WRITE: Final = 0x80
 
 # RegOpMode: sequencer on, listen off; the mode sits in bits 4..2.

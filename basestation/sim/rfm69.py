@@ -99,7 +99,6 @@ from basestation.sim.channel import (
 )
 from basestation.sim.clock import Clock
 
-
 # --- RegOpMode --------------------------------------------------------------------------------
 MODE_SLEEP: Final = 0
 MODE_STANDBY: Final = 1

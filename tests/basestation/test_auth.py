@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -11,18 +12,29 @@ from flask.testing import FlaskClient
 from basestation.runtime import AgentRuntime
 from tests.basestation.conftest import TOKEN, run_body
 
-# (method, path, body); "staged" is a run the fixture stages first.
-ENDPOINTS: list[tuple[str, str, bool]] = [
-    ("GET", "/api/v1/status", False),
-    ("GET", "/api/v1/runs", False),
-    ("PUT", "/api/v1/runs/new-run", True),
-    ("PUT", "/api/v1/runs/staged", True),
-    ("GET", "/api/v1/runs/staged", False),
-    ("DELETE", "/api/v1/runs/staged", False),
-    ("GET", "/api/v1/runs/staged/samples", False),
-    ("GET", "/api/v1/runs/staged/samples?after=0&limit=10", False),
-    ("GET", "/api/v1/no-such-endpoint", False),
-    ("POST", "/api/v1/status", False),
+CONTROL_BODY = {"user": "mallory", "velocity_mps": 1.0, "direction": "cw", "force": True}
+
+# (method, path, body); "staged" is a run the fixture stages first. Every route the app
+# registers is here (test_openapi.py checks that the description covers the same set).
+ENDPOINTS: list[tuple[str, str, Any]] = [
+    ("GET", "/api/v1/status", None),
+    ("GET", "/api/v1/battery", None),
+    ("GET", "/api/v1/runs", None),
+    ("PUT", "/api/v1/runs/new-run", "run"),
+    ("PUT", "/api/v1/runs/staged", "run"),
+    ("GET", "/api/v1/runs/staged", None),
+    ("DELETE", "/api/v1/runs/staged", None),
+    ("GET", "/api/v1/runs/staged/samples", None),
+    ("GET", "/api/v1/runs/staged/samples?after=0&limit=10", None),
+    ("POST", "/api/v1/control", CONTROL_BODY),
+    ("POST", "/api/v1/stop", {"reason": "prank"}),
+    ("POST", "/api/v1/stop", None),
+    ("POST", "/api/v1/stop/release", None),
+    ("GET", "/api/v1/logs/2030-01-01", None),
+    ("GET", "/api/v1/logs/../../etc/passwd", None),
+    ("GET", "/api/v1/logs/..%2F..%2Fetc%2Fpasswd", None),
+    ("GET", "/api/v1/no-such-endpoint", None),
+    ("POST", "/api/v1/status", None),
 ]
 
 BAD_HEADERS: dict[str, dict[str, str]] = {
@@ -44,13 +56,21 @@ def staged(client: FlaskClient, auth: dict[str, str], soon: float) -> dict[str, 
     return response.json or {}
 
 
-def _runs(runtime: AgentRuntime) -> list[tuple[str, str, str]]:
-    return [(r.id, r.state, r.body) for r, _ in runtime.store.list_runs()]
+def _agent_state(runtime: AgentRuntime) -> tuple[Any, ...]:
+    """Everything a request could change: runs, e-stop latch, manual control, usage log."""
+    return (
+        [(r.id, r.state, r.body) for r, _ in runtime.store.list_runs()],
+        runtime.manager.estop,
+        runtime.manager.manual(time.time()),
+        runtime.store.usage_between(0, 4e9),
+    )
 
 
 @pytest.mark.parametrize("headers", BAD_HEADERS.values(), ids=BAD_HEADERS.keys())
 @pytest.mark.parametrize(
-    ("method", "path", "with_body"), ENDPOINTS, ids=[f"{m} {p}" for m, p, _ in ENDPOINTS]
+    ("method", "path", "body"),
+    ENDPOINTS,
+    ids=[f"{m} {p}{' with body' if b else ''}" for m, p, b in ENDPOINTS],
 )
 def test_it_refuses_every_api_call_without_the_right_token_and_changes_nothing(
     client: FlaskClient,
@@ -59,11 +79,12 @@ def test_it_refuses_every_api_call_without_the_right_token_and_changes_nothing(
     soon: float,
     method: str,
     path: str,
-    with_body: bool,
+    body: Any,
     headers: dict[str, str],
 ) -> None:
-    before = _runs(runtime)
-    body = run_body(soon + 3600, title="changed") if with_body else None
+    before = _agent_state(runtime)
+    if body == "run":
+        body = run_body(soon + 3600, title="changed")
     response = client.open(path, method=method, json=body, headers=headers)
     assert response.status_code == 401
     assert response.headers["WWW-Authenticate"].startswith("Bearer")
@@ -71,7 +92,7 @@ def test_it_refuses_every_api_call_without_the_right_token_and_changes_nothing(
     assert response.json is not None
     assert response.json["error"] == "unauthorized"
     assert response.json["detail"]
-    assert _runs(runtime) == before
+    assert _agent_state(runtime) == before
 
 
 def test_it_serves_healthz_without_a_token(client: FlaskClient) -> None:
@@ -85,9 +106,14 @@ def test_it_accepts_the_right_token_on_every_endpoint(
 ) -> None:
     calls: list[Callable[[], Any]] = [
         lambda: client.get("/api/v1/status", headers=auth),
+        lambda: client.get("/api/v1/battery", headers=auth),
         lambda: client.get("/api/v1/runs", headers=auth),
         lambda: client.get("/api/v1/runs/staged", headers=auth),
         lambda: client.get("/api/v1/runs/staged/samples", headers=auth),
         lambda: client.delete("/api/v1/runs/staged", headers=auth),
+        lambda: client.post("/api/v1/control", json=CONTROL_BODY, headers=auth),
+        lambda: client.post("/api/v1/stop", headers=auth),
+        lambda: client.post("/api/v1/stop/release", headers=auth),
+        lambda: client.get("/api/v1/logs/2030-01-01", headers=auth),
     ]
     assert [call().status_code for call in calls] == [200] * len(calls)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import threading
 from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
 from typing import Any
 
 import pytest
@@ -142,3 +143,19 @@ def test_it_marks_a_timeout_retryable() -> None:
             client.status()
     assert caught.value.retryable is True
     assert caught.value.status is None
+
+
+def test_it_drives_stops_and_reads_the_log_and_the_battery(agent: AgentClient) -> None:
+    answer = agent.control(user="admin", velocity_mps=0.2, direction="ccw", ttl_s=2.0)
+    assert answer["manual"]["direction"] == "ccw"
+    assert agent.control(user="admin", velocity_mps=0, direction="cw")["manual"] is None
+    stopped = agent.stop(user="admin", reason="test")
+    assert stopped["estop"]["reason"] == "test (by admin)"
+    with pytest.raises(AgentConflict) as refused:
+        agent.control(user="admin", velocity_mps=0.2, direction="cw")
+    assert refused.value.kind == "estop_latched"
+    assert refused.value.retryable is False
+    assert agent.release_stop(user="admin")["released"] is True
+    entries = agent.day_log(datetime.now(UTC).date())["entries"]
+    assert [(e["user"], e["kind"]) for e in entries] == [("admin", "manual")]
+    assert set(agent.battery()) >= {"filtered_v", "raw_v"}

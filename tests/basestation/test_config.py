@@ -18,6 +18,11 @@ def test_it_reads_defaults_when_only_the_token_is_set() -> None:
     assert config.max_accel_mps2 == 1.0
     assert config.rail_length_m == 120.0
     assert config.resource == "mobile-1"
+    assert config.low_battery_v == 50.0
+    assert config.min_free_disk_mb == 200.0
+    assert config.retention_days == 90.0
+    assert config.retention_s == 90 * 86_400.0
+    assert config.cpu_temp_path == Path("/sys/class/thermal/thermal_zone0/temp")
 
 
 def test_it_reads_every_variable() -> None:
@@ -30,6 +35,10 @@ def test_it_reads_every_variable() -> None:
             "AGENT_MAX_ACCEL_MPS2": "0.5",
             "AGENT_RAIL_LENGTH_M": "250",
             "AGENT_RESOURCE": "mobile-2",
+            "AGENT_LOW_BATTERY_V": "52.5",
+            "AGENT_MIN_FREE_DISK_MB": "50",
+            "AGENT_RETENTION_DAYS": "30",
+            "AGENT_CPU_TEMP_PATH": "/sys/class/thermal/thermal_zone1/temp",
         }
     )
     assert config.data_dir == Path("/srv/agent")
@@ -38,6 +47,23 @@ def test_it_reads_every_variable() -> None:
     assert config.max_accel_mps2 == 0.5
     assert config.rail_length_m == 250.0
     assert config.resource == "mobile-2"
+    assert config.low_battery_v == 52.5
+    assert config.min_free_disk_mb == 50.0
+    assert config.retention_days == 30.0
+    assert config.cpu_temp_path == Path("/sys/class/thermal/thermal_zone1/temp")
+
+
+def test_zero_switches_the_battery_disk_and_retention_checks_off() -> None:
+    config = AgentConfig.from_env(
+        {
+            "AGENT_TOKEN": TOKEN,
+            "AGENT_LOW_BATTERY_V": "0",
+            "AGENT_MIN_FREE_DISK_MB": "0",
+            "AGENT_RETENTION_DAYS": "0",
+        }
+    )
+    assert (config.low_battery_v, config.min_free_disk_mb) == (0.0, 0.0)
+    assert config.retention_s is None
 
 
 def test_it_reads_the_token_from_a_file(tmp_path: Path) -> None:
@@ -91,6 +117,14 @@ def test_it_refuses_a_token_with_spaces() -> None:
         ("AGENT_RAIL_LENGTH_M", "1e9"),
         ("AGENT_RAIL_LENGTH_M", "12 m"),
         ("AGENT_RESOURCE", "  "),
+        ("AGENT_LOW_BATTERY_V", "-1"),
+        ("AGENT_LOW_BATTERY_V", "low"),
+        ("AGENT_MIN_FREE_DISK_MB", "-5"),
+        ("AGENT_MIN_FREE_DISK_MB", "nan"),
+        ("AGENT_RETENTION_DAYS", "0.5"),
+        ("AGENT_RETENTION_DAYS", "-1"),
+        ("AGENT_RETENTION_DAYS", "forever"),
+        ("AGENT_RETENTION_DAYS", "inf"),
     ],
 )
 def test_it_names_the_variable_holding_a_bad_value(variable: str, value: str) -> None:

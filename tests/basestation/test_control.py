@@ -66,3 +66,40 @@ def test_it_survives_a_failing_tick() -> None:
     loop.stop()
     assert loop.tick_errors == 1
     assert len(calls) > 3
+
+
+def test_it_reports_lateness_and_duration_percentiles_over_its_window() -> None:
+    def tick(now_s: float) -> None:
+        time.sleep(0.002)
+
+    loop = ControlLoop(tick, hz=100.0)
+    assert loop.stats().window.ticks == 0
+    assert loop.stats().window.lateness_p99_s is None
+    loop.start()
+    time.sleep(0.3)
+    loop.stop()
+    stats = loop.stats()
+    window = stats.window
+    assert window.ticks == stats.ticks
+    assert window.lateness_p50_s is not None
+    assert window.lateness_p99_s is not None
+    assert window.lateness_max_s is not None
+    assert 0 <= window.lateness_p50_s <= window.lateness_p99_s <= window.lateness_max_s
+    assert window.lateness_max_s <= stats.max_lateness_s
+    assert window.duration_p50_s is not None
+    assert window.duration_p50_s >= 0.002
+    assert stats.window_s == 60.0
+
+
+def test_its_window_holds_the_last_minute_of_ticks() -> None:
+    seen = 0
+
+    def tick(now_s: float) -> None:
+        nonlocal seen
+        seen += 1
+
+    loop = ControlLoop(tick, hz=200.0)  # a window of 12 000 ticks
+    loop.start()
+    time.sleep(0.1)
+    loop.stop()
+    assert loop.stats().window.ticks == min(seen, 12_000)

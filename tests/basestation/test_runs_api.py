@@ -613,6 +613,6 @@ def test_it_reports_the_link_down_before_any_telemetry(
 ) -> None:
     status = client.get("/api/v1/status", headers=auth).json
     assert status is not None
-    assert status["link"] == {"state": "down", "age_s": None}
+    assert status["link"] == {"state": "down", "age_s": None, "loss_pct": None, "rssi_dbm": None}
     assert status["current_run"] is None
     assert status["battery_v"] is None

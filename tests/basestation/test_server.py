@@ -2,66 +2,29 @@
 
 from __future__ import annotations
 
-import os
-import re
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from basestation.client import AgentClient
 from tests.basestation.conftest import TOKEN, run_body
+from tests.basestation.processes import REPO_ROOT, Agent, agent_env, start_agent
 
 pytestmark = pytest.mark.integration
-
-REPO_ROOT = Path(__file__).resolve().parents[2]
-LISTENING = re.compile(r"listening on http://127\.0\.0\.1:(\d+)")
-
-
-@dataclass
-class Agent:
-    process: subprocess.Popen[bytes]
-    log_path: Path
-    url: str
-
-    def log(self) -> str:
-        return self.log_path.read_text(encoding="utf-8", errors="replace")
-
-
-def _agent_env(data_dir: Path, **extra: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("AGENT_")}
-    env.update({"AGENT_DATA_DIR": str(data_dir), **extra})
-    return env
 
 
 @pytest.fixture
 def agent_process(tmp_path: Path) -> Iterator[Agent]:
-    log_path = tmp_path / "agent.log"
-    with log_path.open("wb") as log:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "basestation", "--host", "127.0.0.1", "--port", "0"],
-            cwd=REPO_ROOT,
-            env=_agent_env(tmp_path / "data", AGENT_TOKEN=TOKEN),
-            stdout=log,
-            stderr=subprocess.STDOUT,
-        )
+    agent = start_agent(tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN)
     try:
-        deadline = time.monotonic() + 15.0
-        match = None
-        while match is None and time.monotonic() < deadline and process.poll() is None:
-            time.sleep(0.05)
-            match = LISTENING.search(log_path.read_text(encoding="utf-8", errors="replace"))
-        assert match is not None, log_path.read_text(encoding="utf-8", errors="replace")
-        yield Agent(process=process, log_path=log_path, url=f"http://127.0.0.1:{match[1]}")
+        yield agent
     finally:
-        if process.poll() is None:
-            process.kill()
-        process.wait(10)
+        agent.kill()
 
 
 def test_the_real_agent_runs_a_short_program_and_stops_cleanly(agent_process: Agent) -> None:
@@ -111,7 +74,7 @@ def test_the_real_agent_refuses_to_start_without_a_token(tmp_path: Path) -> None
     result = subprocess.run(
         [sys.executable, "-m", "basestation", "--port", "0"],
         cwd=REPO_ROOT,
-        env=_agent_env(tmp_path / "data"),
+        env=agent_env(tmp_path / "data"),
         capture_output=True,
         text=True,
         timeout=30,

@@ -1,0 +1,57 @@
+"""Admin operations: ``POST /control`` (manual drive), ``POST /stop`` and ``/stop/release``.
+
+The agent has one token; that only admins reach these is the portal's business (it calls
+them only for admins and passes the admin's name as ``user``, for the usage log).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from flask import Blueprint, jsonify
+from flask.typing import ResponseReturnValue
+
+from basestation.api.bodies import json_body
+from basestation.manager import EstopLatch
+from basestation.manual import RELEASE_FIELDS, parse_control_body, parse_stop_body
+from basestation.runtime import get_runtime
+from basestation.services import estop_latch, estop_release, manual_drive
+
+bp = Blueprint("control", __name__)
+
+
+def estop_json(latch: EstopLatch | None) -> dict[str, Any]:
+    if latch is None:
+        return {"latched": False, "since": None, "reason": None}
+    return latch.to_json_dict()
+
+
+@bp.post("/control")
+def control() -> ResponseReturnValue:
+    runtime = get_runtime()
+    command = parse_control_body(json_body(), max_velocity_mps=runtime.config.max_velocity_mps)
+    now_s = time.time()
+    drive, aborted = manual_drive(manager=runtime.manager, command=command, now_s=now_s)
+    return jsonify(
+        {
+            "manual": None if drive is None else drive.to_json_dict(now_s),
+            "aborted_run": aborted,
+        }
+    )
+
+
+@bp.post("/stop")
+def stop() -> ResponseReturnValue:
+    runtime = get_runtime()
+    request_ = parse_stop_body(json_body(optional=True))
+    latch, aborted = estop_latch(manager=runtime.manager, request=request_, now_s=time.time())
+    return jsonify({"estop": estop_json(latch), "aborted_run": aborted})
+
+
+@bp.post("/stop/release")
+def release() -> ResponseReturnValue:
+    runtime = get_runtime()
+    request_ = parse_stop_body(json_body(optional=True), allowed=RELEASE_FIELDS)
+    was_latched = estop_release(manager=runtime.manager, request=request_, now_s=time.time())
+    return jsonify({"estop": estop_json(runtime.manager.estop), "released": was_latched})

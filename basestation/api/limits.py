@@ -1,0 +1,19 @@
+"""Request size limit on every endpoint, whether it reads a body or not."""
+
+from __future__ import annotations
+
+from flask import current_app, request
+from werkzeug.exceptions import RequestEntityTooLarge
+
+
+def refuse_oversized_body() -> None:
+    """413 for a declared body over the limit before any handler runs.
+
+    Flask enforces ``MAX_CONTENT_LENGTH`` only when a handler reads the body; an endpoint
+    that ignores bodies would otherwise accept (and let the server buffer) any size.
+    Bodies without a declared length are cut at the limit when read.
+    """
+    limit = current_app.config["MAX_CONTENT_LENGTH"]
+    length = request.content_length
+    if limit is not None and length is not None and length > limit:
+        raise RequestEntityTooLarge(f"The body is larger than {limit} bytes.")

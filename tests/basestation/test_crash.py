@@ -1,0 +1,113 @@
+"""The real agent killed with SIGKILL in the middle of a run, then restarted on the same data.
+
+Every sample the agent served before the kill is there after the restart, identical and
+exactly once; the numbering has no gap; the run says it was interrupted. (That the robot
+stopped by itself belongs to the robot simulator in its own process: its dead-man test.)
+"""
+
+from __future__ import annotations
+
+import http.client
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from basestation.client import AgentClient
+from tests.basestation.conftest import TOKEN, run_body
+from tests.basestation.processes import Agent, start_agent
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture
+def agents(tmp_path: Path) -> Iterator[list[Agent]]:
+    started: list[Agent] = []
+    yield started
+    for agent in started:
+        agent.kill()
+
+
+def _wait_for(condition: Any, timeout_s: float = 10.0) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError("timed out")
+
+
+def test_a_killed_agent_keeps_every_served_sample_exactly_once_and_marks_the_run_interrupted(
+    tmp_path: Path, agents: list[Agent]
+) -> None:
+    data_dir, log_path = tmp_path / "data", tmp_path / "agent.log"
+    agent = start_agent(data_dir, log_path, AGENT_TOKEN=TOKEN)
+    agents.append(agent)
+    with AgentClient(agent.url, TOKEN) as client:
+        start_s = time.time() + 0.5
+        segments = [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 60.0}]
+        client.put_run("crash", run_body(start_s, window_s=120.0, segments=segments))
+        _wait_for(lambda: client.get_run("crash")["sample_count"] >= 30)
+        # Read while the agent writes: whatever it has served must survive the kill.
+        served = list(client.iter_samples("crash", 0, limit=7))
+        agent.process.kill()  # SIGKILL: no clean-up of any kind
+        agent.process.wait(10)
+    assert len(served) >= 30
+
+    restarted = start_agent(data_dir, log_path, AGENT_TOKEN=TOKEN)
+    agents.append(restarted)
+    with AgentClient(restarted.url, TOKEN) as client:
+        run = client.get_run("crash")
+        assert run["state"] == "interrupted"
+        assert run["reason"] == "agent restarted during run"
+        assert run["ended_at"] is not None
+        stored = list(client.iter_samples("crash", 0, limit=11))
+        seqs = [sample["seq"] for sample in stored]
+        assert seqs == list(range(1, len(stored) + 1))  # once each, no gap
+        assert run["sample_count"] == len(stored) == run["last_seq"]
+        assert stored[: len(served)] == served  # identical, field for field
+        # Nothing is added to an ended run, and the restarted agent holds the robot at rest.
+        time.sleep(0.3)
+        assert client.get_run("crash")["sample_count"] == len(stored)
+        status = client.status()
+        assert status["current_run"] is None
+        assert status["robot"]["commanded_velocity_mps"] == 0.0
+    assert "run crash: running -> interrupted (agent restarted during run)" in restarted.log()
+
+
+def test_the_real_server_refuses_traversal_and_oversized_bodies(
+    tmp_path: Path, agents: list[Agent]
+) -> None:
+    agent = start_agent(tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN)
+    agents.append(agent)
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    # http.client sends the path as written (no dot-segment removal, unlike browsers/urllib3).
+    for path in (
+        "/api/v1/logs/../../etc/passwd",
+        "/api/v1/logs/..%2F..%2Fetc%2Fpasswd",
+        "/api/v1/logs/%2e%2e%2f%2e%2e%2fetc%2fpasswd",
+        "/api/v1/../../../etc/passwd",
+    ):
+        connection = http.client.HTTPConnection("127.0.0.1", agent.port, timeout=5)
+        connection.request("GET", path, headers=auth)
+        response = connection.getresponse()
+        body = response.read().decode("utf-8", "replace")
+        connection.close()
+        assert response.status in (400, 404, 422), (path, response.status)
+        assert "root:" not in body
+    connection = http.client.HTTPConnection("127.0.0.1", agent.port, timeout=5)
+    connection.request(
+        "POST",
+        "/api/v1/stop",
+        body=b'{"reason": "' + b"x" * 200_000 + b'"}',
+        headers={**auth, "Content-Type": "application/json"},
+    )
+    response = connection.getresponse()
+    response.read()
+    connection.close()
+    assert response.status == 413
+    with AgentClient(agent.url, TOKEN) as client:
+        assert client.status()["estop"]["latched"] is False

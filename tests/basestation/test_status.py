@@ -1,0 +1,95 @@
+"""``GET /status`` beyond the runs: the base station's own health, the control loop's timing."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from flask import Flask
+from flask.testing import FlaskClient
+
+from basestation.app import create_app
+from basestation.config import AgentConfig
+from basestation.runtime import get_runtime
+from basestation.system import clock_synchronized, cpu_temp_c
+from tests.basestation.conftest import RecordingRobot
+
+
+def _app_with(config: AgentConfig, robot: RecordingRobot) -> Iterator[Flask]:
+    app = create_app(config, start_control_loop=False, robot=robot)
+    yield app
+    get_runtime(app).close()
+
+
+@pytest.fixture
+def thermal_zone(tmp_path: Path) -> Path:
+    path = tmp_path / "temp"
+    path.write_text("48300\n", encoding="ascii")  # the thesis's Pi, with its fan
+    return path
+
+
+def test_status_reports_the_cpu_temperature_from_the_thermal_zone(
+    agent_config: AgentConfig, robot: RecordingRobot, auth: dict[str, str], thermal_zone: Path
+) -> None:
+    for app in _app_with(replace(agent_config, cpu_temp_path=thermal_zone), robot):
+        status = app.test_client().get("/api/v1/status", headers=auth).json
+        assert status is not None
+        assert status["host"]["cpu_temp_c"] == 48.3
+
+
+def test_status_reports_null_without_a_thermal_zone(
+    agent_config: AgentConfig, robot: RecordingRobot, auth: dict[str, str], tmp_path: Path
+) -> None:
+    for app in _app_with(replace(agent_config, cpu_temp_path=tmp_path / "absent"), robot):
+        response = app.test_client().get("/api/v1/status", headers=auth)
+        assert response.status_code == 200
+        assert response.json is not None
+        assert response.json["host"]["cpu_temp_c"] is None
+
+
+@pytest.mark.parametrize("content", ["", "hot", "\xff"])
+def test_an_unreadable_thermal_zone_reads_as_null(tmp_path: Path, content: str) -> None:
+    path = tmp_path / "temp"
+    path.write_bytes(content.encode("latin-1"))
+    assert cpu_temp_c(path) is None
+
+
+def test_status_reports_the_clock_and_whether_it_is_synchronised(
+    client: FlaskClient, auth: dict[str, str]
+) -> None:
+    status = client.get("/api/v1/status", headers=auth).json
+    assert status is not None
+    assert isinstance(status["clock"], float)
+    # This machine may or may not run an NTP daemon; the field is a boolean or unknown.
+    assert status["clock_synchronized"] in (True, False, None)
+    assert status["clock_synchronized"] == clock_synchronized()
+
+
+def test_status_reports_battery_estop_manual_and_the_control_window(
+    client: FlaskClient, auth: dict[str, str]
+) -> None:
+    status = client.get("/api/v1/status", headers=auth).json
+    assert status is not None
+    assert status["battery"] == {
+        "filtered_v": None,
+        "raw_v": None,
+        "low_battery_v": 50.0,
+        "low": False,
+    }
+    assert status["estop"] == {"latched": False, "since": None, "reason": None}
+    assert status["manual"] is None
+    control = status["control"]
+    assert control["missed_ticks"] == 0
+    assert control["window"]["seconds"] == 60.0
+    assert set(control["window"]) == {
+        "seconds",
+        "ticks",
+        "lateness_p50_ms",
+        "lateness_p99_ms",
+        "lateness_max_ms",
+        "tick_p50_ms",
+        "tick_p99_ms",
+        "tick_max_ms",
+    }
