@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 ENV_PREFIX = "AGENT_"
@@ -22,6 +22,13 @@ DEFAULT_MIN_FREE_DISK_MB = 200.0
 DEFAULT_RETENTION_DAYS = 90.0
 # Low among real-time priorities (1-99): above every normal thread, below the kernel's own.
 DEFAULT_RT_PRIORITY = 10
+
+
+# How the agent reaches the robot: "radio" is the RFM69 on the Pi's SPI bus; "sim" the same
+# driver on an emulated chip whose robot (the firmware core on simulated physics) lives in
+# this process; "sim-udp" the same with the robot in its own process (python -m
+# basestation.sim), so it outlives the agent; "simple" a bare kinematic model for unit tests.
+ROBOT_KINDS = ("radio", "sim", "sim-udp", "simple")
 
 
 class ConfigError(Exception):
@@ -49,6 +56,16 @@ class AgentConfig:
     cpu_temp_path: Path = DEFAULT_CPU_TEMP_PATH
     # SCHED_FIFO priority of the control loop's thread (0: normal scheduling).
     rt_priority: int = DEFAULT_RT_PRIORITY
+    robot: str = "sim"
+    # sim-udp: the loopback ports of this side's emulated chip and of the robot process.
+    sim_base_port: int = 47001
+    sim_robot_port: int = 47002
+    # radio: the SPI device of the RFM69 and the optional AES key (32 hex digits).
+    spi_bus: int = 0
+    spi_device: int = 0
+    radio_aes_key: str | None = field(default=None, repr=False)
+    # The rail's geometry (JSON or TOML, see basestation/telemetry/default_rail.json).
+    rail_file: Path | None = None
 
     def __post_init__(self) -> None:
         # Checked here too so that configs built in code (tests, benchmarks) obey the same rules.
@@ -63,6 +80,10 @@ class AgentConfig:
         _check_range("min_free_disk_mb", self.min_free_disk_mb, low=0.0, high=10_000_000.0)
         _check_retention("retention_days", self.retention_days)
         _check_range("rt_priority", self.rt_priority, low=0, high=99)
+        if self.robot not in ROBOT_KINDS:
+            raise ConfigError(f"robot must be one of {', '.join(ROBOT_KINDS)}, not {self.robot!r}")
+        for name in ("sim_base_port", "sim_robot_port"):
+            _check_range(name, getattr(self, name), low=1, high=65535)
 
     @property
     def control_period_s(self) -> float:
@@ -80,7 +101,8 @@ class AgentConfig:
             f"max_accel_mps2={self.max_accel_mps2}, rail_length_m={self.rail_length_m}, "
             f"resource={self.resource!r}, low_battery_v={self.low_battery_v}, "
             f"min_free_disk_mb={self.min_free_disk_mb}, retention_days={self.retention_days}, "
-            f"cpu_temp_path={self.cpu_temp_path!r}, rt_priority={self.rt_priority})"
+            f"cpu_temp_path={self.cpu_temp_path!r}, rt_priority={self.rt_priority}, "
+            f"robot={self.robot!r}, rail_file={self.rail_file!r})"
         )
 
     @classmethod
@@ -103,6 +125,15 @@ class AgentConfig:
             cpu_temp_path=Path(
                 env.get(f"{ENV_PREFIX}CPU_TEMP_PATH", "").strip() or DEFAULT_CPU_TEMP_PATH
             ),
+            robot=env.get(f"{ENV_PREFIX}ROBOT", "").strip() or "sim",
+            sim_base_port=int(_float_env(env, "SIM_BASE_PORT", 47001, low=1, high=65535)),
+            sim_robot_port=int(_float_env(env, "SIM_ROBOT_PORT", 47002, low=1, high=65535)),
+            spi_bus=int(_float_env(env, "SPI_BUS", 0, low=0, high=9)),
+            spi_device=int(_float_env(env, "SPI_DEVICE", 0, low=0, high=9)),
+            radio_aes_key=_secret_from_env(env, "RADIO_AES_KEY"),
+            rail_file=Path(env[f"{ENV_PREFIX}RAIL_FILE"])
+            if env.get(f"{ENV_PREFIX}RAIL_FILE")
+            else None,
         )
 
     @property
@@ -129,6 +160,25 @@ def _token_from_env(env: Mapping[str, str]) -> str:
         )
     _check_token(token, f"{ENV_PREFIX}TOKEN")
     return token
+
+
+def _optional_path(env: Mapping[str, str], name: str) -> Path | None:
+    value = env.get(f"{ENV_PREFIX}{name}", "").strip()
+    return Path(value) if value else None
+
+
+def _secret_from_env(env: Mapping[str, str], name: str) -> str | None:
+    """``AGENT_<name>``, or the content of the file named by ``AGENT_<name>_FILE``."""
+    value = env.get(f"{ENV_PREFIX}{name}", "").strip()
+    path = env.get(f"{ENV_PREFIX}{name}_FILE", "").strip()
+    if value and path:
+        raise ConfigError(f"set only one of {ENV_PREFIX}{name} and {ENV_PREFIX}{name}_FILE")
+    if path:
+        try:
+            return Path(path).read_text(encoding="utf-8").strip() or None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{ENV_PREFIX}{name}_FILE: cannot read {path!r}: {exc}") from exc
+    return value or None
 
 
 def _check_token(token: str, name: str) -> None:

@@ -15,7 +15,8 @@ from basestation.config import AgentConfig
 from basestation.control import ControlLoop, ControlStats
 from basestation.housekeeping import Housekeeper
 from basestation.manager import RunManager
-from basestation.robot import Robot, SimpleSimulatedRobot
+from basestation.robot import Robot
+from basestation.robots import build_robot
 from basestation.store import RunStore
 from basestation.system import DiskSpace, disk_space
 
@@ -48,11 +49,7 @@ class AgentRuntime:
         # its samples are kept, its state says why it stopped.
         store.mark_interrupted(now_s=time.time(), reason="agent restarted during run")
         if robot is None:
-            robot = SimpleSimulatedRobot(
-                max_velocity_mps=config.max_velocity_mps,
-                max_accel_mps2=config.max_accel_mps2,
-                rail_length_m=config.rail_length_m,
-            )
+            robot = build_robot(config)
         manager = RunManager(store=store, robot=robot, config=config)
         return cls(config=config, store=store, robot=robot, manager=manager)
 
@@ -97,6 +94,9 @@ class AgentRuntime:
         finally:
             self.manager.writer.stop()
             self.store.close()
+            close_robot = getattr(self.robot, "close", None)
+            if close_robot is not None:
+                close_robot()
 
 
 def get_runtime(app: Flask | None = None) -> AgentRuntime:

@@ -68,7 +68,9 @@ class RecordingRobot:
 
 @pytest.fixture
 def agent_config(tmp_path: Path) -> AgentConfig:
-    return AgentConfig(token=TOKEN, data_dir=tmp_path / "agent")
+    # The kinematic model: these tests drive the clock by hand, which the radio chain (real
+    # time on its emulated air) does not follow. Integration tests run the full chain.
+    return AgentConfig(token=TOKEN, data_dir=tmp_path / "agent", robot="simple")
 
 
 @pytest.fixture

@@ -111,7 +111,7 @@ def test_it_refuses_an_overlap_inside_one_transaction_under_concurrent_puts(
 def test_it_marks_a_run_left_running_as_interrupted_on_restart_and_keeps_its_samples_once(
     tmp_path: Path,
 ) -> None:
-    config = AgentConfig(token=TOKEN, data_dir=tmp_path / "agent")
+    config = AgentConfig(token=TOKEN, data_dir=tmp_path / "agent", robot="simple")
     first = get_runtime(create_app(config, start_control_loop=False))
     _stage_running(first.store)
     first.store.append_samples("run-1", [_sample(seq) for seq in range(1, 51)])

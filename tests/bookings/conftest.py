@@ -33,7 +33,8 @@ class Agent:
 
 @pytest.fixture
 def agent(tmp_path, settings) -> Iterator[Agent]:
-    config = AgentConfig(token=TOKEN, data_dir=tmp_path / "agent")
+    # The kinematic model: the clock is driven by hand here (see tests/basestation/conftest).
+    config = AgentConfig(token=TOKEN, data_dir=tmp_path / "agent", robot="simple")
     app = create_app(config, start_control_loop=False)
     server = make_server("127.0.0.1", 0, app, threaded=True)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
