@@ -1,13 +1,16 @@
 """The real agent killed with SIGKILL in the middle of a run, then restarted on the same data.
 
 Every sample the agent served before the kill is there after the restart, identical and
-exactly once; the numbering has no gap; the run says it was interrupted. (That the robot
-stopped by itself belongs to the robot simulator in its own process: its dead-man test.)
+exactly once; the numbering has no gap; the run says it was interrupted. With the simulated
+robot in its own process, the robot stops by itself on its dead-man.
 """
 
 from __future__ import annotations
 
 import http.client
+import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,7 +20,7 @@ import pytest
 
 from basestation.client import AgentClient
 from tests.basestation.conftest import TOKEN, run_body
-from tests.basestation.processes import Agent, start_agent
+from tests.basestation.processes import REPO_ROOT, Agent, start_agent
 
 pytestmark = pytest.mark.integration
 
@@ -111,3 +114,60 @@ def test_the_real_server_refuses_traversal_and_oversized_bodies(
     assert response.status == 413
     with AgentClient(agent.url, TOKEN) as client:
         assert client.status()["estop"]["latched"] is False
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def test_a_killed_agent_leaves_the_robot_to_stop_by_itself(
+    tmp_path: Path, agents: list[Agent]
+) -> None:
+    """The robot runs in its own process (as on the roof): the agent's death is its silence."""
+    from tests.basestation.sim.test_process import READY, inspect, lines_of
+
+    base_port, robot_port = _free_udp_port(), _free_udp_port()
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "basestation.sim", "--radio-port", str(robot_port),
+         "--peer-port", str(base_port), "--inspect-port", "0"],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        assert robot.stdout is not None
+        ready = READY.search(lines_of(robot.stdout).get(timeout=20.0))
+        assert ready, "the robot process did not say it was ready"
+        inspect_port = int(ready.group(2))
+        agent = start_agent(
+            tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_ROBOT="sim-udp",
+            AGENT_SIM_BASE_PORT=str(base_port), AGENT_SIM_ROBOT_PORT=str(robot_port),
+        )  # fmt: skip
+        agents.append(agent)
+        with AgentClient(agent.url, TOKEN) as client:
+            segments = [{"velocity_mps": 1.0, "direction": "cw", "duration_s": 60.0}]
+            client.put_run("roof", run_body(time.time() + 0.5, window_s=120.0, segments=segments))
+            moving = _wait_for(lambda: (s := inspect(inspect_port))["velocity_mps"] >= 0.9 and s)
+            agent.process.kill()  # SIGKILL: the robot hears nothing more
+            agent.process.wait(10)
+        killed_s = time.monotonic()
+        state = _wait_for(lambda: (s := inspect(inspect_port))["velocity_mps"] == 0.0 and s)
+        stopped_after_s = time.monotonic() - killed_s
+        assert state["dead_man"], state
+        assert state["track_m"] > moving["track_m"]
+        # 500 ms dead-man, then at least 0.5 m/s² from 1 m/s, and the drive's lag.
+        assert stopped_after_s < 0.5 + 1.0 / 0.5 + 1.5
+        assert robot.poll() is None  # it stopped itself; nobody stopped it
+
+        restarted = start_agent(
+            tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_ROBOT="sim-udp",
+            AGENT_SIM_BASE_PORT=str(base_port), AGENT_SIM_ROBOT_PORT=str(robot_port),
+        )  # fmt: skip
+        agents.append(restarted)
+        with AgentClient(restarted.url, TOKEN) as client:
+            assert client.get_run("roof")["state"] == "interrupted"
+    finally:
+        robot.terminate()
+        robot.wait(10)
+        if robot.stdout is not None:
+            robot.stdout.close()
