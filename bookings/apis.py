@@ -137,6 +137,8 @@ class ReservationOutput(serializers.ModelSerializer):
         return [item.resource.name for item in reservation.items.all()]
 
     def get_run(self, reservation: Reservation) -> dict[str, Any] | None:
+        if not any(item.resource.is_mobile for item in reservation.items.all()):
+            return None  # only a mobile node runs an experiment: no need to look
         run = getattr(reservation, "run", None)
         return {"id": run.pk, "state": run.state} if run is not None else None
 

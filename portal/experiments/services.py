@@ -8,7 +8,8 @@ from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime
 from typing import Any
 
-from django.db import connection, transaction
+import psycopg
+from django.db import IntegrityError, connection, transaction
 from django.db.models import Count, Max
 from django.utils import timezone
 from django.utils.dateparse import parse_datetime
@@ -192,8 +193,23 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
 
 
 def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> None:
+    """COPY straight into the table; if a row is already there (a repeated or overlapping
+    collection), roll that back and merge through a temporary table instead."""
     columns = ", ".join(SAMPLE_COLUMNS)
     table = Sample._meta.db_table
+    try:
+        with (
+            transaction.atomic(),
+            connection.cursor() as cursor,
+            cursor.copy(f"COPY {table} (run_id, {columns}) FROM STDIN") as copy,
+        ):
+            for row in rows:
+                copy.write_row((run_id, *row))
+        return
+    except (IntegrityError, psycopg.errors.UniqueViolation):
+        # COPY goes to psycopg directly, so its error arrives unwrapped by Django. The unique
+        # (run, seq) constraint saw a duplicate and the savepoint undid the whole page.
+        pass
     with connection.cursor() as cursor:
         # Emptied at every commit, so one per connection serves every page.
         cursor.execute(

@@ -1,0 +1,57 @@
+"""Sample pages from the agent are stored once, however often or overlapping they arrive."""
+
+from __future__ import annotations
+
+import time
+from datetime import timedelta
+
+import pytest
+from django.utils import timezone
+
+from bookings.services import reservation_create
+from portal.experiments.models import Sample
+from portal.experiments.services import samples_ingest
+
+pytestmark = pytest.mark.django_db
+
+
+def _page(first: int, last: int) -> list[dict]:
+    t0 = time.time()
+    return [
+        {"seq": i, "t": t0 + i / 20, "segment": 0, "commanded_velocity_mps": 0.5,
+         "velocity_mps": 0.49, "direction": "cw", "battery_v": 60.1, "track_m": i / 40}
+        for i in range(first, last + 1)
+    ]  # fmt: skip
+
+
+@pytest.fixture
+def run(owner, mobile, experiment):
+    start = timezone.now() + timedelta(hours=1)
+    reservation = reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=5),
+        experiment=experiment,
+    )  # fmt: skip
+    return reservation.run
+
+
+def test_a_repeated_page_is_stored_once(run):
+    samples_ingest(run=run, samples=_page(1, 100))
+    samples_ingest(run=run, samples=_page(1, 100))
+    assert Sample.objects.filter(run=run).count() == 100
+
+
+def test_an_overlapping_page_adds_only_what_is_new(run):
+    samples_ingest(run=run, samples=_page(1, 100))
+    samples_ingest(run=run, samples=_page(51, 150))
+    seqs = list(Sample.objects.filter(run=run).order_by("seq").values_list("seq", flat=True))
+    assert seqs == list(range(1, 151))
+    run.refresh_from_db()
+    assert run.last_seq == 150
+
+
+def test_a_page_out_of_order_still_moves_last_seq_forward_only(run):
+    samples_ingest(run=run, samples=_page(101, 200))
+    samples_ingest(run=run, samples=_page(1, 100))
+    run.refresh_from_db()
+    assert run.last_seq == 200
+    assert Sample.objects.filter(run=run).count() == 200
