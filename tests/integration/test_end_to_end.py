@@ -117,7 +117,7 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
         assert s["direction"] == target["direction"], (s, samples)
         assert abs(s["velocity_mps"] - target["velocity_mps"]) <= VELOCITY_TOLERANCE_MPS, s
         checked += 1
-    assert checked >= 70  # two segments × 2 s settled × 20 Hz, less a few late ticks
+    assert checked >= 70  # two segments, 2 s settled each, at 20 Hz, less a few late ticks
 
     csv_response = requests.get(
         f"{web}/api/v1/runs/{run_id}/samples.csv", headers=headers, timeout=10
