@@ -1,0 +1,44 @@
+"""The admin robot console in Chromium, against the real agent and simulated robot."""
+
+from __future__ import annotations
+
+import pytest
+from playwright.sync_api import expect
+
+from portal.audit.models import AuditEvent
+from tests.browser.conftest import SCREENSHOTS, login
+from tests.factories import MobileResourceFactory, UserFactory
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+
+def test_an_admin_stops_and_releases_the_robot_from_the_console(browser, stack):
+    MobileResourceFactory(agent_url=stack["agent_url"])
+    UserFactory(username="root-admin", is_staff=True, is_superuser=True)
+    context = browser.new_context(viewport={"width": 1280, "height": 1100})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    login(page, stack["web"], "root-admin", "correct horse battery")
+    page.get_by_role("link", name="mobile-1").click()
+    expect(page.locator("#st-link")).to_contain_text("up", timeout=15_000)
+    expect(page.locator("#st-battery")).to_contain_text("V")
+
+    page.get_by_label("Reason").first.fill("checking the console")
+    page.get_by_role("button", name="Send").click()
+    expect(page.locator("#console-feedback")).to_contain_text("Driving 0.3 m/s cw for 1 s")
+
+    page.get_by_test_id("estop").click()
+    expect(page.locator("#console-feedback")).to_contain_text("Emergency stop latched")
+    expect(page.locator("#st-estop")).to_contain_text("LATCHED", timeout=5_000)
+    page.screenshot(path=str(SCREENSHOTS / "robot-console.png"), full_page=True)
+
+    page.locator("#release-form").get_by_role("button").click()  # no reason: refused
+    expect(page.locator("#console-feedback")).to_contain_text("Not released")
+    page.locator("#release-form input[name=reason]").fill("rail inspected")
+    page.locator("#release-form").get_by_role("button").click()
+    expect(page.locator("#st-estop")).to_have_text("released", timeout=5_000)
+    actions = list(AuditEvent.objects.order_by("pk").values_list("action", flat=True))
+    assert actions == ["robot.control", "robot.stop", "robot.release"]
+    assert not errors, errors
+    context.close()
