@@ -2,8 +2,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from datetime import datetime
+from typing import Any
 
-from django.db.models import Max, Q, QuerySet
+from django.db.models import F, Max, Q, QuerySet, Value
 
 from bookings.choices import ResourceKind
 from bookings.models import Blackout, Reservation, ReservationItem, Resource
@@ -45,6 +46,43 @@ def blackouts_overlapping(
         .filter(Q(all_resources=True) | Q(resources__in=list(resources)))
         .distinct()
     )
+
+
+def first_conflict(
+    *,
+    resources: Iterable[Resource],
+    start_at: datetime,
+    end_at: datetime,
+    exclude_reservation_id: int | None = None,
+) -> dict[str, Any] | None:
+    """The first thing that forbids booking ``resources`` in ``[start_at, end_at)``.
+
+    ``{"kind": "blackout"|"booked", "label": reason or resource name, "start_at", "end_at"}``,
+    maintenance first. One round trip: this runs under the booking lock, on every booking.
+    """
+    ids = [r.pk for r in resources]
+    blackout_ids = Blackout.resources.through.objects.filter(resource_id__in=ids).values(
+        "blackout_id"
+    )
+    blackouts = (
+        Blackout.objects.filter(start_at__lt=end_at, end_at__gt=start_at)
+        .filter(Q(all_resources=True) | Q(pk__in=blackout_ids))
+        .annotate(kind=Value("blackout"), label=F("reason"))
+        .values("kind", "label", "start_at", "end_at")
+        .order_by()  # SQLite allows no ORDER BY inside a compound statement's parts
+    )
+    items = ReservationItem.objects.filter(
+        resource_id__in=ids, active=True, start_at__lt=end_at, end_at__gt=start_at
+    )
+    if exclude_reservation_id is not None:
+        items = items.exclude(reservation_id=exclude_reservation_id)
+    booked = (
+        items.annotate(kind=Value("booked"), label=F("resource__name"))
+        .values("kind", "label", "start_at", "end_at")
+        .order_by()
+    )
+    # "blackout" sorts before "booked": a maintenance window is the better explanation.
+    return blackouts.union(booked, all=True).order_by("kind", "start_at").first()
 
 
 def reservations_visible(*, user: User) -> QuerySet[Reservation]:

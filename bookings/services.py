@@ -20,7 +20,7 @@ from django.utils import timezone
 from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState, ResourceKind
 from bookings.models import Blackout, QuotaPolicy, Reservation, ReservationItem, Resource
 from bookings.quotas import quota_violations
-from bookings.selectors import blackouts_overlapping, items_overlapping
+from bookings.selectors import first_conflict
 from portal.accounts.models import User
 from portal.audit.services import audit_record
 from portal.errors import Conflict, InvalidInput, NotAllowed
@@ -121,21 +121,20 @@ def _check_capacity(
 ) -> list[str]:
     """Blackouts and overlaps always; quotas unless overridden. Returns what was overridden."""
     local = timezone.localtime
-    blackout = blackouts_overlapping(resources=resources, start_at=start_at, end_at=end_at).first()
-    if blackout is not None:
-        raise Conflict.on_field(
-            "start_at",
-            f"Maintenance “{blackout.reason}” from {local(blackout.start_at):%Y-%m-%d %H:%M} "
-            f"to {local(blackout.end_at):%Y-%m-%d %H:%M}: nothing can be booked then.",
-        )
-    clash = items_overlapping(
+    conflict = first_conflict(
         resources=resources, start_at=start_at, end_at=end_at, exclude_reservation_id=exclude_id
-    ).first()
-    if clash is not None:
+    )
+    if conflict is not None:
+        since = f"{local(conflict['start_at']):%Y-%m-%d %H:%M}"
+        until = f"{local(conflict['end_at']):%Y-%m-%d %H:%M}"
+        if conflict["kind"] == "blackout":
+            raise Conflict.on_field(
+                "start_at",
+                f"Maintenance “{conflict['label']}” from {since} to {until}: "
+                "nothing can be booked then.",
+            )
         raise Conflict.on_field(
-            "start_at",
-            f"{clash.resource.name} is already booked from {local(clash.start_at):%Y-%m-%d %H:%M} "
-            f"to {local(clash.end_at):%Y-%m-%d %H:%M}.",
+            "start_at", f"{conflict['label']} is already booked from {since} to {until}."
         )
     problems = quota_violations(
         user=owner,
