@@ -44,6 +44,7 @@ from basestation.store import (
     Sample,
 )
 from basestation.telemetry.battery import BatteryFilter
+from basestation.telemetry.laps import LapCounter
 from basestation.writer import StoreWriter, WriterFull
 
 logger = logging.getLogger(__name__)
@@ -135,6 +136,8 @@ class RunManager:
         self._setpoint_signed_mps = 0.0
         self._direction: Direction = "cw"
         self._battery = BatteryFilter(BATTERY_WINDOW)
+        # Whole laps of the active run, from its unwrapped track position.
+        self._laps: tuple[str, LapCounter] | None = None
         self._low_battery_since_s: float | None = None
         self._answered: deque[bool] = deque(maxlen=LOSS_WINDOW)
         # Set by HTTP threads, read by the tick: whole objects swapped, never mutated.
@@ -467,6 +470,8 @@ class RunManager:
         commanded_mps: float,
         telemetry: Telemetry,
     ) -> None:
+        # A radio robot reports its position (RadioTelemetry); the kinematic model does not.
+        position_known = getattr(telemetry, "position_known", False)
         sample = Sample(
             seq=self._next_seq,
             t=now_s,
@@ -476,6 +481,11 @@ class RunManager:
             direction=telemetry.direction,
             battery_v=telemetry.battery_v,
             track_m=telemetry.track_m,
+            fix_quality=getattr(telemetry, "fix_quality", None),
+            lat_deg=getattr(telemetry, "lat_deg", None) if position_known else None,
+            lon_deg=getattr(telemetry, "lon_deg", None) if position_known else None,
+            grid_id=getattr(telemetry, "grid_id", None) if position_known else None,
+            lap=self._lap(run.id, telemetry.track_m, now_s, telemetry.velocity_mps),
         )
         try:
             stored = self.writer.append(run.id, sample)
@@ -492,6 +502,17 @@ class RunManager:
             self._active = None
         else:
             self._next_seq += 1
+
+    def _lap(self, run_id: str, track_m: float, now_s: float, velocity_mps: float) -> int:
+        if self._laps is None or self._laps[0] != run_id:
+            self._laps = (run_id, LapCounter(self._rail_length_m()))
+        self._laps[1].update(track_m, now_s, velocity_mps)
+        return self._laps[1].laps
+
+    def _rail_length_m(self) -> float:
+        rail = getattr(self.robot, "rail", None)  # the radio link knows the configured rail
+        length = getattr(rail, "length_m", None)
+        return float(length) if length else self.config.rail_length_m
 
     # -- the schedule ----------------------------------------------------------------------------
 

@@ -41,7 +41,18 @@ END_STATES: Final = (COMPLETED, CANCELLED, ABORTED, INTERRUPTED, FAILED)
 
 logger = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 2  # 2: manual_sessions and agent_state (created on the first start of v2)
+# 2: manual_sessions and agent_state (created on the first start of v2)
+# 3: the robot's position with each sample (fix, lat/lon, grid id, lap), added in place
+SCHEMA_VERSION = 3
+# Columns added to ``samples`` after version 1, with their types: an older store gains them
+# on open (nullable, so its existing samples simply have no position).
+SAMPLE_POSITION_COLUMNS = {
+    "fix_quality": "INTEGER",
+    "lat_deg": "REAL",
+    "lon_deg": "REAL",
+    "grid_id": "TEXT",
+    "lap": "INTEGER",
+}
 BUSY_TIMEOUT_MS = 5_000
 # Retention deletes this many samples per transaction, so that the control loop's next
 # commit never waits long for the write lock.
@@ -73,6 +84,11 @@ CREATE TABLE IF NOT EXISTS samples (
     direction TEXT NOT NULL,
     battery_v REAL NOT NULL,
     track_m REAL NOT NULL,
+    fix_quality INTEGER,             -- 0 none, 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK float
+    lat_deg REAL,
+    lon_deg REAL,
+    grid_id TEXT,                    -- the thesis grid (A1 …), None without a position
+    lap INTEGER,                     -- whole laps since the run started (negative: ccw)
     PRIMARY KEY (run_id, seq)
 ) WITHOUT ROWID;
 -- Admins driving the robot by hand (POST /control), for the daily usage log.
@@ -103,6 +119,11 @@ class Sample:
     direction: str
     battery_v: float
     track_m: float
+    fix_quality: int | None = None
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    grid_id: str | None = None
+    lap: int | None = None
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
@@ -114,6 +135,11 @@ class Sample:
             "direction": self.direction,
             "battery_v": self.battery_v,
             "track_m": self.track_m,
+            "fix_quality": self.fix_quality,
+            "lat_deg": self.lat_deg,
+            "lon_deg": self.lon_deg,
+            "grid_id": self.grid_id,
+            "lap": self.lap,
         }
 
 
@@ -206,8 +232,15 @@ class RunStore:
         mode = conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
         if str(mode).lower() != "wal":
             raise RuntimeError(f"{path}: SQLite refused WAL mode (got {mode!r})")
+        conn.executescript(f"BEGIN IMMEDIATE; {_SCHEMA} COMMIT;")
+        present = {row["name"] for row in conn.execute("PRAGMA table_info(samples)")}
+        missing = [
+            f"ALTER TABLE samples ADD COLUMN {name} {kind};"
+            for name, kind in SAMPLE_POSITION_COLUMNS.items()
+            if name not in present
+        ]
         conn.executescript(
-            f"BEGIN IMMEDIATE; {_SCHEMA} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+            f"BEGIN IMMEDIATE; {' '.join(missing)} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
         )
 
     # -- connections and transactions ------------------------------------------------------
@@ -576,8 +609,8 @@ class RunStore:
                 return False
             tx.executemany(
                 "INSERT INTO samples (run_id, seq, t, segment, commanded_velocity_mps, "
-                "velocity_mps, direction, battery_v, track_m) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "velocity_mps, direction, battery_v, track_m, fix_quality, lat_deg, lon_deg, "
+                "grid_id, lap) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 [
                     (
                         run_id,
@@ -589,6 +622,11 @@ class RunStore:
                         s.direction,
                         s.battery_v,
                         s.track_m,
+                        s.fix_quality,
+                        s.lat_deg,
+                        s.lon_deg,
+                        s.grid_id,
+                        s.lap,
                     )
                     for s in samples
                 ],
@@ -599,7 +637,8 @@ class RunStore:
         """Up to ``limit`` samples with ``seq > after_seq``, ordered by seq."""
         rows = self._conn().execute(
             "SELECT seq, t, segment, commanded_velocity_mps, velocity_mps, direction, "
-            "battery_v, track_m FROM samples WHERE run_id = ? AND seq > ? ORDER BY seq LIMIT ?",
+            "battery_v, track_m, fix_quality, lat_deg, lon_deg, grid_id, lap "
+            "FROM samples WHERE run_id = ? AND seq > ? ORDER BY seq LIMIT ?",
             (run_id, after_seq, limit),
         )
         return [_sample(row) for row in rows]
@@ -664,4 +703,9 @@ def _sample(row: sqlite3.Row) -> Sample:
         direction=row["direction"],
         battery_v=row["battery_v"],
         track_m=row["track_m"],
+        fix_quality=row["fix_quality"],
+        lat_deg=row["lat_deg"],
+        lon_deg=row["lon_deg"],
+        grid_id=row["grid_id"],
+        lap=row["lap"],
     )

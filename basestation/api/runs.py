@@ -32,6 +32,11 @@ SAMPLE_CSV_COLUMNS = (
     "direction",
     "battery_v",
     "track_m",
+    "fix_quality",
+    "lat_deg",
+    "lon_deg",
+    "grid_id",
+    "lap",
 )
 _UNSIGNED = re.compile(r"[0-9]{1,15}")
 ENCODE_SLICE = 100

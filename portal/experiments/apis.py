@@ -144,6 +144,11 @@ class SampleOutput(serializers.Serializer):
     direction = serializers.CharField()
     battery_v = serializers.FloatField()
     track_m = serializers.FloatField()
+    fix_quality = serializers.IntegerField(allow_null=True)
+    lat_deg = serializers.FloatField(allow_null=True)
+    lon_deg = serializers.FloatField(allow_null=True)
+    grid_id = serializers.CharField(allow_null=True)
+    lap = serializers.IntegerField(allow_null=True)
 
 
 class SamplesQuery(serializers.Serializer):

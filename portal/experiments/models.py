@@ -110,6 +110,12 @@ class Sample(models.Model):
     direction = models.CharField(max_length=3, choices=Direction.choices)
     battery_v = models.FloatField()
     track_m = models.FloatField()
+    # Where the robot was, when its GPS knew: fix 4 = RTK fixed, 5 = RTK float.
+    fix_quality = models.SmallIntegerField(null=True)
+    lat_deg = models.FloatField(null=True)
+    lon_deg = models.FloatField(null=True)
+    grid_id = models.CharField(max_length=8, null=True)
+    lap = models.IntegerField(null=True)
 
     class Meta:
         ordering = ["run", "seq"]

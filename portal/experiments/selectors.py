@@ -37,6 +37,11 @@ SAMPLE_EXPORT_FIELDS = (
     "direction",
     "battery_v",
     "track_m",
+    "fix_quality",
+    "lat_deg",
+    "lon_deg",
+    "grid_id",
+    "lap",
 )
 
 

@@ -152,6 +152,11 @@ SAMPLE_COLUMNS = (
     "direction",
     "battery_v",
     "track_m",
+    "fix_quality",
+    "lat_deg",
+    "lon_deg",
+    "grid_id",
+    "lap",
 )
 
 
@@ -174,6 +179,11 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
             str(s["direction"]),
             float(s["battery_v"]),
             float(s["track_m"]),
+            s.get("fix_quality"),
+            s.get("lat_deg"),
+            s.get("lon_deg"),
+            s.get("grid_id"),
+            s.get("lap"),
         )
         for s in samples
     ]
@@ -216,7 +226,8 @@ def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> None:
             "CREATE TEMPORARY TABLE IF NOT EXISTS sample_page (seq integer, t timestamptz, "
             "segment smallint, commanded_velocity_mps double precision, "
             "velocity_mps double precision, direction varchar(3), battery_v double precision, "
-            "track_m double precision) ON COMMIT DELETE ROWS"
+            "track_m double precision, fix_quality smallint, lat_deg double precision, "
+            "lon_deg double precision, grid_id varchar(8), lap integer) ON COMMIT DELETE ROWS"
         )
         with cursor.copy(f"COPY sample_page ({columns}) FROM STDIN") as copy:
             for row in rows:

@@ -509,8 +509,15 @@ def test_it_returns_samples_with_every_field(
         "direction",
         "battery_v",
         "track_m",
+        "fix_quality",
+        "lat_deg",
+        "lon_deg",
+        "grid_id",
+        "lap",
     }
     assert sample["seq"] == 1
+    # The kinematic model has no GPS: no position, and no lap completed yet.
+    assert (sample["fix_quality"], sample["grid_id"], sample["lap"]) == (None, None, 0)
     assert sample["t"] == pytest.approx(soon)
     assert sample["segment"] == 0
     assert sample["commanded_velocity_mps"] == 0.5

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 import time
 from datetime import timedelta
 
@@ -118,6 +119,13 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
         assert abs(s["velocity_mps"] - target["velocity_mps"]) <= VELOCITY_TOLERANCE_MPS, s
         checked += 1
     assert checked >= 70  # two segments, 2 s settled each, at 20 Hz, less a few late ticks
+
+    # Where the robot was: the simulated RTK GPS, projected onto the rail by the agent.
+    placed = [s for s in samples if s["grid_id"] is not None]
+    assert len(placed) >= len(samples) // 2, samples[:5]
+    assert all(re.fullmatch(r"[A-D][0-9]+", s["grid_id"]) for s in placed)
+    assert all(s["fix_quality"] in (4, 5) for s in placed)
+    assert {s["lap"] for s in samples} == {0}  # a few metres of a 120 m rail
 
     csv_response = requests.get(
         f"{web}/api/v1/runs/{run_id}/samples.csv", headers=headers, timeout=10

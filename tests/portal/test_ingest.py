@@ -19,7 +19,8 @@ def _page(first: int, last: int) -> list[dict]:
     t0 = time.time()
     return [
         {"seq": i, "t": t0 + i / 20, "segment": 0, "commanded_velocity_mps": 0.5,
-         "velocity_mps": 0.49, "direction": "cw", "battery_v": 60.1, "track_m": i / 40}
+         "velocity_mps": 0.49, "direction": "cw", "battery_v": 60.1, "track_m": i / 40,
+         "fix_quality": 4, "lat_deg": 40.6343, "lon_deg": -8.6601, "grid_id": "B2", "lap": i // 50}
         for i in range(first, last + 1)
     ]  # fmt: skip
 
@@ -55,3 +56,14 @@ def test_a_page_out_of_order_still_moves_last_seq_forward_only(run):
     run.refresh_from_db()
     assert run.last_seq == 200
     assert Sample.objects.filter(run=run).count() == 200
+
+
+def test_the_position_comes_through_to_the_csv(run, client):
+    samples_ingest(run=run, samples=_page(1, 60))
+    client.force_login(run.reservation.owner)
+    response = client.get(f"/api/v1/runs/{run.pk}/samples.csv")
+    rows = b"".join(response.streaming_content).decode().splitlines()
+    assert rows[0].endswith("track_m,fix_quality,lat_deg,lon_deg,grid_id,lap")
+    assert rows[-1].endswith(",4,40.6343,-8.6601,B2,1")
+    page = client.get(f"/api/v1/runs/{run.pk}/samples/", {"limit": 1}).json()
+    assert page["samples"][0]["grid_id"] == "B2"
