@@ -73,7 +73,12 @@ def main(argv: list[str] | None = None) -> int:
         print("amazing-agent: --gil-switch-ms must be between 0.1 and 100", file=sys.stderr)
         return EXIT_CONFIG_ERROR
     sys.setswitchinterval(args.gil_switch_ms / 1000)
-    app = create_app(config)
+    try:
+        # Building the robot reads the rail file and starts the radio: both can be wrong.
+        app = create_app(config)
+    except ConfigError as exc:
+        print(f"amazing-agent: configuration error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG_ERROR
     # Everything loaded so far lives as long as the process: keep it out of the collector's
     # full passes, which hold the GIL (and so the control loop) for their whole length.
     gc.collect()

@@ -82,3 +82,16 @@ def test_the_real_agent_refuses_to_start_without_a_token(tmp_path: Path) -> None
     )
     assert result.returncode == 2
     assert "AGENT_TOKEN or AGENT_TOKEN_FILE must be set" in result.stderr
+
+
+def test_a_bad_rail_file_stops_the_agent_with_one_clear_line(tmp_path: Path) -> None:
+    rail = tmp_path / "rail.json"
+    rail.write_text('{"points": [{"lat": 40.6, "lon": -8.6}]}')
+    env = agent_env(tmp_path / "data", AGENT_TOKEN=TOKEN, AGENT_RAIL_FILE=str(rail))
+    result = subprocess.run(
+        [sys.executable, "-m", "basestation", "--port", "0"],
+        cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 2
+    assert "configuration error: AGENT_RAIL_FILE: points: needs 3 to 500 points" in result.stderr
+    assert "Traceback" not in result.stderr
