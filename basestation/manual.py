@@ -6,12 +6,11 @@ Parsed like run bodies: every problem is collected into field errors
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from basestation.program import FieldErrors, InvalidRunBody
+from basestation.program import FieldErrors, InvalidRunBody, parse_number
 from basestation.robot import DIRECTIONS, Direction
 
 # The dead-man of a manual command: a client that stops sending stops the robot within
@@ -47,7 +46,7 @@ def parse_control_body(raw: object, *, max_velocity_mps: float) -> ManualCommand
         raise InvalidRunBody({"body": ["must be a JSON object"]})
     _unknown(raw, CONTROL_FIELDS, errors)
     user = _text(raw, "user", MAX_USER_CHARS, errors, required=True)
-    velocity = _number(raw, "velocity_mps", errors, required=True)
+    velocity = parse_number(raw, "velocity_mps", errors)
     if velocity is not None:
         if velocity < 0:
             _add(errors, "velocity_mps", "must not be negative")
@@ -62,7 +61,7 @@ def parse_control_body(raw: object, *, max_velocity_mps: float) -> ManualCommand
         _add(errors, "direction", "is required")
     elif direction not in DIRECTIONS:
         _add(errors, "direction", "must be 'cw' or 'ccw'")
-    ttl = _number(raw, "ttl_s", errors, required=False)
+    ttl = parse_number(raw, "ttl_s", errors, required=False)
     if ttl is not None and not 0 < ttl <= MAX_MANUAL_TTL_S:
         _add(errors, "ttl_s", f"must be greater than 0 and at most {MAX_MANUAL_TTL_S:g} s")
     force = raw.get("force", False)
@@ -129,24 +128,3 @@ def _text(
         _add(errors, name, f"must be at most {max_chars} characters")
         return None
     return value.strip()
-
-
-def _number(
-    raw: Mapping[Any, Any], name: str, errors: FieldErrors, *, required: bool
-) -> float | None:
-    if name not in raw:
-        if required:
-            _add(errors, name, "is required")
-        return None
-    value = raw[name]
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        _add(errors, name, "must be a number")
-        return None
-    try:
-        number = float(value)
-    except OverflowError:
-        number = math.inf
-    if not math.isfinite(number):
-        _add(errors, name, "must be a finite number")
-        return None
-    return number

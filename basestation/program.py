@@ -254,16 +254,20 @@ def _time(raw: Mapping[Any, Any], name: str, errors: FieldErrors) -> datetime | 
         return None
 
 
-def _number(
+def parse_number(
     raw: Mapping[Any, Any],
     name: str,
-    field: str,
     errors: FieldErrors,
     *,
-    positive: bool,
+    field: str | None = None,
+    positive: bool = False,
+    required: bool = True,
 ) -> float | None:
+    """``raw[name]`` as a finite float, or None with the fault added to ``errors[field]``."""
+    field = field or name
     if name not in raw:
-        _add(errors, field, "is required")
+        if required:
+            _add(errors, field, "is required")
         return None
     value = raw[name]
     # bool is an int in Python, but true is not a velocity.
@@ -296,8 +300,12 @@ def _limits(raw: Mapping[Any, Any], errors: FieldErrors) -> RunLimits | None:
         return None
     for name in sorted(set(value) - LIMIT_FIELDS, key=str):
         _add(errors, f"limits.{name}", "unknown field")
-    velocity = _number(value, "max_velocity_mps", "limits.max_velocity_mps", errors, positive=True)
-    accel = _number(value, "max_accel_mps2", "limits.max_accel_mps2", errors, positive=True)
+    velocity = parse_number(
+        value, "max_velocity_mps", errors, field="limits.max_velocity_mps", positive=True
+    )
+    accel = parse_number(
+        value, "max_accel_mps2", errors, field="limits.max_accel_mps2", positive=True
+    )
     if velocity is None or accel is None:
         return None
     return RunLimits(max_velocity_mps=velocity, max_accel_mps2=accel)
@@ -327,7 +335,7 @@ def _segments(
         for name in sorted(set(item) - SEGMENT_FIELDS, key=str):
             _add(errors, f"{prefix}.{name}", "unknown field")
             valid = False
-        velocity = _number(item, "velocity_mps", f"{prefix}.velocity_mps", errors, positive=False)
+        velocity = parse_number(item, "velocity_mps", errors, field=f"{prefix}.velocity_mps")
         if velocity is not None and limits is not None and velocity > limits.max_velocity_mps:
             _add(
                 errors,
@@ -335,7 +343,9 @@ def _segments(
                 f"{velocity:g} m/s is above the run's max_velocity_mps {limits.max_velocity_mps:g}",
             )
             velocity = None
-        duration = _number(item, "duration_s", f"{prefix}.duration_s", errors, positive=True)
+        duration = parse_number(
+            item, "duration_s", errors, field=f"{prefix}.duration_s", positive=True
+        )
         direction = item.get("direction")
         if "direction" not in item:
             _add(errors, f"{prefix}.direction", "is required")
