@@ -42,42 +42,18 @@ def _call(
     """Run one agent call and audit it, whatever the agent answered."""
     try:
         result: dict[str, Any] = fn()
-    except AgentConflict as exc:
-        audit_record(
-            actor=by,
-            action=action,
-            target=resource,
-            ip=ip,
-            reason=reason,
-            refused=exc.message,
-            **data,
-        )
-        raise Conflict(
-            f"The base station refused: {exc.body.get('detail') or exc.message}"
-        ) from exc
-    except AgentRejected as exc:
-        audit_record(
-            actor=by,
-            action=action,
-            target=resource,
-            ip=ip,
-            reason=reason,
-            refused=exc.message,
-            **data,
-        )
-        raise InvalidInput(
-            f"The base station refused: {exc.body.get('detail') or exc.message}", fields=exc.fields
-        ) from exc
     except AgentError as exc:
+        # A refusal (409/422) and an unreachable agent are both recorded, differently named.
+        refused = isinstance(exc, AgentConflict | AgentRejected)
+        outcome = {"refused" if refused else "failed": exc.message}
         audit_record(
-            actor=by,
-            action=action,
-            target=resource,
-            ip=ip,
-            reason=reason,
-            failed=exc.message,
-            **data,
+            actor=by, action=action, target=resource, ip=ip, reason=reason, **outcome, **data
         )
+        detail = exc.body.get("detail") or exc.message
+        if isinstance(exc, AgentConflict):
+            raise Conflict(f"The base station refused: {detail}") from exc
+        if isinstance(exc, AgentRejected):
+            raise InvalidInput(f"The base station refused: {detail}", fields=exc.fields) from exc
         raise AgentUnavailable(
             f"The base station of {resource.name} did not answer: {exc.message}"
         ) from exc
