@@ -13,7 +13,7 @@ from datetime import UTC, date, datetime, time, timedelta
 from zoneinfo import ZoneInfo
 
 from django.conf import settings
-from django.db.models import Q, QuerySet
+from django.db.models import QuerySet
 
 from bookings.choices import (
     RESERVATION_ACTIVE_STATES,
@@ -67,21 +67,39 @@ def overlap_s(a_start: datetime, a_end: datetime, b_start: datetime, b_end: date
     return max(0.0, (min(a_end, b_end) - max(a_start, b_start)).total_seconds())
 
 
-def policies_for(*, user: User, resources: Iterable[Resource]) -> list[QuotaPolicy]:
-    # One query: the user's groups and the resources' groups are subqueries.
-    resource_ids = [r.pk for r in resources]
-    group_ids = user.groups.values("pk")
-    resource_group_ids = Resource.groups.through.objects.filter(
-        resource_id__in=resource_ids
-    ).values("resourcegroup_id")
-    return list(
-        QuotaPolicy.objects.filter(active=True)
-        .filter(Q(user__isnull=True) | Q(user=user))
-        .filter(Q(group__isnull=True) | Q(group_id__in=group_ids))
-        .filter(Q(resource__isnull=True) | Q(resource_id__in=resource_ids))
-        .filter(Q(resource_group__isnull=True) | Q(resource_group_id__in=resource_group_ids))
-        .select_related("resource", "resource_group", "group")
-    )
+def policies_for(
+    *, user: User, resources: Iterable[Resource], related: bool = False
+) -> list[QuotaPolicy]:
+    """The active policies whose scope covers ``user`` booking any of ``resources``.
+
+    Policies are few (an admin writes each one), so they are read in one plain query and
+    matched here; the user's groups and the resources' groups are read only when some policy
+    is scoped by them. This runs under the booking lock on every booking. ``related`` also
+    loads what the scope labels name.
+    """
+    qs = QuotaPolicy.objects.filter(active=True)
+    if related:
+        qs = qs.select_related("resource", "resource_group", "group")
+    policies = list(qs)
+    resource_ids = {r.pk for r in resources}
+    group_ids: set[int] = set()
+    if any(p.group_id is not None for p in policies):
+        group_ids = set(user.groups.values_list("pk", flat=True))
+    resource_group_ids: set[int] = set()
+    if any(p.resource_group_id is not None for p in policies):
+        resource_group_ids = set(
+            Resource.groups.through.objects.filter(resource_id__in=resource_ids).values_list(
+                "resourcegroup_id", flat=True
+            )
+        )
+    return [
+        p
+        for p in policies
+        if (p.user_id is None or p.user_id == user.pk)
+        and (p.group_id is None or p.group_id in group_ids)
+        and (p.resource_id is None or p.resource_id in resource_ids)
+        and (p.resource_group_id is None or p.resource_group_id in resource_group_ids)
+    ]
 
 
 def scoped_reservations(policy: QuotaPolicy, user: User) -> QuerySet[Reservation]:
@@ -201,7 +219,7 @@ def quota_summary(*, user: User, now: datetime) -> list[dict[str, object]]:
     """Each policy that applies to the user, with its use in the current period."""
     rows: list[dict[str, object]] = []
     resources = Resource.objects.filter(enabled=True)
-    for policy in policies_for(user=user, resources=resources):
+    for policy in policies_for(user=user, resources=resources, related=True):
         row: dict[str, object] = {
             "policy": policy.name,
             "scope": _scope_label(policy),

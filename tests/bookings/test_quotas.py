@@ -13,8 +13,8 @@ import pytest
 from django.contrib.auth.models import Group
 
 from bookings.choices import QuotaPeriod
-from bookings.models import QuotaPolicy
-from bookings.quotas import period_bounds, quota_summary
+from bookings.models import QuotaPolicy, ResourceGroup
+from bookings.quotas import period_bounds, policies_for, quota_summary
 from bookings.services import QuotaExceeded, reservation_cancel, reservation_create
 from portal.audit.models import AuditEvent
 from portal.errors import NotAllowed
@@ -154,6 +154,33 @@ def test_policies_apply_only_within_their_scope(owner, other):
     with pytest.raises(QuotaExceeded, match="1 reservation per day"):
         book(owner, at(2026, 6, 3, 11), 1, node=robot)
     book(owner, at(2026, 6, 3, 11), 1)  # another resource is outside that policy
+
+
+def test_each_scope_narrows_which_bookings_a_policy_covers(owner, other):
+    students = Group.objects.create(name="students")
+    owner.groups.add(students)
+    outdoor = ResourceGroup.objects.create(name="outdoor")
+    roof, lab = FixedResourceFactory(name="node-01"), FixedResourceFactory(name="node-02")
+    roof.groups.add(outdoor)
+    everyone = policy(name="everyone")
+    mine = policy(name="mine", user=owner)
+    student = policy(name="students", group=students)
+    on_roof = policy(name="roof node", resource=roof)
+    outdoors = policy(name="outdoor nodes", resource_group=outdoor)
+    both = policy(name="students outdoors", group=students, resource_group=outdoor)
+    policy(name="switched off", active=False)
+
+    def names(user, *resources):
+        return {p.name for p in policies_for(user=user, resources=resources)}
+
+    assert names(owner, roof) == {
+        p.name for p in (everyone, mine, student, on_roof, outdoors, both)
+    }
+    assert names(owner, lab) == {p.name for p in (everyone, mine, student)}
+    assert names(other, roof) == {p.name for p in (everyone, on_roof, outdoors)}
+    assert names(other, lab) == {everyone.name}
+    # A booking of several resources is covered by a policy on any of them.
+    assert names(other, lab, roof) == names(other, roof)
 
 
 def test_an_admin_override_needs_a_reason_and_is_audited(owner, admin_user):
