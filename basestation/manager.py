@@ -505,11 +505,13 @@ class RunManager:
 
     def _lap(self, run_id: str, track_m: float, now_s: float, velocity_mps: float) -> int:
         if self._laps is None or self._laps[0] != run_id:
-            self._laps = (run_id, LapCounter(self._rail_length_m()))
+            self._laps = (run_id, LapCounter(self.rail_length_m))
         self._laps[1].update(track_m, now_s, velocity_mps)
         return self._laps[1].laps
 
-    def _rail_length_m(self) -> float:
+    @property
+    def rail_length_m(self) -> float:
+        """The length at which ``track_m`` wraps: the rail file's when there is one."""
         rail = getattr(self.robot, "rail", None)  # the radio link knows the configured rail
         length = getattr(rail, "length_m", None)
         return float(length) if length else self.config.rail_length_m

@@ -43,9 +43,11 @@ ENCODE_SLICE = 100
 
 
 def _run_json(record: RunRecord, stats: SampleStats | None = None) -> dict[str, Any]:
+    runtime = get_runtime()
     if stats is None:
-        stats = get_runtime().store.sample_stats(record.id)
-    return record.to_json_dict(stats)
+        stats = runtime.store.sample_stats(record.id)
+    # The samples' ``track_m`` wraps at this length: whoever analyses them needs it.
+    return {**record.to_json_dict(stats), "rail_length_m": runtime.manager.rail_length_m}
 
 
 @bp.get("/runs")
@@ -54,7 +56,7 @@ def list_runs() -> ResponseReturnValue:
     if state is not None and state not in RUN_STATES:
         return invalid_response({"state": [f"must be one of {', '.join(RUN_STATES)}"]})
     rows = get_runtime().store.list_runs(state=state)
-    return jsonify({"runs": [record.to_json_dict(stats) for record, stats in rows]})
+    return jsonify({"runs": [_run_json(record, stats) for record, stats in rows]})
 
 
 @bp.put("/runs/<run_id>")
@@ -82,7 +84,7 @@ def get_run(run_id: str) -> ResponseReturnValue:
     found = get_runtime().store.get_run_with_stats(run_id) if is_valid_run_id(run_id) else None
     if found is None:
         raise RunNotFound(run_id)
-    return jsonify(found[0].to_json_dict(found[1]))
+    return jsonify(_run_json(*found))
 
 
 @bp.delete("/runs/<run_id>")

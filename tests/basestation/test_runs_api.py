@@ -52,6 +52,23 @@ def test_it_stages_a_new_run_and_answers_201_with_the_run(
     assert (run["sample_count"], run["first_seq"], run["last_seq"]) == (0, None, None)
 
 
+def test_every_run_answer_names_the_rail_length_its_track_wraps_at(
+    client: FlaskClient, auth: dict[str, str], soon: float, runtime: AgentRuntime
+) -> None:
+    expected_m = runtime.manager.rail_length_m
+    assert expected_m == runtime.config.rail_length_m  # no rail file in these tests
+    put = _put(client, auth, "run-1", run_body(soon)).json
+    got = client.get("/api/v1/runs/run-1", headers=auth).json
+    listed = client.get("/api/v1/runs", headers=auth).json
+    withdrawn = client.delete("/api/v1/runs/run-1", headers=auth).json
+    for answer in (put, got, listed, withdrawn):
+        assert answer is not None
+    assert [put["rail_length_m"], got["rail_length_m"], withdrawn["rail_length_m"]] == [
+        expected_m
+    ] * 3
+    assert listed["runs"][0]["rail_length_m"] == expected_m
+
+
 def test_it_answers_200_to_the_same_body_again(
     client: FlaskClient, auth: dict[str, str], soon: float
 ) -> None:
