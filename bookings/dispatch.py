@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -136,6 +137,21 @@ def run_unstage(*, run_id: int) -> None:
     )
 
 
+def _rail_length_m(agent_run: dict[str, Any]) -> float | None:
+    """The rail length the agent reports with a run, if it is a usable one."""
+    value = agent_run.get("rail_length_m")
+    if value is None:
+        return None  # an agent from before it reported one: laps and passes are not shown
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not (math.isfinite(value) and value > 0)
+    ):
+        logger.warning("run %s: ignoring the agent's rail length %r", agent_run.get("id"), value)
+        return None
+    return float(value)
+
+
 def run_collect(*, run_id: int) -> None:
     """Pull new samples of an active run; once the agent has ended it, verify and close it."""
     run = _load(run_id)
@@ -155,6 +171,9 @@ def run_collect(*, run_id: int) -> None:
             )
             return
         raise
+    rail_length_m = _rail_length_m(agent_run)
+    if rail_length_m is not None and rail_length_m != run.rail_length_m:
+        Run.objects.filter(pk=run.pk).update(rail_length_m=rail_length_m)
     agent_state = str(agent_run["state"])
     if agent_state == "running":
         run_transition(

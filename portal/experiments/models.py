@@ -58,6 +58,8 @@ class Run(models.Model):
     # Highest sample sequence number stored here; collection resumes after it.
     last_seq = models.PositiveIntegerField(default=0)
     agent_sample_count = models.PositiveIntegerField(null=True, blank=True)
+    # Where the samples' track_m wraps, as the agent reported it: laps and passes need it.
+    rail_length_m = models.FloatField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 
@@ -66,6 +68,10 @@ class Run(models.Model):
         constraints = [
             models.CheckConstraint(
                 condition=models.Q(end_at__gt=models.F("start_at")), name="run_end_after_start"
+            ),
+            models.CheckConstraint(
+                condition=models.Q(rail_length_m__isnull=True) | models.Q(rail_length_m__gt=0),
+                name="run_rail_length_positive",
             ),
         ]
 

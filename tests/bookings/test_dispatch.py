@@ -105,6 +105,8 @@ def test_collection_follows_the_run_and_verifies_the_count(agent, booked):
     assert seqs == list(range(1, on_agent["sample_count"] + 1))
     assert booked.agent_sample_count == on_agent["sample_count"]
     assert booked.reservation.state == ReservationState.COMPLETED
+    # Laps and passes are counted on the portal: it keeps the length the track wraps at.
+    assert booked.rail_length_m == on_agent["rail_length_m"] > 0
     assert [e.to_state for e in booked.events.all()] == [
         "scheduled",
         "staged",
@@ -112,6 +114,27 @@ def test_collection_follows_the_run_and_verifies_the_count(agent, booked):
         "collecting",
         "completed",
     ]
+
+
+@pytest.mark.parametrize("reported", [None, 0, -5.0, "120", True, float("nan")])
+def test_a_missing_or_unusable_rail_length_is_left_unset(agent, booked, monkeypatch, reported):
+    real_get_run = type(agent.client).get_run
+
+    def get_run(client, run_id):
+        answer = real_get_run(client, run_id)
+        if reported is None:
+            del answer["rail_length_m"]
+        else:
+            answer["rail_length_m"] = reported
+        return answer
+
+    monkeypatch.setattr(type(agent.client), "get_run", get_run)
+    dispatch.run_stage(run_id=booked.pk)
+    start_s = booked.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 1.0)
+    dispatch.run_collect(run_id=booked.pk)
+    assert _state(booked) == RunState.RUNNING  # collection itself goes on
+    assert booked.rail_length_m is None
 
 
 def test_cancelling_a_staged_run_withdraws_it_from_the_agent(agent, booked, owner):
