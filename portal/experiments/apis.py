@@ -16,8 +16,11 @@ from rest_framework.views import APIView
 from portal.experiments.models import Experiment, Run
 from portal.experiments.selectors import (
     experiments_visible,
+    run_report,
+    run_report_json,
     run_samples,
     run_samples_csv,
+    run_samples_json,
     runs_visible,
 )
 from portal.experiments.services import experiment_create, experiment_update
@@ -111,6 +114,7 @@ class RunOutput(serializers.ModelSerializer):
             "last_seq",
             "sample_count",
             "agent_sample_count",
+            "rail_length_m",
             "events",
         ]
 
@@ -181,15 +185,23 @@ class RunSamplesApi(APIView):
 
 
 def samples_csv_response(run: Run, *, asynchronous: bool = False) -> StreamingHttpResponse:
-    """All samples of a run as CSV, streamed (never built in memory).
+    """All samples of a run as CSV, streamed (never built in memory)."""
+    return _download(run_samples_csv(run=run), run, "csv", "text/csv", asynchronous)
 
-    Under ASGI the chunks come through an async iterator that reads the database in the
-    request's sync thread, so the server is never blocked and Django does not buffer it.
-    """
-    chunks = run_samples_csv(run=run)
+
+def samples_json_response(run: Run, *, asynchronous: bool = False) -> StreamingHttpResponse:
+    """All samples of a run as one JSON document, streamed."""
+    return _download(run_samples_json(run=run), run, "json", "application/json", asynchronous)
+
+
+def _download(
+    chunks: Iterator[str], run: Run, extension: str, media_type: str, asynchronous: bool
+) -> StreamingHttpResponse:
+    """Under ASGI the chunks come through an async iterator that reads the database in the
+    request's sync thread, so the server is never blocked and Django does not buffer it."""
     content: Iterator[str] | AsyncIterator[str] = _async_chunks(chunks) if asynchronous else chunks
-    response = StreamingHttpResponse(content, content_type="text/csv; charset=utf-8")
-    response["Content-Disposition"] = f'attachment; filename="amazing-run-{run.pk}.csv"'
+    response = StreamingHttpResponse(content, content_type=f"{media_type}; charset=utf-8")
+    response["Content-Disposition"] = f'attachment; filename="amazing-run-{run.pk}.{extension}"'
     return response
 
 
@@ -215,3 +227,30 @@ class RunSamplesCsvApi(APIView):
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = get_object_or_404(runs_visible(user=request.user), pk=pk)  # type: ignore[arg-type]
         return samples_csv_response(run, asynchronous=is_asgi(request))
+
+
+class RunSamplesJsonApi(APIView):
+    @extend_schema(responses={(200, "application/json"): dict})
+    def get(self, request: Request, pk: int) -> StreamingHttpResponse:
+        run = get_object_or_404(runs_visible(user=request.user), pk=pk)  # type: ignore[arg-type]
+        return samples_json_response(run, asynchronous=is_asgi(request))
+
+
+class AnalysisQuery(serializers.Serializer):
+    pass_at_m = serializers.FloatField(
+        required=False, help_text="Where along the rail (m from its origin) to list passes."
+    )
+
+
+class RunAnalysisApi(APIView):
+    """Per-segment statistics, laps, passes at a position and missing samples of a run."""
+
+    @extend_schema(parameters=[AnalysisQuery], responses={200: dict})
+    def get(self, request: Request, pk: int) -> Response:
+        run = get_object_or_404(runs_visible(user=request.user), pk=pk)  # type: ignore[arg-type]
+        query = _valid(AnalysisQuery, request.query_params)
+        try:
+            report = run_report(run=run, pass_at_m=query.get("pass_at_m"))
+        except ValueError as exc:
+            raise serializers.ValidationError({"pass_at_m": [str(exc)]}) from exc
+        return Response({"run": run.pk, "state": run.state, **run_report_json(report)})

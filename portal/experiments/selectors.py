@@ -2,14 +2,19 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from collections.abc import Iterator
-from datetime import UTC
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from django.core.cache import cache
 from django.db import connection
-from django.db.models import QuerySet
+from django.db.models import FloatField, Func, QuerySet
 
 from portal.accounts.models import User
+from portal.experiments.analysis import RunAnalysis, SampleRow, SeriesCollector, analyse
+from portal.experiments.choices import RUN_ACTIVE_STATES, RunState
 from portal.experiments.models import Experiment, Run, Sample
 
 
@@ -84,30 +89,181 @@ def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[str]:
         yield buffer.getvalue()
 
 
-def run_velocity_series(*, run: Run, max_points: int = 2000) -> dict[str, list[Any]]:
-    """Commanded and measured velocity for the run page's chart, at most ``max_points``.
+CHART_MAX_POINTS = 2000
+# A finished run's samples never change: its report is cached, keyed by what could differ.
+REPORT_CACHE_S = 3600
 
-    Evenly strided for now; charts never receive the raw sample count of a long run.
+
+@dataclass(frozen=True)
+class RunReport:
+    """The run page's numbers: analysis, chart series, and the instant ``t_s`` counts from."""
+
+    analysis: RunAnalysis
+    series: dict[str, dict[str, list[float]]]
+    first_at: datetime | None
+
+
+class EpochSeconds(Func):
+    """A timestamp as float seconds since 1970, computed by the database.
+
+    Reading 72 000 timestamps as datetimes costs more than the whole analysis (the driver
+    parses each one in Python); a float costs nothing.
     """
-    count = Sample.objects.filter(run=run).count()
-    stride = max(1, -(-count // max_points))
+
+    output_field = FloatField()
+    template = "CAST(EXTRACT(EPOCH FROM %(expressions)s) AS double precision)"
+
+    def as_sqlite(self, compiler: Any, connection: Any, **extra: Any) -> Any:
+        # SQLite keeps "YYYY-MM-DD HH:MM:SS.ffffff" in UTC; 2440587.5 is 1970-01-01 in Julian days.
+        return self.as_sql(
+            compiler, connection, template="((julianday(%(expressions)s) - 2440587.5) * 86400.0)"
+        )
+
+
+def _sample_rows(run: Run, first_at: list[datetime]) -> Iterator[SampleRow]:
     rows = (
         Sample.objects.filter(run=run)
         .order_by("seq")
-        .values_list("t", "segment", "commanded_velocity_mps", "velocity_mps", "direction")
+        .annotate(t_epoch_s=EpochSeconds("t"))
+        .values_list(
+            "seq",
+            "t_epoch_s",
+            "segment",
+            "commanded_velocity_mps",
+            "velocity_mps",
+            "direction",
+            "battery_v",
+            "track_m",
+            "fix_quality",
+        )
     )
-    series: dict[str, list[Any]] = {"t": [], "commanded_mps": [], "measured_mps": []}
-    t0 = None
-    # Signed velocities: clockwise positive, so a reversal shows as crossing zero.
-    commanded_sign = [-1.0 if s["direction"] == "ccw" else 1.0 for s in run.segments]
-    for i, (t, segment, commanded, measured, direction) in enumerate(
-        rows.iterator(chunk_size=5000)
+    first_s = 0.0
+    for seq, epoch_s, segment, commanded, measured, direction, battery, track, fix in rows.iterator(
+        chunk_size=5000
     ):
-        if i % stride:
-            continue
-        t0 = t0 or t
-        sign = commanded_sign[segment] if segment is not None else 1.0
-        series["t"].append(round((t - t0).total_seconds(), 3))
-        series["commanded_mps"].append(sign * commanded)
-        series["measured_mps"].append(round((-1.0 if direction == "ccw" else 1.0) * measured, 4))
-    return series
+        if not first_at:
+            first_s = epoch_s
+            first_at.append(datetime.fromtimestamp(epoch_s, UTC))
+        t_s = epoch_s - first_s
+        yield SampleRow(seq, t_s, segment, commanded, measured, direction, battery, track, fix)
+
+
+def run_report(
+    *, run: Run, pass_at_m: float | None = None, max_points: int = CHART_MAX_POINTS
+) -> RunReport:
+    """Everything the run page shows, from one ordered read of the samples.
+
+    Raises ``ValueError`` (with a message for the user) for a position off the rail.
+    """
+    final = run.state not in RUN_ACTIVE_STATES and run.state != RunState.SCHEDULED
+    # created_at tells this run from one with the same id in another database (a restore).
+    identity = (run.pk, run.created_at.timestamp(), run.state, run.last_seq, run.rail_length_m)
+    key = f"run-report:{identity}:{pass_at_m}:{max_points}".replace(" ", "")
+    if final:
+        cached = cache.get(key)
+        if isinstance(cached, RunReport):
+            return cached
+    first_at: list[datetime] = []
+    collector = SeriesCollector(run.segments, run.rail_length_m)
+    analysis = analyse(
+        (collector.take(row) for row in _sample_rows(run, first_at)),
+        segments=run.segments,
+        rail_length_m=run.rail_length_m,
+        pass_at_m=pass_at_m,
+    )
+    report = RunReport(analysis, collector.series(max_points), first_at[0] if first_at else None)
+    if final:
+        cache.set(key, report, REPORT_CACHE_S)
+    return report
+
+
+def _at(first_at: datetime | None, t_s: float) -> str | None:
+    if first_at is None:
+        return None
+    return (first_at + timedelta(seconds=t_s)).astimezone(UTC).isoformat()
+
+
+def run_report_json(report: RunReport) -> dict[str, Any]:
+    """The analysis as JSON for the REST API and the run page: seconds since the first
+    sample (``*_s``) and UTC instants (``*_at``) side by side."""
+    a, first_at = report.analysis, report.first_at
+    return {
+        "samples": a.samples,
+        "missing": a.missing,
+        "gaps": [{"first_seq": g.first_seq, "last_seq": g.last_seq} for g in a.gaps],
+        "outside_program": a.outside_program,
+        "first_at": _at(first_at, 0.0),
+        "duration_s": round(a.duration_s, 3),
+        "rail_length_m": a.rail_length_m,
+        "distance_m": None if a.distance_m is None else round(a.distance_m, 3),
+        "mean_speed_mps": None if a.mean_speed_mps is None else round(a.mean_speed_mps, 4),
+        "net_laps": a.net_laps,
+        "segments": [
+            {
+                "index": s.index,
+                "commanded_mps": s.commanded_mps,
+                "samples": s.samples,
+                "start_s": round(s.start_s, 3),
+                "duration_s": round(s.duration_s, 3),
+                "distance_m": round(s.distance_m, 3),
+                "mean_mps": round(s.mean_mps, 4),
+                "min_mps": round(s.min_mps, 4),
+                "max_mps": round(s.max_mps, 4),
+                "std_mps": round(s.std_mps, 4),
+                "mean_abs_error_mps": round(s.mean_abs_error_mps, 4),
+                "battery_start_v": s.battery_start_v,
+                "battery_end_v": s.battery_end_v,
+                "battery_min_v": s.battery_min_v,
+                "rtk_fixed_share": round(s.rtk_fixed_share, 4),
+            }
+            for s in a.segments
+        ],
+        "laps": [
+            {
+                "index": lap.index,
+                "start_s": round(lap.start_s, 3),
+                "end_s": round(lap.end_s, 3),
+                "end_at": _at(first_at, lap.end_s),
+                "duration_s": round(lap.duration_s, 3),
+                "mean_speed_mps": round(lap.mean_speed_mps, 4),
+            }
+            for lap in a.laps
+        ],
+        "pass_at_m": a.pass_at_m,
+        "passes": [
+            {
+                "index": p.index,
+                "t_s": round(p.t_s, 3),
+                "at": _at(first_at, p.t_s),
+                "direction": p.direction,
+                "velocity_mps": round(p.velocity_mps, 4),
+            }
+            for p in a.passes
+        ],
+    }
+
+
+def run_samples_json(*, run: Run, chunk_rows: int = 2000) -> Iterator[str]:
+    """Every sample of a run as one JSON document, streamed in chunks (never built whole)."""
+    head = {
+        "run": run.pk,
+        "title": run.title,
+        "resource": run.resource.name,
+        "state": run.state,
+        "segments": run.segments,
+        "rail_length_m": run.rail_length_m,
+    }
+    yield json.dumps(head)[:-1] + ', "samples": ['
+    qs = Sample.objects.filter(run=run).order_by("seq").values_list(*SAMPLE_EXPORT_FIELDS)
+    batch: list[str] = []
+    first = True
+    for row in qs.iterator(chunk_size=chunk_rows):
+        record = dict(zip(SAMPLE_EXPORT_FIELDS, row, strict=True))
+        record["t"] = record["t"].astimezone(UTC).strftime(CSV_TIME_FORMAT)
+        batch.append(json.dumps(record))
+        if len(batch) == chunk_rows:
+            yield ("" if first else ",") + ",".join(batch)
+            first, batch = False, []
+    if batch:
+        yield ("" if first else ",") + ",".join(batch)
+    yield "]}"

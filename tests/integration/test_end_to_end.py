@@ -136,3 +136,37 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
     assert len(rows) == run["sample_count"]
     assert [int(r["seq"]) for r in rows] == [s["seq"] for s in samples]
     assert float(rows[-1]["battery_v"]) > 40
+
+    # The analysis: out 0.5 m/s clockwise, back 0.8 m/s counter-clockwise, so a point 1 m
+    # ahead of the start is passed once each way.
+    assert run["rail_length_m"] == agent_run["rail_length_m"] > 0
+    ahead_m = (samples[0]["track_m"] + 1.0) % run["rail_length_m"]
+    analysis = requests.get(
+        f"{web}/api/v1/runs/{run_id}/analysis/",
+        params={"pass_at_m": ahead_m},
+        headers=headers,
+        timeout=10,
+    ).json()
+    assert (analysis["samples"], analysis["missing"]) == (run["sample_count"], 0)
+    assert [p["direction"] for p in analysis["passes"]] == ["cw", "ccw"]
+    assert analysis["passes"][0]["velocity_mps"] == pytest.approx(0.5, abs=VELOCITY_TOLERANCE_MPS)
+    out, back = analysis["segments"]
+    assert 0 < out["mean_mps"] <= 0.5 + VELOCITY_TOLERANCE_MPS
+    assert -0.8 - VELOCITY_TOLERANCE_MPS <= back["mean_mps"] < 0
+    assert analysis["net_laps"] == 0
+    off_rail = requests.get(
+        f"{web}/api/v1/runs/{run_id}/analysis/",
+        params={"pass_at_m": run["rail_length_m"] + 1},
+        headers=headers,
+        timeout=10,
+    )
+    assert off_rail.status_code == 400
+    assert "pass_at_m" in off_rail.json()["fields"]
+
+    document = requests.get(
+        f"{web}/api/v1/runs/{run_id}/samples.json", headers=headers, timeout=10
+    ).json()
+    assert document["run"] == run_id
+    assert document["rail_length_m"] == run["rail_length_m"]
+    assert [s["seq"] for s in document["samples"]] == [s["seq"] for s in samples]
+    assert document["samples"][-1]["battery_v"] == samples[-1]["battery_v"]

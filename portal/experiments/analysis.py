@@ -1,0 +1,318 @@
+"""What a run's samples say: per-segment statistics, laps, passes at a position, gaps.
+
+Pure functions over plain rows, so they are tested without a database and run the same in
+the web page, the REST API and the benchmarks. Laps and passes come from the along-track
+position unwrapped the same way the base station does it (``basestation.telemetry.laps``,
+plain Python with no agent behind it), so the portal and the agent count the same laps.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from basestation.telemetry.laps import LapCounter, Pass, wrap_delta_m
+
+# RTK fixed, in the GGA sentence's fix-quality numbering.
+RTK_FIXED = 4
+
+
+class SampleRow(NamedTuple):
+    """The columns of one stored sample the analysis reads; ``t_s`` is seconds since the
+    run's first sample, velocities are speeds (never negative) with ``direction`` apart."""
+
+    seq: int
+    t_s: float
+    segment: int | None
+    commanded_velocity_mps: float
+    velocity_mps: float
+    direction: str
+    battery_v: float
+    track_m: float
+    fix_quality: int | None
+
+
+def signed(speed_mps: float, direction: str) -> float:
+    """Clockwise positive: a reversal shows as crossing zero."""
+    return -speed_mps if direction == "ccw" else speed_mps
+
+
+@dataclass
+class SegmentStats:
+    """One program segment as the robot drove it."""
+
+    index: int  # 0-based, as in the program
+    commanded_mps: float  # signed
+    samples: int = 0
+    start_s: float = 0.0
+    end_s: float = 0.0
+    distance_m: float = 0.0
+    mean_mps: float = 0.0  # signed, measured
+    min_mps: float = math.inf
+    max_mps: float = -math.inf
+    std_mps: float = 0.0
+    mean_abs_error_mps: float = 0.0  # |measured - commanded|, ramps included
+    battery_start_v: float | None = None
+    battery_end_v: float | None = None
+    battery_min_v: float | None = None
+    rtk_fixed_share: float = 0.0
+    _sum_sq: float = field(default=0.0, repr=False)
+    _fixed: int = field(default=0, repr=False)
+
+    @property
+    def duration_s(self) -> float:
+        return self.end_s - self.start_s
+
+    def add(self, row: SampleRow, measured_mps: float, moved_m: float) -> None:
+        if self.samples == 0:
+            self.start_s = row.t_s
+            self.battery_start_v = row.battery_v
+            self.battery_min_v = row.battery_v
+        self.samples += 1
+        self.end_s = row.t_s
+        self.distance_m += moved_m
+        # Running sums; the mean and spread are finished in ``close``.
+        self.mean_mps += measured_mps
+        self._sum_sq += measured_mps * measured_mps
+        self.min_mps = min(self.min_mps, measured_mps)
+        self.max_mps = max(self.max_mps, measured_mps)
+        self.mean_abs_error_mps += abs(measured_mps - self.commanded_mps)
+        self.battery_end_v = row.battery_v
+        if self.battery_min_v is None or row.battery_v < self.battery_min_v:
+            self.battery_min_v = row.battery_v
+        self._fixed += row.fix_quality == RTK_FIXED
+
+    def close(self) -> None:
+        n = self.samples
+        if n == 0:
+            self.min_mps = self.max_mps = 0.0
+            return
+        total = self.mean_mps
+        self.mean_mps = total / n
+        self.std_mps = math.sqrt(max(0.0, self._sum_sq / n - self.mean_mps**2))
+        self.mean_abs_error_mps /= n
+        self.rtk_fixed_share = self._fixed / n
+
+
+@dataclass(frozen=True)
+class Lap:
+    """A whole lap of path completed (whatever the direction), timed by interpolation."""
+
+    index: int
+    start_s: float
+    end_s: float
+    length_m: float
+
+    @property
+    def duration_s(self) -> float:
+        return self.end_s - self.start_s
+
+    @property
+    def mean_speed_mps(self) -> float:
+        return self.length_m / self.duration_s if self.duration_s > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Sequence numbers the base station never delivered: ``first_seq`` to ``last_seq``."""
+
+    first_seq: int
+    last_seq: int
+
+    @property
+    def missing(self) -> int:
+        return self.last_seq - self.first_seq + 1
+
+
+@dataclass
+class RunAnalysis:
+    samples: int = 0
+    duration_s: float = 0.0
+    rail_length_m: float | None = None
+    distance_m: float | None = None
+    net_laps: int | None = None
+    pass_at_m: float | None = None
+    segments: list[SegmentStats] = field(default_factory=list)
+    laps: list[Lap] = field(default_factory=list)
+    passes: list[Pass] = field(default_factory=list)
+    gaps: list[Gap] = field(default_factory=list)
+    outside_program: int = 0  # samples taken before the first or after the last segment
+
+    @property
+    def missing(self) -> int:
+        return sum(g.missing for g in self.gaps)
+
+    @property
+    def mean_speed_mps(self) -> float | None:
+        if self.distance_m is None or self.duration_s <= 0:
+            return None
+        return self.distance_m / self.duration_s
+
+
+def analyse(
+    rows: Iterable[SampleRow],
+    *,
+    segments: Sequence[dict[str, object]],
+    rail_length_m: float | None,
+    pass_at_m: float | None = None,
+) -> RunAnalysis:
+    """One pass over a run's samples, in sequence order.
+
+    Without the rail length (a run collected from an agent that did not report it) the
+    along-track position cannot be unwrapped: distance, laps and passes are then ``None`` or
+    empty, and everything else is still computed.
+    """
+    if rail_length_m is not None and not (math.isfinite(rail_length_m) and rail_length_m > 0):
+        raise ValueError(f"rail_length_m must be a positive number, got {rail_length_m!r}")
+    if pass_at_m is not None:
+        if rail_length_m is None:
+            raise ValueError("Passes need the rail length, which this run does not have.")
+        if not (math.isfinite(pass_at_m) and 0 <= pass_at_m < rail_length_m):
+            raise ValueError(f"The position must be from 0 up to {rail_length_m:g} m.")
+    result = RunAnalysis(rail_length_m=rail_length_m, pass_at_m=pass_at_m)
+    result.segments = [
+        SegmentStats(
+            index=i,
+            commanded_mps=signed(float(str(s["velocity_mps"])), str(s["direction"])),
+        )
+        for i, s in enumerate(segments)
+    ]
+    counter = LapCounter(rail_length_m, pass_at_m=pass_at_m) if rail_length_m is not None else None
+    last_seq: int | None = None
+    first_t_s = last_t_s = 0.0
+    for row in rows:
+        if last_seq is None:
+            first_t_s = last_t_s = row.t_s
+        elif row.seq > last_seq + 1:
+            result.gaps.append(Gap(last_seq + 1, row.seq - 1))
+        result.samples += 1
+        moved_m = 0.0
+        if counter is not None:
+            before_m = counter.distance_m
+            before_laps = counter.laps_travelled
+            counter.update(row.track_m, row.t_s, row.velocity_mps)
+            moved_m = counter.distance_m - before_m
+            if counter.laps_travelled > before_laps:
+                lap_end_m = counter.length_m * counter.laps_travelled
+                fraction = (lap_end_m - before_m) / moved_m if moved_m > 0 else 1.0
+                end_s = last_t_s + fraction * (row.t_s - last_t_s)
+                start_s = result.laps[-1].end_s if result.laps else first_t_s
+                result.laps.append(Lap(len(result.laps) + 1, start_s, end_s, counter.length_m))
+        last_seq = row.seq
+        last_t_s = row.t_s
+        if row.segment is None or not 0 <= row.segment < len(result.segments):
+            result.outside_program += 1
+            continue
+        result.segments[row.segment].add(row, signed(row.velocity_mps, row.direction), moved_m)
+    for stats in result.segments:
+        stats.close()
+    result.duration_s = last_t_s - first_t_s
+    if counter is not None:
+        result.distance_m = counter.distance_m
+        result.net_laps = counter.laps
+        result.passes = counter.passes
+    return result
+
+
+def lttb(xs: Sequence[float], ys: Sequence[float], max_points: int) -> list[int]:
+    """Largest-Triangle-Three-Buckets: the indices of at most ``max_points`` samples that keep
+    a line chart's shape (peaks and dips survive, unlike with a stride).
+
+    The first and last points are always kept; between them each bucket contributes the
+    point that spans the largest triangle with the point kept before it and the mean of the
+    next bucket (Steinarsson, 2013).
+    """
+    n = len(xs)
+    if len(ys) != n:
+        raise ValueError("xs and ys must have the same length")
+    if max_points < 3:
+        raise ValueError(f"max_points must be at least 3, got {max_points}")
+    if n <= max_points:
+        return list(range(n))
+    every = (n - 2) / (max_points - 2)
+    kept = [0]
+    a = 0
+    for bucket in range(max_points - 2):
+        start = int(bucket * every) + 1
+        end = int((bucket + 1) * every) + 1
+        next_end = min(int((bucket + 2) * every) + 1, n)
+        span = next_end - end
+        if span > 0:
+            avg_x = sum(xs[end:next_end]) / span
+            avg_y = sum(ys[end:next_end]) / span
+        else:  # the last bucket: the final point is the one to aim at
+            avg_x, avg_y = xs[n - 1], ys[n - 1]
+        ax, ay = xs[a], ys[a]
+        best, best_area = start, -1.0
+        for i in range(start, end):
+            # Twice the triangle's area; the factor does not change which point wins.
+            area = abs((ax - avg_x) * (ys[i] - ay) - (ax - xs[i]) * (avg_y - ay))
+            if area > best_area:
+                best, best_area = i, area
+        kept.append(best)
+        a = best
+    kept.append(n - 1)
+    return kept
+
+
+class SeriesCollector:
+    """Keeps the columns the run page charts, sample by sample, and downsamples them."""
+
+    def __init__(
+        self, segments: Sequence[dict[str, object]], rail_length_m: float | None = None
+    ) -> None:
+        # Unwrapped, the position is a continuous line: no jump of a whole rail each time the
+        # robot crosses the origin, and laps show as steady climbs.
+        self.rail_length_m = rail_length_m
+        # The sample's direction is the robot's; the command's is the segment's (they differ
+        # while the robot slows down to reverse).
+        self.segment_sign = [-1.0 if s["direction"] == "ccw" else 1.0 for s in segments]
+        self.t_s: list[float] = []
+        self.measured_mps: list[float] = []
+        self.battery_v: list[float] = []
+        self.track_m: list[float] = []
+        self._last_track_m = 0.0
+        # The command is a step function: its changes describe it exactly, in few points.
+        self.commanded: list[tuple[float, float]] = []
+
+    def take(self, row: SampleRow) -> SampleRow:
+        self.t_s.append(row.t_s)
+        self.measured_mps.append(signed(row.velocity_mps, row.direction))
+        self.battery_v.append(row.battery_v)
+        if self.rail_length_m is not None and self.track_m:
+            step_m = wrap_delta_m(row.track_m - self._last_track_m, self.rail_length_m)
+            self.track_m.append(self.track_m[-1] + step_m)
+        else:
+            self.track_m.append(row.track_m)
+        self._last_track_m = row.track_m
+        sign = 1.0
+        if row.segment is not None and 0 <= row.segment < len(self.segment_sign):
+            sign = self.segment_sign[row.segment]
+        commanded = sign * row.commanded_velocity_mps
+        if not self.commanded or self.commanded[-1][1] != commanded:
+            self.commanded.append((row.t_s, commanded))
+        return row
+
+    def series(self, max_points: int) -> dict[str, dict[str, list[float]]]:
+        """Each chart line as ``{"t": [...], "y": [...]}``, at most ``max_points`` long."""
+        out: dict[str, dict[str, list[float]]] = {}
+        for name, ys, digits in (
+            ("measured_mps", self.measured_mps, 4),
+            ("battery_v", self.battery_v, 3),
+            ("track_m", self.track_m, 3),
+        ):
+            keep = lttb(self.t_s, ys, max_points)
+            out[name] = {
+                "t": [round(self.t_s[i], 3) for i in keep],
+                "y": [round(ys[i], digits) for i in keep],
+            }
+        steps = list(self.commanded)
+        if self.t_s and steps and steps[-1][0] != self.t_s[-1]:
+            steps.append((self.t_s[-1], steps[-1][1]))  # draw the last step to the end
+        if len(steps) > max_points:
+            keep = lttb([t for t, _ in steps], [v for _, v in steps], max_points)
+            steps = [steps[i] for i in keep]
+        out["commanded_mps"] = {"t": [round(t, 3) for t, _ in steps], "y": [v for _, v in steps]}
+        return out
