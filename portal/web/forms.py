@@ -13,6 +13,17 @@ from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
 
 
+class PassForm(forms.Form):
+    """Where along the rail the run page lists the robot's passes."""
+
+    at_m = forms.FloatField(
+        label="Position along the rail (m)",
+        min_value=0,
+        required=False,
+        widget=forms.NumberInput(attrs={"step": "0.1", "inputmode": "decimal"}),
+    )
+
+
 class ExperimentForm(forms.Form):
     """Title plus the segment rows, which arrive as parallel lists (one entry per table row)."""
 

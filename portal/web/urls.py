@@ -11,6 +11,7 @@ urlpatterns = [
     path("runs/<int:pk>/", views.run_page, name="run"),
     path("runs/<int:pk>/data.json", views.run_data, name="run-data"),
     path("runs/<int:pk>/samples.csv", views.run_csv, name="run-csv"),
+    path("runs/<int:pk>/samples.json", views.run_json, name="run-json"),
     path("calendar/", views.calendar_page, name="calendar"),
     path("calendar/events.json", views.calendar_events, name="calendar-events"),
     path("calendar/feeds/", views.calendar_feeds, name="calendar-feeds"),

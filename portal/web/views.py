@@ -13,6 +13,7 @@ from django.contrib.auth.decorators import login_required
 from django.core.exceptions import BadRequest, PermissionDenied
 from django.http import Http404, HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
 from django.shortcuts import get_object_or_404, redirect, render
+from django.template.loader import render_to_string
 from django.urls import reverse
 from django.utils import timezone
 from django.utils.dateparse import parse_datetime
@@ -32,11 +33,12 @@ from bookings.services import reservation_cancel, reservation_create, reservatio
 from portal.accounts.models import User
 from portal.audit.services import client_ip
 from portal.errors import DomainError
-from portal.experiments.apis import is_asgi, samples_csv_response
+from portal.experiments.apis import is_asgi, samples_csv_response, samples_json_response
 from portal.experiments.choices import RUN_ACTIVE_STATES, RunState
-from portal.experiments.selectors import experiments_visible, run_velocity_series, runs_visible
+from portal.experiments.models import Run
+from portal.experiments.selectors import experiments_visible, run_report, runs_visible
 from portal.experiments.services import experiment_create, experiment_update
-from portal.web.forms import BookingForm, ExperimentForm
+from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
 
 def _user(request: HttpRequest) -> Any:
@@ -155,34 +157,61 @@ def reservation_cancel_view(request: HttpRequest, pk: int) -> HttpResponse:
     return render(request, "web/confirm_cancel.html", {"reservation": reservation})
 
 
+def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
+    """The run page's analysis and its passes form (``?at_m=``), for the page and its poll."""
+    form = PassForm(request.GET or None)
+    pass_at_m = form.cleaned_data["at_m"] if form.is_valid() else None
+    try:
+        report = run_report(run=run, pass_at_m=pass_at_m)
+    except ValueError as exc:
+        form.add_error("at_m", str(exc))
+        report = run_report(run=run)
+
+    def at(t_s: float) -> datetime | None:
+        return None if report.first_at is None else report.first_at + timedelta(seconds=t_s)
+
+    return {
+        "run": run,
+        "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES),
+        "report": report,
+        "analysis": report.analysis,
+        "laps": [(lap, at(lap.end_s)) for lap in report.analysis.laps],
+        "passes": [(p, at(p.t_s)) for p in report.analysis.passes],
+        "pass_form": form,
+    }
+
+
 @login_required
 def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
-    return render(
-        request,
-        "web/run.html",
-        {
-            "run": run,
-            "events": run.events.all(),
-            "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES),
-        },
-    )
+    context = _run_context(request, run)
+    context["events"] = run.events.all()
+    return render(request, "web/run.html", context)
 
 
 @login_required
 def run_data(request: HttpRequest, pk: int) -> JsonResponse:
-    """What the run page's chart and status need, polled while the run is live."""
+    """What the run page's charts, status and tables need, polled while the run is live."""
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    context = _run_context(request, run)
+    report = context["report"]
     return JsonResponse(
         {
             "state": run.state,
             "state_label": run.get_state_display(),
             "reason": run.reason,
-            "sample_count": run.samples.count(),
-            "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES),
-            "series": run_velocity_series(run=run),
+            "sample_count": report.analysis.samples,
+            "live": context["live"],
+            "series": report.series,
+            "analysis_html": render_to_string("web/_run_analysis.html", context, request),
         }
     )
+
+
+@login_required
+def run_json(request: HttpRequest, pk: int) -> StreamingHttpResponse:
+    run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    return samples_json_response(run, asynchronous=is_asgi(request))
 
 
 @login_required

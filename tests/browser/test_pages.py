@@ -65,8 +65,25 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
     expect(page.get_by_role("heading", name="browser lap")).to_be_visible()
     expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
     expect(page.locator("#sample-count")).not_to_have_text("0")
-    points = page.evaluate("Chart.getChart('velocity-chart').data.datasets[1].data.length")
-    assert points >= 60
+    for chart, dataset in (("velocity-chart", 1), ("position-chart", 0), ("battery-chart", 0)):
+        points = page.evaluate(f"Chart.getChart('{chart}').data.datasets[{dataset}].data.length")
+        assert points >= 60, chart
+    # The tables are redrawn as samples arrive: both segments once the run has ended.
+    expect(page.locator("#segment-stats tbody tr")).to_have_count(2)
+
+    # Where was the robot half a metre into its first segment, and how fast?
+    start_m = page.evaluate("Chart.getChart('position-chart').data.datasets[0].data[0].y")
+    page.get_by_label("Position along the rail (m)").fill(f"{start_m + 0.5:.2f}")
+    page.get_by_role("button", name="Show passes").click()
+    expect(page.locator("#passes-title")).to_contain_text(f"At {start_m + 0.5:.1f} m")
+    first_pass = page.locator("#passes tbody tr").first
+    expect(first_pass.locator("td").nth(3)).to_have_text("cw")
+    assert 0.3 < float(first_pass.locator("td").nth(4).inner_text()) <= 0.8
+    page.get_by_label("Position along the rail (m)").fill("100000")
+    page.get_by_role("button", name="Show passes").click()
+    expect(page.locator("#pass-error")).to_contain_text("from 0 up to")
+    page.go_back()
+    expect(page.locator("#passes tbody tr").first).to_be_visible()
     page.screenshot(path=str(SCREENSHOTS / "run-page.png"), full_page=True)
 
     with page.expect_download() as download_info:

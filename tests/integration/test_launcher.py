@@ -106,7 +106,8 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             f"{data.get('state')}: {data.get('reason')}\n{launcher.output(120)}"
         )
         assert data["sample_count"] >= 60
-        assert len(data["series"]["t"]) == data["sample_count"]
+        assert len(data["series"]["measured_mps"]["t"]) == data["sample_count"]
+        assert "segment-stats" in data["analysis_html"]
 
         assert processes_matching_env("AMAZING_VAR_DIR", str(var_dir)), "children should be running"
         launcher.popen.send_signal(signal.SIGINT)
