@@ -203,6 +203,7 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
             "sample_count": report.analysis.samples,
             "live": context["live"],
             "series": report.series,
+            "rail_length_m": run.rail_length_m,
             "analysis_html": render_to_string("web/_run_analysis.html", context, request),
         }
     )

@@ -63,6 +63,13 @@
     // The server rendered the tables with the page; while samples arrive they are redrawn.
     if (!firstLoad || data.live) document.getElementById("run-analysis").innerHTML = data.analysis_html;
     firstLoad = false;
+    // The rail length arrives with the first samples; the form's hint follows it.
+    const form = document.getElementById("pass-form");
+    if (form && data.rail_length_m && form.dataset.railLengthM !== String(data.rail_length_m)) {
+      form.dataset.railLengthM = String(data.rail_length_m);
+      document.getElementById("rail-hint").textContent =
+        "(0 – " + data.rail_length_m.toFixed(1) + "; 0 is the rail's origin)";
+    }
     const progress = document.getElementById("run-progress");
     progress.setAttribute("aria-busy", data.live ? "true" : "false");
     progress.textContent = data.live ? "updating…" : "";
