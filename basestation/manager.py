@@ -405,7 +405,9 @@ class RunManager:
         self._answered.append(telemetry is not None)
 
         if telemetry is not None:
-            if math.isfinite(telemetry.battery_v):
+            # 0 V is the robot's "not measured yet" (before its first ADC reading after a
+            # reset, docs/protocol.md): no real pack reads 0 V, and a median must not take it.
+            if math.isfinite(telemetry.battery_v) and telemetry.battery_v > 0:
                 self._battery.add(telemetry.battery_v)
             if run is not None:
                 self._record(run, now_s, segment, commanded_mps, telemetry)
@@ -479,7 +481,11 @@ class RunManager:
             commanded_velocity_mps=commanded_mps,
             velocity_mps=telemetry.velocity_mps,
             direction=telemetry.direction,
-            battery_v=telemetry.battery_v,
+            battery_v=(
+                telemetry.battery_v
+                if telemetry.battery_v > 0
+                else (self._battery.battery_v or telemetry.battery_v)
+            ),
             track_m=telemetry.track_m,
             fix_quality=getattr(telemetry, "fix_quality", None),
             lat_deg=getattr(telemetry, "lat_deg", None) if position_known else None,

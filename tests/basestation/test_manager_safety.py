@@ -272,6 +272,53 @@ def test_a_run_does_not_start_on_a_low_battery(
         runtime.close()
 
 
+class JustResetRobot(RecordingRobot):
+    """Reports 0 V, the protocol's "not measured yet", in every frame before ``measured_s``."""
+
+    measured_s: float = 0.0
+    zeros_sent: int = 0
+
+    def exchange(self, command: Any, now_s: float) -> Any:
+        telemetry = super().exchange(command, now_s)
+        if now_s >= self.measured_s:
+            return telemetry
+        self.zeros_sent += 1
+        return replace(telemetry, battery_v=0.0)
+
+
+def test_not_measured_yet_is_neither_low_battery_nor_a_sample_of_0_v(
+    agent_config: AgentConfig, robot: RecordingRobot
+) -> None:
+    # The robot resets during the run: 0 V from 2 s after the start, for 3 s — longer than
+    # the hold after which a real low battery aborts the run.
+    flaky = JustResetRobot(robot.inner)
+    app = create_app(
+        replace(agent_config, low_battery_v=50.0), start_control_loop=False, robot=flaky
+    )
+    runtime = get_runtime(app)
+    try:
+        _stage(runtime, "run-1", T0 + 1.0, window_s=30.0, segments=[_segment(6.0)])
+        k = 0
+        while T0 + k * PERIOD_S < T0 + 3.0:
+            runtime.manager.tick(T0 + k * PERIOD_S)
+            k += 1
+        flaky.measured_s = T0 + 6.0
+        while T0 + k * PERIOD_S < T0 + 9.0:
+            runtime.manager.tick(T0 + k * PERIOD_S)
+            k += 1
+        state, reason = _state(runtime, "run-1")
+        assert (state, reason) == ("completed", "program finished")
+        assert flaky.zeros_sent == 60  # 3 s at 20 Hz
+        runtime.manager.writer.flush()
+        stored = runtime.store.samples_after("run-1", 0, 1000)
+        assert len(stored) > 100
+        assert min(s.battery_v for s in stored) > 55.0
+        assert runtime.manager.snapshot.battery_v is not None
+        assert runtime.manager.snapshot.battery_v > 55.0
+    finally:
+        runtime.close()
+
+
 def test_a_running_run_is_aborted_when_the_battery_stays_low_and_the_robot_ramps_down(
     low_battery_app: Flask, robot: RecordingRobot
 ) -> None:
