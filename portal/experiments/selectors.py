@@ -92,6 +92,7 @@ def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[str]:
 CHART_MAX_POINTS = 2000
 # A finished run's samples never change: its report is cached, keyed by what could differ.
 REPORT_CACHE_S = 3600
+LIVE_REPORT_CACHE_S = 60
 
 
 @dataclass(frozen=True)
@@ -125,17 +126,7 @@ def _sample_rows(run: Run, first_at: list[datetime]) -> Iterator[SampleRow]:
         Sample.objects.filter(run=run)
         .order_by("seq")
         .annotate(t_epoch_s=EpochSeconds("t"))
-        .values_list(
-            "seq",
-            "t_epoch_s",
-            "segment",
-            "commanded_velocity_mps",
-            "velocity_mps",
-            "direction",
-            "battery_v",
-            "track_m",
-            "fix_quality",
-        )
+        .values_list(*(("t_epoch_s" if f == "t_s" else f) for f in SampleRow._fields))
     )
     first_s = 0.0
     for seq, epoch_s, segment, commanded, measured, direction, battery, track, fix in rows.iterator(
@@ -157,12 +148,21 @@ def run_report(
     """
     final = run.state not in RUN_ACTIVE_STATES and run.state != RunState.SCHEDULED
     # created_at tells this run from one with the same id in another database (a restore).
-    identity = (run.pk, run.created_at.timestamp(), run.state, run.last_seq, run.rail_length_m)
+    identity: tuple[object, ...] = (
+        run.pk,
+        run.created_at.timestamp(),
+        run.state,
+        run.last_seq,
+        run.rail_length_m,
+    )
+    if not final:
+        # While samples arrive (a gap may be filled below last_seq), their count says whether
+        # anything changed: every viewer's poll then costs one count, not a recomputation.
+        identity += (Sample.objects.filter(run=run).count(),)
     key = f"run-report:{identity}:{pass_at_m}:{max_points}".replace(" ", "")
-    if final:
-        cached = cache.get(key)
-        if isinstance(cached, RunReport):
-            return cached
+    cached = cache.get(key)
+    if isinstance(cached, RunReport):
+        return cached
     first_at: list[datetime] = []
     collector = SeriesCollector(run.segments, run.rail_length_m)
     analysis = analyse(
@@ -172,8 +172,7 @@ def run_report(
         pass_at_m=pass_at_m,
     )
     report = RunReport(analysis, collector.series(max_points), first_at[0] if first_at else None)
-    if final:
-        cache.set(key, report, REPORT_CACHE_S)
+    cache.set(key, report, REPORT_CACHE_S if final else LIVE_REPORT_CACHE_S)
     return report
 
 

@@ -142,6 +142,22 @@ def test_missing_samples_are_shown(owner, mobile, client):
     assert "3–4, 9" in page
 
 
+def test_a_live_run_is_reanalysed_when_samples_arrive_even_below_its_last_seq(
+    owner, mobile, client
+):
+    run = _run(owner, mobile, [(1.0, "cw", 10.0)])
+    Run.objects.filter(pk=run.pk).update(state=RunState.RUNNING)
+    run.samples.filter(seq__in=[10, 11]).delete()  # a gap the next page fills
+    client.force_login(owner)
+
+    def analysis():
+        return client.get(f"/api/v1/runs/{run.pk}/analysis/").json()
+
+    assert (analysis()["samples"], analysis()["missing"]) == (198, 2)
+    _ingest(run, [(1.0, "cw", 10.0)])  # the same 200 again: only seq 10 and 11 are new
+    assert (analysis()["samples"], analysis()["missing"]) == (200, 0)
+
+
 def test_the_whole_run_downloads_as_one_json_document(owner, mobile, client):
     run = _run(owner, mobile, [(1.0, "cw", 100.0)])  # 2000 samples: more than one chunk
     client.force_login(owner)
