@@ -3,7 +3,17 @@ laps, passes and statistics can be worked out by hand."""
 
 from __future__ import annotations
 
+from datetime import timedelta
+from typing import Any
+
+from django.utils import timezone
+
+from bookings.services import reservation_create
 from portal.experiments.analysis import SampleRow
+from portal.experiments.choices import RunState
+from portal.experiments.models import Run
+from portal.experiments.services import samples_ingest
+from tests.factories import ExperimentFactory
 
 HZ = 20
 RAIL_M = 100.0
@@ -47,3 +57,46 @@ def drive(
 
 def segments(program: list[tuple[float, str, float]]) -> list[dict[str, object]]:
     return [{"velocity_mps": v, "direction": d, "duration_s": s} for v, d, s in program]
+
+
+def ingest(run: Any, program: list[tuple[float, str, float]]) -> None:
+    """Store the samples of ``program`` for ``run`` as collection would."""
+    t0_s = run.start_at.timestamp()
+    samples_ingest(
+        run=run,
+        samples=[
+            {
+                **{k: v for k, v in row._asdict().items() if k != "t_s"},
+                "t": t0_s + row.t_s,
+                "lat_deg": None,
+                "lon_deg": None,
+                "grid_id": None,
+                "lap": None,
+            }
+            for row in drive(program)
+        ],
+    )
+
+
+def completed_run(
+    owner: Any,
+    mobile: Any,
+    program: list[tuple[float, str, float]],
+    *,
+    rail_length_m: float | None = RAIL_M,
+) -> Any:
+    """A booked run of ``program`` on ``mobile``, its samples stored, marked completed."""
+    experiment = ExperimentFactory(owner=owner, segments=segments(program))
+    start = timezone.now() + timedelta(hours=1)
+    reservation = reservation_create(
+        owner=owner,
+        resource=mobile,
+        start_at=start,
+        end_at=start + timedelta(seconds=experiment.duration_s + 60),
+        experiment=experiment,
+    )
+    run = reservation.run
+    ingest(run, program)
+    Run.objects.filter(pk=run.pk).update(state=RunState.COMPLETED, rail_length_m=rail_length_m)
+    run.refresh_from_db()
+    return run

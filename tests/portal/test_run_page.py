@@ -7,14 +7,11 @@ import re
 from datetime import timedelta
 
 import pytest
-from django.utils import timezone
 
-from bookings.services import reservation_create
 from portal.experiments.choices import RunState
 from portal.experiments.models import Run
-from portal.experiments.services import samples_ingest
-from tests.factories import ExperimentFactory, UserFactory
-from tests.portal.driving import RAIL_M, drive, segments
+from tests.factories import UserFactory
+from tests.portal.driving import RAIL_M, completed_run, ingest
 
 pytestmark = pytest.mark.django_db
 
@@ -22,44 +19,9 @@ pytestmark = pytest.mark.django_db
 HOUR = [(1.0, "cw", 1200.0), (2.0, "ccw", 1200.0), (0.5, "cw", 1200.0)]
 
 
-def _ingest(run: Run, program) -> None:
-    t0_s = run.start_at.timestamp()
-    samples_ingest(
-        run=run,
-        samples=[
-            {
-                **{k: v for k, v in row._asdict().items() if k != "t_s"},
-                "t": t0_s + row.t_s,
-                "lat_deg": None,
-                "lon_deg": None,
-                "grid_id": None,
-                "lap": None,
-            }
-            for row in drive(program)
-        ],
-    )
-
-
-def _run(owner, mobile, program, *, rail_length_m: float | None = RAIL_M) -> Run:
-    experiment = ExperimentFactory(owner=owner, segments=segments(program))
-    start = timezone.now() + timedelta(hours=1)
-    reservation = reservation_create(
-        owner=owner,
-        resource=mobile,
-        start_at=start,
-        end_at=start + timedelta(seconds=experiment.duration_s + 60),
-        experiment=experiment,
-    )
-    run = reservation.run
-    _ingest(run, program)
-    Run.objects.filter(pk=run.pk).update(state=RunState.COMPLETED, rail_length_m=rail_length_m)
-    run.refresh_from_db()
-    return run
-
-
 @pytest.fixture
 def hour_run(owner, mobile):
-    return _run(owner, mobile, HOUR)
+    return completed_run(owner, mobile, HOUR)
 
 
 def test_a_one_hour_run_reaches_the_page_downsampled(hour_run, client):
@@ -125,7 +87,7 @@ def test_the_api_gives_the_analysis_as_json(hour_run, client):
 
 
 def test_without_a_rail_length_laps_and_passes_are_explained_not_guessed(owner, mobile, client):
-    run = _run(owner, mobile, [(1.0, "cw", 30.0)], rail_length_m=None)
+    run = completed_run(owner, mobile, [(1.0, "cw", 30.0)], rail_length_m=None)
     client.force_login(owner)
     page = client.get(f"/runs/{run.pk}/", {"at_m": "5"}).content.decode()
     assert "did not report its rail length" in page
@@ -134,7 +96,7 @@ def test_without_a_rail_length_laps_and_passes_are_explained_not_guessed(owner, 
 
 
 def test_missing_samples_are_shown(owner, mobile, client):
-    run = _run(owner, mobile, [(1.0, "cw", 1.0)])
+    run = completed_run(owner, mobile, [(1.0, "cw", 1.0)])
     run.samples.filter(seq__in=[3, 4, 9]).delete()
     client.force_login(owner)
     page = client.get(f"/runs/{run.pk}/").content.decode()
@@ -145,7 +107,7 @@ def test_missing_samples_are_shown(owner, mobile, client):
 def test_a_live_run_is_reanalysed_when_samples_arrive_even_below_its_last_seq(
     owner, mobile, client
 ):
-    run = _run(owner, mobile, [(1.0, "cw", 10.0)])
+    run = completed_run(owner, mobile, [(1.0, "cw", 10.0)])
     Run.objects.filter(pk=run.pk).update(state=RunState.RUNNING)
     run.samples.filter(seq__in=[10, 11]).delete()  # a gap the next page fills
     client.force_login(owner)
@@ -154,12 +116,12 @@ def test_a_live_run_is_reanalysed_when_samples_arrive_even_below_its_last_seq(
         return client.get(f"/api/v1/runs/{run.pk}/analysis/").json()
 
     assert (analysis()["samples"], analysis()["missing"]) == (198, 2)
-    _ingest(run, [(1.0, "cw", 10.0)])  # the same 200 again: only seq 10 and 11 are new
+    ingest(run, [(1.0, "cw", 10.0)])  # the same 200 again: only seq 10 and 11 are new
     assert (analysis()["samples"], analysis()["missing"]) == (200, 0)
 
 
 def test_the_whole_run_downloads_as_one_json_document(owner, mobile, client):
-    run = _run(owner, mobile, [(1.0, "cw", 100.0)])  # 2000 samples: more than one chunk
+    run = completed_run(owner, mobile, [(1.0, "cw", 100.0)])  # 2000 samples: more than one chunk
     client.force_login(owner)
     for url in (f"/runs/{run.pk}/samples.json", f"/api/v1/runs/{run.pk}/samples.json"):
         response = client.get(url)
@@ -174,7 +136,7 @@ def test_the_whole_run_downloads_as_one_json_document(owner, mobile, client):
 
 
 def test_an_empty_run_downloads_as_an_empty_list(owner, mobile, client):
-    run = _run(owner, mobile, [(1.0, "cw", 1.0)])
+    run = completed_run(owner, mobile, [(1.0, "cw", 1.0)])
     run.samples.all().delete()
     client.force_login(owner)
     document = json.loads(b"".join(client.get(f"/runs/{run.pk}/samples.json").streaming_content))
