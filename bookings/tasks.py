@@ -10,6 +10,7 @@ from django.utils import timezone
 
 from basestation.client import AgentError
 from bookings import dispatch, notifications, reminders
+from portal.health import SWEEP, heartbeat_record
 
 logger = logging.getLogger(__name__)
 
@@ -29,6 +30,7 @@ def runs_sweep() -> None:
         run_stage.apply_async((run_id,), expires=expires_s)
     for run_id in dispatch.runs_due_for_collection(now=now).values_list("pk", flat=True):
         run_collect.apply_async((run_id,), expires=expires_s)
+    heartbeat_record(SWEEP)
 
 
 def _retry_if_transient(task: Task, exc: AgentError) -> None:

@@ -17,6 +17,7 @@ from django.template.loader import render_to_string
 from django.urls import reverse
 from django.utils import timezone
 from django.utils.dateparse import parse_datetime
+from django.views.decorators.cache import never_cache
 
 from bookings.calendar import (
     calendar_entries,
@@ -38,7 +39,15 @@ from portal.experiments.choices import RUN_ACTIVE_STATES, RunState
 from portal.experiments.models import Run
 from portal.experiments.selectors import experiments_visible, run_report, runs_visible
 from portal.experiments.services import experiment_create, experiment_update
+from portal.health import health
 from portal.web.forms import BookingForm, ExperimentForm, PassForm
+
+
+@never_cache
+def healthz(request: HttpRequest) -> JsonResponse:
+    """Liveness for supervisors and monitoring: no login, no internals (``portal/health.py``)."""
+    ok, body = health()
+    return JsonResponse(body, status=200 if ok else 503)
 
 
 def _user(request: HttpRequest) -> Any:

@@ -108,6 +108,10 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         assert data["sample_count"] >= 60
         assert len(data["series"]["measured_mps"]["t"]) == data["sample_count"]
         assert "segment-stats" in data["analysis_html"]
+        # The run went through, so beat and the worker swept; the web process sees it.
+        health = requests.get(f"{web}/healthz", timeout=10).json()
+        assert health["status"] == "ok", health
+        assert health["scheduler"]["ok"], health
 
         assert processes_matching_env("AMAZING_VAR_DIR", str(var_dir)), "children should be running"
         launcher.popen.send_signal(signal.SIGINT)

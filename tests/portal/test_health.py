@@ -1,0 +1,71 @@
+"""``/healthz`` and the admins' warning when runs stop being dispatched."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from django.core.cache import cache
+from django.test import override_settings
+
+from bookings.tasks import runs_sweep
+from portal.health import SWEEP, heartbeat_record
+
+pytestmark = pytest.mark.django_db
+
+BROKEN_CACHE = {
+    "default": {
+        "BACKEND": "django.core.cache.backends.redis.RedisCache",
+        "LOCATION": "redis://127.0.0.1:9/0",  # the discard port: nothing answers
+    }
+}
+
+
+@pytest.fixture(autouse=True)
+def _no_heartbeat():
+    cache.delete(f"heartbeat:{SWEEP}")
+    yield
+    cache.delete(f"heartbeat:{SWEEP}")
+
+
+def test_healthz_answers_anyone_with_each_check(client):
+    response = client.get("/healthz")
+    assert response.status_code == 200
+    assert "no-store" in response["Cache-Control"]
+    body = response.json()
+    assert (body["status"], body["database"], body["cache"]) == ("ok", "ok", "ok")
+    # Nothing has swept yet: reported, but the web process itself is fine.
+    assert body["scheduler"] == {"last_sweep_age_s": None, "ok": False}
+
+
+def test_a_sweep_is_a_heartbeat(client):
+    runs_sweep()
+    scheduler = client.get("/healthz").json()["scheduler"]
+    assert scheduler["ok"] is True
+    assert 0 <= scheduler["last_sweep_age_s"] < 5
+
+
+def test_a_stale_scheduler_is_shown_to_admins_only(client, admin_user, owner):
+    heartbeat_record(SWEEP, now_s=time.time() - 600)
+    assert client.get("/healthz").json()["scheduler"]["ok"] is False
+    client.force_login(admin_user)
+    page = client.get("/").content.decode()
+    assert 'id="scheduler-warning"' in page
+    assert "last swept for runs 600 s ago" in page
+    client.force_login(owner)
+    assert 'id="scheduler-warning"' not in client.get("/").content.decode()
+    heartbeat_record(SWEEP)
+    client.force_login(admin_user)
+    assert 'id="scheduler-warning"' not in client.get("/").content.decode()
+
+
+def test_a_cache_that_fails_is_503_but_the_pages_still_work(client, admin_user):
+    with override_settings(CACHES=BROKEN_CACHE):
+        response = client.get("/healthz")
+        assert response.status_code == 503
+        body = response.json()
+        assert (body["status"], body["database"], body["cache"]) == ("failing", "ok", "unreachable")
+        client.force_login(admin_user)
+        page = client.get("/")
+        assert page.status_code == 200
+        assert 'id="scheduler-warning"' in page.content.decode()
