@@ -14,7 +14,7 @@ TEST_REDIS_URL ?= redis://127.0.0.1:6379/14
 TEST_ENV := DJANGO_DEBUG=1 AMAZING_TEST_REQUIRE_POSTGRES=1 DATABASE_URL=$(TEST_DATABASE_URL) REDIS_URL=$(TEST_REDIS_URL) \
 	CELERY_BROKER_URL=$(TEST_REDIS_URL)
 
-.PHONY: help setup run test ci lint format bench firmware clean system-deps services
+.PHONY: help setup run test ci lint format bench firmware cad clean system-deps services
 
 help:
 	@echo "make run    - set up and start the whole system locally (simulated robot)"
@@ -22,6 +22,7 @@ help:
 	@echo "make lint   - ruff, mypy and compose validation"
 	@echo "make bench  - benchmarks (results go to docs/performance.md)"
 	@echo "make firmware - cross-compile the robot firmware"
+	@echo "make cad   - build the 3D models (STEP, STL) into var/cad and refresh docs/cad"
 	@echo "make clean  - remove the virtualenv, assets and local data"
 
 $(STAMPS):
@@ -31,7 +32,7 @@ $(STAMPS):
 $(STAMPS)/venv: pyproject.toml | $(STAMPS)
 	@test -x $(PY) || $(PYTHON_BOOT) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[portal,basestation,dev]'
+	$(PY) -m pip install --quiet -e '.[portal,basestation,dev,cad]'
 	@touch $@
 
 # Front-end packages from npm, copied to where Django's staticfiles finds them.
@@ -81,7 +82,7 @@ test: setup system-deps services
 lint: setup system-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation
+	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation cad
 	docker-compose -f docker-compose.yml config --quiet
 	DJANGO_DEBUG=1 $(PY) manage.py makemigrations --check --dry-run
 	DJANGO_DEBUG=1 $(PY) -W error manage.py spectacular --validate --fail-on-warn --file /dev/null
@@ -94,6 +95,9 @@ ci: lint test
 
 firmware: system-deps
 	$(MAKE) --no-print-directory -C firmware hex size-check
+
+cad: $(STAMPS)/venv
+	$(PY) -m cad build --out var/cad --svg-dir docs/cad
 
 bench: setup services
 	$(TEST_ENV) $(PY) -m bench
