@@ -55,10 +55,11 @@ def build_robot(config: AgentConfig) -> Robot:
     if config.robot == "radio":
         spi: Any = open_spidev(config.spi_bus, config.spi_device)
     else:
-        from basestation.sim import SimulatedSpiConfig, make_simulated_spi
+        from basestation.sim import SimConfig, SimulatedSpiConfig, make_simulated_spi
 
         if config.robot == "sim":
-            spi = make_simulated_spi(SimulatedSpiConfig())
+            # The simulated robot drives the rail the agent projects onto: one file for both.
+            spi = make_simulated_spi(SimulatedSpiConfig(sim=SimConfig(rail=rail)))
         else:
             spi = make_simulated_spi(
                 SimulatedSpiConfig(

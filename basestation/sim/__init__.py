@@ -17,7 +17,6 @@ from basestation.sim.clock import Clock, FakeClock
 from basestation.sim.config import GpsConfig, RadioConfig, SimConfig, SimConfigError
 from basestation.sim.firmware import FirmwareError, FirmwareRobot, load_library
 from basestation.sim.physics import BatteryConfig, PhysicsConfig, RobotPhysics
-from basestation.sim.rail import RailConfigError, RailGeometry
 from basestation.sim.rfm69 import EmulatedRFM69, ModeTimings, SpiDevice
 from basestation.sim.robot import FrameRadio, RobotState, SimulatedRobot, TraceSample
 from basestation.sim.spi import SimulatedSpi, SimulatedSpiConfig, make_simulated_spi
@@ -38,8 +37,6 @@ __all__ = [
     "ModeTimings",
     "PhysicsConfig",
     "RadioConfig",
-    "RailConfigError",
-    "RailGeometry",
     "Reception",
     "RobotPhysics",
     "RobotState",

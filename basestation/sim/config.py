@@ -5,12 +5,19 @@ rail)::
 
     seed = 1
     start_track_m = 0.0
-    [rail]      # see RailGeometry.from_mapping: vertices_m + centre, or vertices (lat, lon)
+    rail_file = "rail.json"  # the agent's rail file (AGENT_RAIL_FILE), relative to this file
+    [rail]      # or the rail inline, in the same format: name, centre, points, origin, ...
     [physics]   # PhysicsConfig fields: mass_kg, rolling_resistance, ...
     [battery]   # BatteryConfig fields
     [gps]       # fix = "rtk_fixed" | "rtk_float" | "dgps" | "gps" | "none", rate_hz, ...
     [radio]     # node, base_node, network_id, aes_key_hex, high_power, processing_delay_s
     [firmware]  # amz_robot_config fields: max_velocity_mm_s = 3000, accel_mm_s2 = 250, ...
+
+The rail is the agent's :class:`~basestation.telemetry.rail.Rail` in the agent's format,
+given either inline as ``[rail]`` or as ``rail_file``, the path of the same rail file that
+``AGENT_RAIL_FILE`` names, so that one file configures both (not both at once; neither: the
+agent's default rail). The simulated robot then drives, and its GPS reports, exactly the rail
+the agent projects its fixes onto.
 
 Every value is type- and range-checked on load; an error names the file, table and key.
 """
@@ -18,7 +25,9 @@ Every value is type- and range-checked on load; an error names the file, table a
 from __future__ import annotations
 
 import ctypes
+import json
 import math
+import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -27,10 +36,10 @@ from typing import Any, Final
 from basestation.sim.firmware import AmzRobotConfig
 from basestation.sim.gps import DEFAULT_FIX_MODELS, FixModel
 from basestation.sim.physics import BatteryConfig, PhysicsConfig
-from basestation.sim.rail import RailConfigError, RailGeometry, load_config_file
+from basestation.telemetry.rail import Rail, RailConfigError
 
 
-class SimConfigError(RailConfigError):
+class SimConfigError(ValueError):
     """The simulator configuration is unusable; the message names the key."""
 
 
@@ -79,7 +88,7 @@ class RadioConfig:
 
 @dataclass(frozen=True)
 class SimConfig:
-    rail: RailGeometry = field(default_factory=RailGeometry.default)
+    rail: Rail = field(default_factory=Rail.default)
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     battery: BatteryConfig = field(default_factory=BatteryConfig)
     gps: GpsConfig = field(default_factory=GpsConfig)
@@ -91,15 +100,25 @@ class SimConfig:
     e_stop_latched_at_boot: bool = False  # the latch as restored from EEPROM
 
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], *, where: str = "config") -> SimConfig:
+    def from_mapping(
+        cls, data: Mapping[str, Any], *, where: str = "config", base_dir: Path | None = None
+    ) -> SimConfig:
+        """``base_dir``: where a relative ``rail_file`` lies (the configuration file's
+        directory; default the working directory)."""
         if not isinstance(data, Mapping):
             raise SimConfigError(f"{where}: the top level must be a table")
-        tables = {"rail", "physics", "battery", "gps", "radio", "firmware"}
+        tables = {"rail", "rail_file", "physics", "battery", "gps", "radio", "firmware"}
         values = {k: v for k, v in data.items() if k not in tables}
         top = _parse(_TOP, values, where)
         kwargs: dict[str, Any] = dict(top)
+        if "rail" in data and "rail_file" in data:
+            raise SimConfigError(
+                f"{where}: rail_file and [rail] both give the rail; keep one of them"
+            )
         if "rail" in data:
-            kwargs["rail"] = RailGeometry.from_mapping(data["rail"], where=f"{where}: rail")
+            kwargs["rail"] = _parse_rail(data["rail"], where)
+        if "rail_file" in data:
+            kwargs["rail"] = _load_rail_file(data["rail_file"], where, base_dir)
         if "physics" in data:
             kwargs["physics"] = PhysicsConfig(
                 **_parse(_PHYSICS, data["physics"], f"{where}: physics")
@@ -119,11 +138,8 @@ class SimConfig:
 
     @classmethod
     def load(cls, path: Path | str) -> SimConfig:
-        try:
-            data = load_config_file(path)
-        except RailConfigError as error:
-            raise SimConfigError(str(error)) from None
-        return cls.from_mapping(data, where=str(path))
+        data = _load_file(Path(path))
+        return cls.from_mapping(data, where=str(path), base_dir=Path(path).parent)
 
     def robot_config(self, base: AmzRobotConfig) -> AmzRobotConfig:
         """The firmware's configuration: its compiled defaults, the radio addresses, then the
@@ -139,6 +155,54 @@ class SimConfig:
 
 
 # --- parsing ------------------------------------------------------------------------------------
+
+
+def _load_file(file: Path) -> dict[str, Any]:
+    """A ``.json`` or ``.toml`` file as a dict; errors name the file."""
+    suffix = file.suffix.lower()
+    if suffix not in (".json", ".toml"):
+        raise SimConfigError(f"{file}: use a .json or .toml file")
+    try:
+        text = file.read_text(encoding="utf-8")
+    except OSError as error:
+        raise SimConfigError(f"{file}: cannot read: {error.strerror or error}") from None
+    except UnicodeDecodeError:
+        raise SimConfigError(f"{file}: not UTF-8 text") from None
+    try:
+        data: Any = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise SimConfigError(f"{file}: not valid TOML: {error}") from None
+    except (json.JSONDecodeError, RecursionError) as error:  # RecursionError: nested too deep
+        raise SimConfigError(f"{file}: not valid {suffix[1:].upper()}: {error}") from None
+    if not isinstance(data, dict):
+        raise SimConfigError(f"{file}: the top level must be a table/object")
+    return data
+
+
+def _parse_rail(data: Any, where: str) -> Rail:
+    """An inline ``[rail]`` table: the agent's rail format, checked by the agent's rules."""
+    try:
+        return Rail.from_mapping(data)
+    except RailConfigError as error:
+        # The rail's own field names (points[2].lat), under the table that holds them.
+        key = "rail" if error.field == "rail" else f"rail.{error.field}"
+        raise SimConfigError(f"{where}: {key}: {error.message}") from None
+
+
+def _load_rail_file(value: Any, where: str, base_dir: Path | None) -> Rail:
+    if not isinstance(value, str) or not value.strip():
+        raise SimConfigError(
+            f"{where}: rail_file must be the path of a rail file (.json or .toml), got {value!r}"
+        )
+    path = Path(value)
+    if base_dir is not None and not path.is_absolute():
+        # Relative to the configuration file, so the pair can move together.
+        path = base_dir / path
+    try:
+        return Rail.from_file(path)
+    except RailConfigError as error:
+        raise SimConfigError(f"{where}: rail_file: {error}") from None
+
 
 # name: (kind, low, high); kinds: float, int, bool, str, and "?" for optional (None allowed).
 _Spec = dict[str, tuple[str, float, float]]

@@ -86,7 +86,7 @@ class RobotState:
     robot_clock_ms: int
     track_m: float
     odometer_m: float
-    side: str
+    side: str  # the thesis side (A N-E, B E-S, C S-W, D W-N), as the agent's grid id
     velocity_mps: float
     applied_velocity_mps: float
     accel_mps2: float
@@ -464,8 +464,8 @@ class SimulatedRobot:
                 )
             else:
                 noise_e, noise_n = self._gps_noise.next(self._gps_period_s)
-                east, north = self.config.rail.point_at(self.physics.odometer_m)
-                lat, lon = self.config.rail.to_lat_lon(east + noise_e, north + noise_n)
+                east_m, north_m = self.config.rail.xy_at(self.physics.odometer_m)
+                lat, lon = self.config.rail.frame.to_lat_lon(east_m + noise_e, north_m + noise_n)
                 sentence = gga_sentence(
                     utc_s_of_day=gps.utc_start_s + epoch_s,
                     lat_deg=lat,
@@ -514,7 +514,7 @@ class SimulatedRobot:
 
     def state(self) -> RobotState:
         status = self.status
-        lat, lon = self.config.rail.lat_lon_at(self.physics.odometer_m)
+        lat, lon = self.config.rail.point_at(self.physics.odometer_m)
         return RobotState(
             time_s=round(self.time_s, 3),
             robot_clock_ms=self.robot_clock_ms,

@@ -289,7 +289,7 @@ def velocity_test(
     for t, f in frames:
         if (f.lat_e7, f.lon_e7) != last and f.fix_quality:
             last = (f.lat_e7, f.lon_e7)
-            points.append((t, rail.project(f.lat_e7 / 1e7, f.lon_e7 / 1e7)))
+            points.append((t, rail.project(f.lat_e7 / 1e7, f.lon_e7 / 1e7).track_m))
     unwrapped = _unwrap([p for _, p in points], rail.length_m)
     times = [t for t, _ in points]
     gps = _slope(times, unwrapped)

@@ -13,6 +13,9 @@ The thesis grid id (§3.4, figure 3.23) is independent of the polyline: the bear
 position from the building centre picks a side — A between north and east, B east to south,
 C south to west, D west to north — and the side is cut into ``grid_points / 4`` equal angles,
 numbered from 1 clockwise, e.g. ``A2``.
+
+The simulator drives its robot along the same :class:`Rail` (``SimConfig.rail``), so the
+simulated GPS and the agent's projection always agree about where the rail is.
 """
 
 from __future__ import annotations
@@ -94,7 +97,11 @@ def grid_id(
 ) -> str:
     """The thesis position id (``A1`` … ``D<n>``) of a position, by bearing from ``centre``."""
     _check_grid_points(grid_points)
-    x_m, y_m = LocalFrame(*centre).to_xy_m(lat_deg, lon_deg)
+    return _grid_id_xy(*LocalFrame(*centre).to_xy_m(lat_deg, lon_deg), grid_points)
+
+
+def _grid_id_xy(x_m: float, y_m: float, grid_points: int) -> str:
+    """The grid id of a point ``x_m`` east and ``y_m`` north of the centre."""
     bearing_deg = math.degrees(math.atan2(x_m, y_m)) % 360.0  # 0 = north, 90 = east
     side = min(int(bearing_deg // 90.0), 3)  # a bearing of -1e-17 rounds to 360.0
     per_side = grid_points // 4
@@ -281,7 +288,8 @@ class Rail:
 
     @classmethod
     def default(cls) -> Rail:
-        """The rail of ``default_rail.json``: a 120 m square around the thesis centre."""
+        """The rail of ``default_rail.json``: a 30 m square (120 m around) with its corners
+        north, east, south and west of the thesis centre. The simulator's default too."""
         return cls.from_file(DEFAULT_RAIL_PATH)
 
     # -- using -------------------------------------------------------------------------------
@@ -290,7 +298,7 @@ class Rail:
         """Project a GPS position onto the rail (the nearest point of the polyline)."""
         raw_m, lateral_m, edge = self._project_raw(*self.frame.to_xy_m(lat_deg, lon_deg))
         return RailPosition(
-            track_m=self._wrap(raw_m - self._origin_m),
+            track_m=self.wrap(raw_m - self._origin_m),
             lateral_m=lateral_m,
             grid_id=self.grid_id(lat_deg, lon_deg),
             edge=edge,
@@ -298,11 +306,27 @@ class Rail:
 
     def point_at(self, track_m: float) -> LatLon:
         """The GPS position of the rail at ``track_m`` (any real number: it wraps)."""
-        raw_m = self._wrap(track_m + self._origin_m)
+        return self.frame.to_lat_lon(*self.xy_at(track_m))
+
+    def xy_at(self, track_m: float) -> XY:
+        """The rail at ``track_m`` (any real number: it wraps) in metres east and north of
+        the centre: the simulator adds its GPS noise in this frame."""
+        raw_m = self.wrap(track_m + self._origin_m)
         edge = max(bisect.bisect_right(self._start_m, raw_m) - 1, 0)
         (ax, ay), (bx, by) = self._xy[edge], self._xy[(edge + 1) % len(self._xy)]
         fraction = (raw_m - self._start_m[edge]) / self._edge_m[edge]
-        return self.frame.to_lat_lon(ax + fraction * (bx - ax), ay + fraction * (by - ay))
+        return ax + fraction * (bx - ax), ay + fraction * (by - ay)
+
+    def side_at(self, track_m: float) -> str:
+        """The thesis side (``A`` … ``D``) of the rail at ``track_m``: the letter of its
+        grid id, so the simulator's logs name sides as the agent's samples do."""
+        return _grid_id_xy(*self.xy_at(track_m), self.grid_points)[0]
+
+    def wrap(self, track_m: float) -> float:
+        """``track_m`` brought into ``[0, length_m)``, e.g. a simulated odometer reading."""
+        wrapped_m = track_m % self.length_m
+        # Float modulo can land on length_m itself for values just below a multiple of it.
+        return 0.0 if wrapped_m >= self.length_m else wrapped_m
 
     def grid_id(self, lat_deg: float, lon_deg: float) -> str:
         return grid_id(lat_deg, lon_deg, centre=self.centre, grid_points=self.grid_points)
@@ -310,11 +334,6 @@ class Rail:
     @property
     def grid_ids(self) -> list[str]:
         return grid_ids(self.grid_points)
-
-    def _wrap(self, value_m: float) -> float:
-        wrapped_m = value_m % self.length_m
-        # Float modulo can land on length_m itself for values just below a multiple of it.
-        return 0.0 if wrapped_m >= self.length_m else wrapped_m
 
     def _project_raw(self, x_m: float, y_m: float) -> tuple[float, float, int]:
         """(distance along the polyline from its first point, signed offset, edge)."""

@@ -1,65 +1,36 @@
-"""Rail geometry and simulator configuration: defaults, files, and clear errors."""
+"""Simulator configuration: defaults, files, the agent's rail, and clear errors."""
 
 from __future__ import annotations
 
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from basestation.sim.config import SimConfig, SimConfigError
-from basestation.sim.rail import BUILDING_CENTRE, RailConfigError, RailGeometry
+from basestation.telemetry.rail import DEFAULT_RAIL_PATH, THESIS_CENTRE, LocalFrame, Rail
+
+CENTRE = LocalFrame(*THESIS_CENTRE)
 
 
-def test_the_default_rail_is_a_square_around_the_building_with_cardinal_corners() -> None:
-    rail = RailGeometry.default()
-    assert rail.length_m == pytest.approx(120.0)
-    lat0, lon0 = BUILDING_CENTRE
-    north, east, south, west = (rail.lat_lon_at(s) for s in (0.0, 30.0, 60.0, 90.0))
-    assert north[0] > lat0
-    assert north[1] == pytest.approx(lon0)
-    assert east[1] > lon0
-    assert east[0] == pytest.approx(lat0)
-    assert south[0] < lat0
-    assert west[1] < lon0
-    assert [rail.side_at(s) for s in (1.0, 31.0, 61.0, 91.0)] == ["A", "B", "C", "D"]
-    for track_m in (0.0, 7.5, 29.99, 45.0, 119.0):
-        assert rail.project(*rail.lat_lon_at(track_m)) == pytest.approx(track_m, abs=1e-6)
-    assert rail.wrap(121.0) == pytest.approx(1.0)
-    assert rail.wrap(-1.0) == pytest.approx(119.0)
+def diamond(half_diagonal_m: float) -> list[dict[str, float]]:
+    """Corners north, east, south and west of the thesis centre, in the agent's format."""
+    h = half_diagonal_m
+    corners = [CENTRE.to_lat_lon(x, y) for x, y in ((0, h), (h, 0), (0, -h), (-h, 0))]
+    return [{"lat": lat, "lon": lon} for lat, lon in corners]
 
 
-def test_a_rail_from_latitudes_and_longitudes() -> None:
-    corners = [[40.6342, -8.6601], [40.6342, -8.6599], [40.6340, -8.6599], [40.6340, -8.6601]]
-    rail = RailGeometry.from_mapping({"vertices": corners, "sides": ["N", "E", "S", "W"]})
-    side_ns_m = math.radians(0.0002) * 6_371_008.8
-    side_ew_m = side_ns_m * math.cos(math.radians(40.6341))
-    assert rail.length_m == pytest.approx(2 * (side_ns_m + side_ew_m), rel=1e-6)
-    assert rail.lat_lon_at(0.0) == pytest.approx((40.6342, -8.6601))
+def toml_points(points: list[dict[str, float]]) -> str:
+    return ", ".join(f"{{lat = {p['lat']!r}, lon = {p['lon']!r}}}" for p in points)
 
 
-@pytest.mark.parametrize(
-    ("table", "message"),
-    [
-        ({"vertices_m": [[0, 0], [10, 0]]}, "at least 3 vertices"),
-        ({"vertices_m": [[0, 0], [10, 0], [10, 0], [0, 10]]}, "repeated vertex"),
-        ({"vertices_m": [[0, 0], [10, 10], [10, 0], [0, 10]]}, "cross"),
-        ({"vertices_m": [[0, 0], [10, 0], [0, "x"]]}, r"vertices_m\[2\]\[1\] must be a number"),
-        ({"vertices_m": [[0, 0], [10, 0], [0, math.inf]]}, "finite"),
-        ({"vertices": [[91, 0], [0, 1], [1, 1]]}, "latitude 91"),
-        ({"vertices_m": [[0, 0], [1, 0], [0, 1]], "vertices": []}, "exactly one of"),
-        ({"vertices_m": [[0, 0], [10, 0], [0, 10]], "colour": "red"}, "unknown key.*colour"),
-        ({"vertices_m": [[0, 0], [10, 0], [0, 10]], "sides": ["A", "B"]}, "3 segments"),
-        ({"vertices_m": [[0, 0], [10, 0], [0, 10]], "sides": ["A", "A", "B"]}, "unique"),
-        ({"vertices_m": [[0, 0], [0.1, 0], [0, 0.1]]}, "not in 1..100000"),
-    ],
-)
-def test_a_bad_rail_is_refused_with_a_message_naming_the_problem(
-    table: dict[str, object], message: str
-) -> None:
-    with pytest.raises(RailConfigError, match=message):
-        RailGeometry.from_mapping(table)
+def test_the_default_simulated_rail_is_the_agents_default_rail() -> None:
+    rail, agents = SimConfig().rail, Rail.default()
+    assert rail.points == agents.points
+    assert rail.length_m == agents.length_m == pytest.approx(120.0, abs=0.05)
+    assert rail.point_at(0.0) == agents.point_at(0.0)  # the same origin
 
 
 def test_a_toml_file_configures_everything(tmp_path: Path) -> None:
@@ -68,10 +39,6 @@ def test_a_toml_file_configures_everything(tmp_path: Path) -> None:
         """
 seed = 4
 start_track_m = 10.0
-[rail]
-centre = [40.634172, -8.660015]
-vertices_m = [[0.0, 20.0], [20.0, 0.0], [0.0, -20.0], [-20.0, 0.0]]
-sides = ["A", "B", "C", "D"]
 [physics]
 mass_kg = 90
 [battery]
@@ -83,11 +50,16 @@ network_id = 7
 aes_key_hex = "00112233445566778899aabbccddeeff"
 [firmware]
 max_velocity_mm_s = 3000
-""",
+[rail]
+name = "inline"
+centre = {lat = 40.634172, lon = -8.660015}
+points = [{points}]
+""".replace("{points}", toml_points(diamond(20.0))),
         encoding="utf-8",
     )
     config = SimConfig.load(path)
     assert config.seed == 4
+    assert config.rail.name == "inline"
     assert config.rail.length_m == pytest.approx(4 * 20 * math.sqrt(2))
     assert config.physics.mass_kg == 90.0
     assert config.gps.model().sigma_m == 0.3
@@ -101,7 +73,29 @@ def test_a_json_file_works_too(tmp_path: Path) -> None:
     path.write_text(json.dumps({"gps": {"fix": "gps"}, "firmware": {"accel_mm_s2": 500}}))
     config = SimConfig.load(path)
     assert config.gps.fix == "gps"
-    assert config.rail == RailGeometry.default()
+    assert config.rail.points == Rail.default().points
+
+
+def test_rail_file_names_the_same_file_the_agent_reads(tmp_path: Path) -> None:
+    rails = tmp_path / "rails"
+    rails.mkdir()
+    (rails / "roof.json").write_text(json.dumps({"name": "roof", "points": diamond(25.0)}))
+    (tmp_path / "sim.toml").write_text('rail_file = "rails/roof.json"\n', encoding="utf-8")
+    config = SimConfig.load(tmp_path / "sim.toml")  # relative to the config file, not the cwd
+    agents = Rail.from_file(rails / "roof.json")  # what AGENT_RAIL_FILE=rails/roof.json gives
+    assert config.rail.name == "roof"
+    assert config.rail.points == agents.points
+    assert config.rail.length_m == agents.length_m == pytest.approx(4 * 25 * math.sqrt(2))
+    absolute = SimConfig.from_mapping({"rail_file": str(DEFAULT_RAIL_PATH)})
+    assert absolute.rail.points == Rail.default().points
+
+
+def test_an_inline_rail_is_checked_by_the_agents_rules_with_the_same_field_names() -> None:
+    points = diamond(20.0)
+    points[2] = {"lat": 91, "lon": points[2]["lon"]}
+    with pytest.raises(SimConfigError) as caught:
+        SimConfig.from_mapping({"rail": {"points": points}}, where="sim.toml")
+    assert str(caught.value) == "sim.toml: rail.points[2].lat: must be between -90 and 90, got 91"
 
 
 @pytest.mark.parametrize(
@@ -118,15 +112,32 @@ def test_a_json_file_works_too(tmp_path: Path) -> None:
         ("[firmware]\nnode = 9\n", r"set radio\.node instead"),
         ("[battery]\nempty_v = 13.0\n", "full_v must be above"),
         ("seed = 'x'\n", "seed must be an integer"),
-        ("[rail]\nvertices_m = [[0, 0]]\n", r"sim\.toml: rail: a closed rail needs at least 3"),
+        ("[rail]\npoints = [{lat = 40.6, lon = -8.6}]\n", r"sim\.toml: rail\.points: needs 3"),
+        ("[rail]\ncolour = 'red'\n", r"sim\.toml: rail\.colour: unknown field"),
+        ("rail = [1, 2]\n", "sim.toml: rail: must be an object"),
+        ("rail_file = 3\n", "rail_file must be the path of a rail file"),
+        ("rail_file = 'nowhere.json'\n", r"sim\.toml: rail_file: file: cannot read"),
+        ("rail_file = 'r.json'\n[rail]\nname = 'x'\n", "keep one of them"),
         ("physics = [1, 2\n", "not valid TOML"),
     ],
 )
 def test_a_bad_config_file_names_the_key(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "sim.toml"
     path.write_text(text, encoding="utf-8")
-    with pytest.raises(SimConfigError if "rail" not in text else RailConfigError, match=message):
+    with pytest.raises(SimConfigError, match=message):
         SimConfig.load(path)
+
+
+def test_a_bad_rail_file_is_named_with_the_field_at_fault(tmp_path: Path) -> None:
+    body: dict[str, Any] = {"points": diamond(20.0)}
+    body["points"][1]["lon"] = "east"
+    (tmp_path / "rail.json").write_text(json.dumps(body), encoding="utf-8")
+    (tmp_path / "sim.toml").write_text("rail_file = 'rail.json'\n", encoding="utf-8")
+    with pytest.raises(SimConfigError) as caught:
+        SimConfig.load(tmp_path / "sim.toml")
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'sim.toml'}: rail_file: points[1].lon: must be a")
+    assert str(tmp_path / "rail.json") in message
 
 
 def test_a_missing_or_unknown_file_is_a_clear_error(tmp_path: Path) -> None:

@@ -25,9 +25,9 @@ from basestation.protocol import (
 from basestation.sim.config import GpsConfig, SimConfig
 from basestation.sim.gps import DEFAULT_FIX_MODELS, GpsNoise, gga_sentence
 from basestation.sim.physics import BatteryConfig
-from basestation.sim.rail import RailGeometry
 from basestation.sim.robot import SimulatedRobot
 from basestation.sim.scenario import Bench
+from basestation.telemetry.rail import Rail
 
 
 def test_the_robot_answers_over_the_air_with_its_position_and_battery() -> None:
@@ -42,7 +42,7 @@ def test_the_robot_answers_over_the_air_with_its_position_and_battery() -> None:
     assert abs(last.battery_v - 60.2) < 0.3  # five 12 V batteries at 70 % charge
     # The telemetry's position is the GPS's: at most one fix period plus its latency old.
     rail = bench.robot.config.rail
-    gps_track_m = rail.project(last.lat_deg, last.lon_deg)
+    gps_track_m = rail.project(last.lat_deg, last.lon_deg).track_m
     assert abs(gps_track_m - bench.robot.track_m) < 0.1 + 0.15 * 0.5
     assert -70 < last.rssi_dbm < -45
     # Answered one airtime + processing after the command: well inside the 50 ms tick.
@@ -117,17 +117,30 @@ def test_a_config_frame_is_answered_with_the_limits_applied() -> None:
     assert (answer.max_velocity_mm_s, answer.accel_mm_s2) == (4000, 1000)  # hard limits
 
 
-def test_the_robot_follows_a_configured_rail() -> None:
-    triangle = RailGeometry.from_mapping(
-        {"vertices": [[40.6340, -8.6600], [40.6341, -8.6598], [40.6339, -8.6598]]}
-    )
+def test_the_robot_follows_a_configured_rail_clockwise_whatever_the_file_order() -> None:
+    # Listed counter-clockwise (west, south-east, north-east): CW travel still goes clockwise.
+    corners = [(40.6340, -8.6600), (40.6339, -8.6598), (40.6341, -8.6598)]
+    triangle = Rail.from_mapping({"points": [{"lat": lat, "lon": lon} for lat, lon in corners]})
     bench = Bench.create(SimConfig(rail=triangle, start_track_m=triangle.length_m - 1.0))
     bench.drive(12.0, 2.0)
     robot = bench.robot
     assert robot.physics.odometer_m > triangle.length_m  # went round past the origin
     assert 0.0 <= robot.track_m < triangle.length_m
     _, last = bench.telemetry[-1]
-    assert abs(triangle.project(last.lat_deg, last.lon_deg) - robot.track_m) < 0.5
+    assert abs(triangle.project(last.lat_deg, last.lon_deg).track_m - robot.track_m) < 0.5
+    # Seen from above, the GPS fixes turn clockwise round the triangle's middle: their
+    # summed cross products (x east, y north) are negative.
+    middle_x_m = sum(triangle.frame.to_xy_m(*c)[0] for c in corners) / 3
+    middle_y_m = sum(triangle.frame.to_xy_m(*c)[1] for c in corners) / 3
+    fixes = [
+        triangle.frame.to_xy_m(f.lat_deg, f.lon_deg) for _, f in bench.telemetry if f.fix_quality
+    ]
+    assert len(fixes) > 200
+    turn_m2 = sum(
+        (ax - middle_x_m) * (by - middle_y_m) - (ay - middle_y_m) * (bx - middle_x_m)
+        for (ax, ay), (bx, by) in itertools.pairwise(fixes)
+    )
+    assert turn_m2 < 0
 
 
 def test_gps_noise_follows_the_fix_model() -> None:

@@ -85,6 +85,24 @@ def test_on_the_default_rail_the_sides_are_the_thesis_sides() -> None:
             assert rail.project(lat, lon).grid_id == f"{side}{k + 1}"
 
 
+def test_the_default_rail_walks_the_cardinal_corners_clockwise_from_north() -> None:
+    rail = Rail.default()
+    lat0, lon0 = THESIS_CENTRE
+    quarter_m = rail.length_m / 4
+    north, east, south, west = (rail.point_at(k * quarter_m) for k in range(4))
+    assert north[0] > lat0
+    assert north[1] == pytest.approx(lon0, abs=1e-7)
+    assert east[0] == pytest.approx(lat0, abs=1e-7)
+    assert east[1] > lon0
+    assert south[0] < lat0
+    assert south[1] == pytest.approx(lon0, abs=1e-7)
+    assert west[0] == pytest.approx(lat0, abs=1e-7)
+    assert west[1] < lon0
+    assert [rail.side_at(k * quarter_m + 1.0) for k in range(4)] == ["A", "B", "C", "D"]
+    for track_m in (0.0, 7.5, 29.99, 45.0, 119.0):
+        assert rail.project(*rail.point_at(track_m)).track_m == pytest.approx(track_m, abs=1e-6)
+
+
 def test_the_default_rail_file_is_shipped_next_to_the_code() -> None:
     assert DEFAULT_RAIL_PATH.name == "default_rail.json"
     assert Rail.from_file(DEFAULT_RAIL_PATH).points == Rail.default().points
@@ -131,6 +149,61 @@ def test_the_number_of_grid_points_per_lap_is_configurable() -> None:
 
 
 # -- projection ---------------------------------------------------------------------------------
+
+
+def test_a_rail_from_latitudes_and_longitudes_measures_its_edges_on_the_earth() -> None:
+    corners = [(40.6342, -8.6601), (40.6342, -8.6599), (40.6340, -8.6599), (40.6340, -8.6601)]
+    rail = Rail.from_mapping({"points": [{"lat": lat, "lon": lon} for lat, lon in corners]})
+    # Independent of the code's frame: arcs on a sphere of the mean Earth radius.
+    side_ns_m = math.radians(0.0002) * 6_371_008.8
+    side_ew_m = side_ns_m * math.cos(math.radians(THESIS_CENTRE[0]))
+    assert rail.length_m == pytest.approx(2 * (side_ns_m + side_ew_m), rel=1e-5)
+    assert rail.point_at(0.0) == pytest.approx(corners[0])
+    assert rail.point_at(side_ew_m) == pytest.approx(corners[1])
+
+
+def test_wrap_brings_any_track_position_into_one_lap() -> None:
+    rail = Rail.default()
+    assert rail.wrap(rail.length_m + 1.0) == pytest.approx(1.0)
+    assert rail.wrap(-1.0) == pytest.approx(rail.length_m - 1.0)
+    assert rail.wrap(-3 * rail.length_m) == pytest.approx(0.0, abs=1e-9)
+    assert rail.wrap(5.0) == 5.0
+    # Just below a whole lap, float modulo gives length_m itself; that is position 0.
+    assert rail.wrap(-1e-300) == 0.0
+    assert 0.0 <= rail.wrap(math.nextafter(rail.length_m, 0.0)) < rail.length_m
+
+
+def test_xy_at_is_the_rail_in_metres_around_the_centre_walked_clockwise() -> None:
+    for rail in (
+        Rail.from_mapping(config()),
+        Rail.from_mapping(config(points=square(clockwise=False))),
+    ):
+        assert rail.xy_at(0.0) == pytest.approx((-20.0, 20.0), abs=1e-6)  # NW, the origin
+        assert rail.xy_at(20.0) == pytest.approx((0.0, 20.0), abs=1e-6)  # east along the N side
+        assert rail.xy_at(60.0) == pytest.approx((20.0, 0.0), abs=1e-6)  # south along the E side
+        assert rail.xy_at(-10.0) == pytest.approx((-20.0, 10.0), abs=1e-6)  # wraps
+        for track_m in (0.0, 33.3, 101.0, 159.9):
+            assert rail.frame.to_lat_lon(*rail.xy_at(track_m)) == pytest.approx(
+                rail.point_at(track_m)
+            )
+
+
+def test_xy_at_counts_from_the_origin() -> None:
+    rail = Rail.from_mapping(config(origin=point(0.0, 20.0)))
+    assert rail.xy_at(0.0) == pytest.approx((0.0, 20.0), abs=1e-6)
+    assert rail.xy_at(20.0) == pytest.approx((20.0, 20.0), abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("track_m", "side"),
+    [(10.0, "D"), (30.0, "A"), (50.0, "A"), (70.0, "B"), (90.0, "B"), (110.0, "C"), (150.0, "D")],
+)
+def test_the_side_at_a_track_position_is_the_letter_of_its_grid_id(
+    track_m: float, side: str
+) -> None:
+    rail = Rail.from_mapping(config())  # from the NW corner: the sides are cut by bearing
+    assert rail.side_at(track_m) == side
+    assert rail.project(*rail.point_at(track_m)).grid_id[0] == side
 
 
 def test_track_grows_clockwise_from_the_origin_whatever_the_file_order() -> None:
@@ -221,6 +294,8 @@ def test_every_point_of_the_default_rail_projects_back_within_a_centimetre(track
         (config(points=[*square()[:3], {"lat": 91, "lon": 0}]), "points[3].lat", "between"),
         (config(points=[*square()[:3], {"lat": 40, "lon": -181}]), "points[3].lon", "between"),
         (config(points=[*square()[:3], {"lat": 10**400, "lon": 0}]), "points[3].lat", "between"),
+        (config(points=[*square()[:3], {"lat": math.inf, "lon": 0}]), "points[3].lat", "between"),
+        (config(points=[*square()[:3], {"lat": 40, "lon": math.nan}]), "points[3].lon", "between"),
         (config(points=[*square()[:3], {"lat": 41.0, "lon": -8.66}]), "points[3]", "km"),
         (config(points=[*square(), square()[0]]), "points[4]", "zero-length"),
         (config(points=[square()[0], square()[0], *square()[1:]]), "points[1]", "zero-length"),
