@@ -9,7 +9,7 @@ from __future__ import annotations
 from tests.sqlite import run_on_sqlite
 
 SCRIPT = r"""
-from datetime import timedelta
+from datetime import datetime, time, timedelta
 from django.utils import timezone
 from bookings.models import QuotaPolicy, Resource
 from bookings.services import blackout_create, reservation_cancel, reservation_create
@@ -20,7 +20,10 @@ node = Resource.objects.create(name="node-01", kind="fixed")
 alice = User.objects.create_user("alice")
 bob = User.objects.create_user("bob")
 admin = User.objects.create_user("admin", is_staff=True)
-start = timezone.now() + timedelta(days=1)
+# 08:00 the day after tomorrow: every booking below falls on one local day, whatever the
+# time the test runs at (the "one a day" quota depends on it).
+day = (timezone.localtime() + timedelta(days=2)).date()
+start = timezone.make_aware(datetime.combine(day, time(8)))
 hour = timedelta(hours=1)
 first = reservation_create(owner=alice, resource=node, start_at=start, end_at=start + hour)
 try:
@@ -42,13 +45,23 @@ try:
 except Conflict as exc:
     print("refused:", exc.message)
 reservation_cancel(reservation=first, by=alice)  # frees the slot again
-reservation_create(owner=bob, resource=node, start_at=start, end_at=start + hour, by=admin)
+try:
+    reservation_create(owner=bob, resource=node, start_at=start, end_at=start + hour, by=admin)
+except Conflict as exc:
+    print("refused:", exc.message)
+booked = reservation_create(owner=bob, resource=node, start_at=start, end_at=start + hour,
+                            by=admin, override_reason="calibration")
+print("override:", booked.override_reason)
 """
 
 
 def test_booking_rules_hold_on_sqlite(tmp_path):
-    lines = [line for line in run_on_sqlite(SCRIPT, tmp_path) if line.startswith("refused:")]
+    output = run_on_sqlite(SCRIPT, tmp_path)
+    assert "override: calibration" in output
+    lines = [line for line in output if line.startswith("refused:")]
     assert lines[0].startswith("refused: node-01 is already booked from")
     assert lines[1].startswith("refused: Maintenance “mast”")
     assert lines[2].startswith("refused: “one a day” allows 1 reservation per day")
-    assert len(lines) == 3
+    # An admin booking for bob is held to bob's quota, unless the admin overrides it.
+    assert lines[3].startswith("refused: “one a day” allows 1 reservation per day")
+    assert len(lines) == 4
