@@ -64,20 +64,29 @@ class ControlLoop:
         monotonic: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], float] = time.time,
         rt_priority: int = 0,
+        urgent: Callable[[float], None] | None = None,
     ) -> None:
         """``rt_priority`` > 0 runs the loop's thread under SCHED_FIFO at that priority
         (needs CAP_SYS_NICE or RLIMIT_RTPRIO, e.g. systemd's LimitRTPRIO=); without the
-        right it logs a warning and runs at normal priority."""
+        right it logs a warning and runs at normal priority.
+
+        ``urgent`` runs on this thread, between two ticks, as soon as :meth:`wake` is called:
+        an emergency stop goes on the air then, not up to a period later. The grid of ticks
+        does not move."""
         self._tick = tick
+        self._urgent = urgent
         self.rt_priority = rt_priority
         self.realtime = False
         self.hz = hz
         self.period_s = 1.0 / hz
         self._monotonic = monotonic
         self._wall_clock = wall_clock
-        self._stop = threading.Event()
+        self._stopping = False
+        # Set to stop the loop or to ask for an urgent call; the loop's sleep waits on it.
+        self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self.ticks = 0
+        self.urgent_calls = 0
         self.late_ticks = 0
         self.skipped_ticks = 0
         self.tick_errors = 0
@@ -93,8 +102,13 @@ class ControlLoop:
         self._thread = threading.Thread(target=self._run, name="control-loop", daemon=True)
         self._thread.start()
 
+    def wake(self) -> None:
+        """Ask for the urgent call now (from any thread)."""
+        self._wake.set()
+
     def stop(self, timeout_s: float = 5.0) -> None:
-        self._stop.set()
+        self._stopping = True
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout_s)
             if self._thread.is_alive():
@@ -164,12 +178,16 @@ class ControlLoop:
         k = 0
         while True:
             deadline_s = start_s + k * self.period_s
-            delay_s = deadline_s - self._monotonic()
-            # Event.wait doubles as the sleep so that stop() takes effect at once.
-            if delay_s > 0 and self._stop.wait(delay_s):
+            # Event.wait doubles as the sleep so that stop() and wake() take effect at once.
+            while (delay_s := deadline_s - self._monotonic()) > 0 and self._wake.wait(delay_s):
+                self._wake.clear()
+                if self._stopping:
+                    return
+                self._call_urgent()
+            if self._stopping:
                 return
-            if self._stop.is_set():
-                return
+            if self._wake.is_set():  # asked for while a tick ran: this tick serves it
+                self._wake.clear()
             woke_s = self._monotonic()
             lateness_s = woke_s - deadline_s
             self.max_lateness_s = max(self.max_lateness_s, lateness_s)
@@ -191,6 +209,16 @@ class ControlLoop:
             self._duration_ring[slot] = self._monotonic() - woke_s
             self.ticks += 1
             k += 1
+
+    def _call_urgent(self) -> None:
+        if self._urgent is None:
+            return
+        try:
+            self._urgent(self._wall_clock())
+            self.urgent_calls += 1
+        except Exception:
+            self.tick_errors += 1
+            logger.exception("urgent control call failed")
 
 
 def _nearest_rank(ordered: list[float], fraction: float) -> float | None:

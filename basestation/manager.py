@@ -18,6 +18,7 @@ import math
 import sqlite3
 import threading
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -131,6 +132,9 @@ class RunManager:
         self._active: RunRecord | None = None
         self._next_seq = 1
         self._last_tick_s: float | None = None
+        # The control loop's wake(), once it runs; without a loop (tests that tick by hand)
+        # the stop frame goes with the next tick.
+        self.on_wake: Callable[[], None] | None = None
         # The velocity the robot is told (cw positive), slewed at the run's acceleration
         # limit when that is gentler than the robot's own ramp.
         self._setpoint_signed_mps = 0.0
@@ -164,6 +168,11 @@ class RunManager:
         manual = self._manual
         return manual if manual is not None and now_s < manual.expires_at_s else None
 
+    def wake(self) -> None:
+        """Ask the control loop for :meth:`urgent` now; the runtime connects it."""
+        if self.on_wake is not None:
+            self.on_wake()
+
     def notify_runs_changed(self) -> None:
         """Called by HTTP threads after they commit a change to the runs."""
         self._runs_changed.set()
@@ -172,6 +181,13 @@ class RunManager:
         """One control period at agent time ``now_s`` (epoch seconds)."""
         with self._tick_lock:
             self._tick(now_s)
+
+    def urgent(self, now_s: float) -> None:
+        """Between two ticks: if a stop frame is owed, send it now (a tick out of turn: the
+        ramp works from the time since the last tick, so an extra one changes nothing)."""
+        with self._tick_lock:
+            if self._estop_frame_owed:
+                self._tick(now_s)
 
     def shutdown(self, now_s: float) -> None:
         """Command the robot to zero and close the current run (the agent is stopping)."""
@@ -212,6 +228,7 @@ class RunManager:
                 self._estop_frame_owed = True
                 self.store.set_estop(since_s=now_s, reason=reason)
                 logger.warning("e-stop latched: %s", reason)
+                self.wake()
             manual = self._take_manual(None)
             if manual is not None:
                 self.store.manual_session_end(manual.session_id, ended_at_s=now_s)

@@ -57,8 +57,12 @@ class AgentRuntime:
         """Start the control loop, the store writer and the store's housekeeping (threads)."""
         self.manager.writer.start()
         self.control_loop = ControlLoop(
-            self.manager.tick, hz=self.config.control_hz, rt_priority=self.config.rt_priority
+            self.manager.tick,
+            hz=self.config.control_hz,
+            rt_priority=self.config.rt_priority,
+            urgent=self.manager.urgent,
         )
+        self.manager.on_wake = self.control_loop.wake
         self.control_loop.start()
         self.housekeeper = Housekeeper(self.store, retention_s=self.config.retention_s)
         self.housekeeper.start()

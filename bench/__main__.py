@@ -80,7 +80,7 @@ def main() -> None:
     parser.add_argument(
         "benchmarks",
         nargs="*",
-        help="which to run: telemetry, bookings, agent (default: all)",
+        help="which to run: telemetry, bookings, agent, timing (default: all)",
     )
     parser.add_argument("--samples", type=int, default=72_000, help="samples of the long run")
     parser.add_argument(
@@ -88,7 +88,7 @@ def main() -> None:
     )
     parser.add_argument("--no-report", action="store_true", help="print only")
     args = parser.parse_args()
-    known = ["telemetry", "bookings", "agent"]
+    known = ["telemetry", "bookings", "agent", "timing"]
     # Checked here: argparse rejects an empty list against ``choices`` with nargs="*".
     unknown = sorted(set(args.benchmarks) - set(known))
     if unknown:
@@ -100,6 +100,8 @@ def main() -> None:
         _bookings(report=not args.no_report)
     if "agent" in which:
         _agent(args.agent_seconds, report=not args.no_report)
+    if "timing" in which:
+        _timing(report=not args.no_report)
 
 
 def _on_scratch_database(key: str, run: Callable[[], str], *, report: bool) -> None:
@@ -157,6 +159,18 @@ def _agent(seconds: float, *, report: bool) -> None:
     print(results)
     if report:
         write_section("agent", f"{results}\n\n{stamp}")
+        print(f"written to {REPORT.relative_to(REPO)}")
+
+
+def _timing(*, report: bool) -> None:
+    from bench import timing
+
+    stamp = f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {machine()}."
+    results = timing.run()
+    print(stamp)
+    print(results)
+    if report:
+        write_section("timing", f"{results}\n\n{stamp}")
         print(f"written to {REPORT.relative_to(REPO)}")
 
 

@@ -103,3 +103,42 @@ def test_its_window_holds_the_last_minute_of_ticks() -> None:
     time.sleep(0.1)
     loop.stop()
     assert loop.stats().window.ticks == min(seen, 12_000)
+
+
+def test_a_wake_runs_the_urgent_call_between_ticks_without_moving_the_grid() -> None:
+    ticks: list[float] = []
+    urgent: list[float] = []
+    loop = ControlLoop(
+        lambda now_s: ticks.append(time.monotonic()),
+        hz=2.0,  # ticks 0.5 s apart: an urgent call in between cannot be a tick
+        urgent=lambda now_s: urgent.append(time.monotonic()),
+    )
+    loop.start()
+    try:
+        time.sleep(0.1)
+        woken_s = time.monotonic()
+        loop.wake()
+        deadline_s = time.monotonic() + 0.35
+        while not urgent and time.monotonic() < deadline_s:
+            time.sleep(0.005)
+        assert len(urgent) == 1
+        assert loop.urgent_calls == 1
+        assert len(ticks) == 1  # the first tick, at start; the second is not due yet
+        assert urgent[0] >= woken_s
+        time.sleep(0.5)
+    finally:
+        loop.stop()
+    # The grid is where it was: the second tick half a period after the first, not after
+    # the urgent call.
+    assert len(ticks) >= 2
+    assert abs((ticks[1] - ticks[0]) - 0.5) < 0.1
+
+
+def test_stop_is_not_taken_for_a_wake() -> None:
+    urgent: list[float] = []
+    loop = ControlLoop(lambda now_s: None, hz=2.0, urgent=urgent.append)
+    loop.start()
+    time.sleep(0.05)
+    loop.stop()
+    assert not loop.running
+    assert urgent == []

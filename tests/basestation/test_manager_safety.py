@@ -74,6 +74,26 @@ def test_the_first_tick_after_an_estop_sends_the_stop_flag_and_aborts_the_run(
     assert runtime.store.sample_stats("run-1").count == count
 
 
+def test_latching_wakes_the_loop_and_the_urgent_call_sends_the_stop_frame_once(
+    runtime: AgentRuntime, robot: RecordingRobot
+) -> None:
+    manager = runtime.manager
+    wakes: list[bool] = []
+    manager.on_wake = lambda: wakes.append(True)
+    manager.tick(T0)
+    manager.urgent(T0 + 0.01)  # nothing owed: no frame out of turn
+    assert len(robot.exchanges) == 1
+    manager.latch_estop(now_s=T0 + 0.02, reason="test")
+    assert wakes == [True]
+    manager.urgent(T0 + 0.021)
+    assert len(robot.exchanges) == 2
+    assert robot.exchanges[-1][1].estop
+    manager.urgent(T0 + 0.03)  # sent already: the regular ticks carry the flag from here
+    assert len(robot.exchanges) == 2
+    manager.latch_estop(now_s=T0 + 0.04, reason="again")  # already latched: no new wake
+    assert wakes == [True]
+
+
 def test_the_estop_stays_latched_until_released_and_keeps_its_first_reason(
     runtime: AgentRuntime, robot: RecordingRobot, drive: Drive
 ) -> None:
