@@ -82,7 +82,7 @@ test: setup system-deps services
 lint: setup system-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation cad
+	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation cad bench
 	docker-compose -f docker-compose.yml config --quiet
 	DJANGO_DEBUG=1 $(PY) manage.py makemigrations --check --dry-run
 	DJANGO_DEBUG=1 $(PY) -W error manage.py spectacular --validate --fail-on-warn --file /dev/null

@@ -73,11 +73,12 @@ class AirLog:
 
 
 def _serve(app: Any) -> tuple[Any, str]:
-    from waitress import create_server
+    from waitress.server import create_server
 
     server = create_server(app, host="127.0.0.1", port=0, threads=8)
     threading.Thread(target=server.run, name="http", daemon=True).start()
-    return server, f"http://127.0.0.1:{server.effective_port}"
+    port = getattr(server, "effective_port", None)  # one TCP socket: a TcpWSGIServer
+    return server, f"http://127.0.0.1:{port}"
 
 
 def _ms(values: list[float]) -> str:
