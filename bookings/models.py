@@ -1,10 +1,28 @@
 from __future__ import annotations
 
+from urllib.parse import urlsplit
+
 from django.conf import settings
 from django.contrib.auth.models import Group
+from django.core.exceptions import ValidationError
 from django.db import models
 
 from bookings.choices import QuotaPeriod, ReservationState, ResourceKind
+
+
+def validate_agent_url(value: str) -> None:
+    """``http(s)://host[:port][/path]``, where host may be a bare name such as ``agent``."""
+    parts = urlsplit(value)
+    try:
+        port_ok = parts.port is None or parts.port > 0
+    except ValueError:
+        port_ok = False
+    if parts.scheme not in ("http", "https") or not parts.hostname or not port_ok:
+        raise ValidationError(
+            "Not an http(s) URL: %(value)s (e.g. http://basestation:8700).",
+            code="invalid",
+            params={"value": value},
+        )
 
 
 class ResourceGroup(models.Model):
@@ -29,7 +47,9 @@ class Resource(models.Model):
     groups = models.ManyToManyField(ResourceGroup, blank=True, related_name="resources")
     # Mobile nodes only: where their base-station agent listens, and which configured
     # token (a name in settings.AGENT_TOKENS, never the secret itself) authenticates to it.
-    agent_url = models.URLField(blank=True)
+    # Not a URLField: its validator wants a top-level domain, and agents are often reached by
+    # a bare host name (a compose service, a name on the testbed's LAN).
+    agent_url = models.CharField(max_length=200, blank=True, validators=[validate_agent_url])
     agent_token_name = models.CharField(max_length=64, default="default", blank=True)
     max_velocity_mps = models.FloatField(null=True, blank=True)
     max_accel_mps2 = models.FloatField(null=True, blank=True)

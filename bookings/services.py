@@ -8,12 +8,15 @@ a time; on PostgreSQL an exclusion constraint backs the overlap check.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Any
 
 from django.conf import settings
+from django.core.exceptions import ValidationError
 from django.db import IntegrityError, transaction
 from django.utils import timezone
 
@@ -500,3 +503,60 @@ def quota_policy_save(
 
 def _plain(value: Any) -> Any:
     return str(value) if hasattr(value, "pk") else value
+
+
+@dataclass(frozen=True)
+class TestbedSpec:
+    """The resources of a testbed installation: one mobile node and the fixed nodes."""
+
+    agent_url: str
+    mobile_name: str = "mobile-1"
+    fixed_nodes: int = 24
+    max_velocity_mps: float = 2.0
+    max_accel_mps2: float = 1.0
+
+
+def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
+    """Create whichever of the spec's resources do not exist yet; returns their names.
+
+    Existing ones are left untouched (an admin may have changed them since). Everything is
+    checked before anything is written.
+    """
+    if not 1 <= spec.fixed_nodes <= 200:
+        raise InvalidInput.on_field("fixed_nodes", "Give between 1 and 200 fixed nodes.")
+    for field_name, value in (
+        ("max_velocity_mps", spec.max_velocity_mps),
+        ("max_accel_mps2", spec.max_accel_mps2),
+    ):
+        if not (math.isfinite(value) and value > 0):
+            raise InvalidInput.on_field(field_name, f"{field_name} must be positive, got {value}.")
+    wanted = [
+        Resource(
+            name=spec.mobile_name,
+            kind=ResourceKind.MOBILE,
+            description="Rail robot around the roof of IT building 1",
+            agent_url=spec.agent_url,
+            max_velocity_mps=spec.max_velocity_mps,
+            max_accel_mps2=spec.max_accel_mps2,
+        ),
+        *(
+            Resource(name=f"node-{i:02d}", kind=ResourceKind.FIXED, description=f"Fixed node {i}")
+            for i in range(1, spec.fixed_nodes + 1)
+        ),
+    ]
+    for resource in wanted:
+        try:
+            resource.full_clean(validate_unique=False)
+        except ValidationError as exc:
+            raise InvalidInput(f"{resource.name}: {'; '.join(exc.messages)}") from exc
+    with transaction.atomic():
+        existing = set(
+            Resource.objects.filter(name__in=[r.name for r in wanted]).values_list(
+                "name", flat=True
+            )
+        )
+        missing = [r for r in wanted if r.name not in existing]
+        Resource.objects.bulk_create(missing)
+    for resource in missing:
+        logger.info("resource %s created", resource.name)
+    return [r.name for r in missing]

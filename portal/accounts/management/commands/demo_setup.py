@@ -13,11 +13,8 @@ from django.conf import settings
 from django.core.management.base import BaseCommand
 from django.db import transaction
 
-from bookings.choices import ResourceKind
-from bookings.models import Resource
+from bookings.services import TestbedSpec, testbed_resources_ensure
 from portal.accounts.models import User
-
-FIXED_NODES = 24
 
 
 class Command(BaseCommand):
@@ -25,21 +22,8 @@ class Command(BaseCommand):
 
     def handle(self, *args: Any, **options: Any) -> None:
         with transaction.atomic():
-            Resource.objects.get_or_create(
-                name="mobile-1",
-                defaults={
-                    "kind": ResourceKind.MOBILE,
-                    "description": "Rail robot around the roof of IT building 1",
-                    "agent_url": settings.AGENT_URL,
-                    "max_velocity_mps": 2.0,
-                    "max_accel_mps2": 1.0,
-                },
-            )
-            for i in range(1, FIXED_NODES + 1):
-                Resource.objects.get_or_create(
-                    name=f"node-{i:02d}",
-                    defaults={"kind": ResourceKind.FIXED, "description": f"Fixed node {i}"},
-                )
+            # The demo's resources are the real testbed's, on the local agent.
+            testbed_resources_ensure(TestbedSpec(agent_url=settings.AGENT_URL))
             created = []
             for username, staff in (("admin", True), ("experimenter", False)):
                 if User.objects.filter(username=username).exists():
