@@ -65,16 +65,20 @@ class ControlLoop:
         wall_clock: Callable[[], float] = time.time,
         rt_priority: int = 0,
         urgent: Callable[[float], None] | None = None,
+        urgent_at: Callable[[], float | None] | None = None,
     ) -> None:
         """``rt_priority`` > 0 runs the loop's thread under SCHED_FIFO at that priority
         (needs CAP_SYS_NICE or RLIMIT_RTPRIO, e.g. systemd's LimitRTPRIO=); without the
         right it logs a warning and runs at normal priority.
 
         ``urgent`` runs on this thread, between two ticks, as soon as :meth:`wake` is called:
-        an emergency stop goes on the air then, not up to a period later. The grid of ticks
-        does not move."""
+        an emergency stop goes on the air then, not up to a period later. It also runs at the
+        wall-clock instant ``urgent_at()`` names, if that falls between two ticks: a run then
+        starts at its start time, not up to a period later. The grid of ticks does not move."""
         self._tick = tick
         self._urgent = urgent
+        self._urgent_at = urgent_at
+        self._served_urgent_at: float | None = None
         self.rt_priority = rt_priority
         self.realtime = False
         self.hz = hz
@@ -178,12 +182,19 @@ class ControlLoop:
         k = 0
         while True:
             deadline_s = start_s + k * self.period_s
-            # Event.wait doubles as the sleep so that stop() and wake() take effect at once.
-            while (delay_s := deadline_s - self._monotonic()) > 0 and self._wake.wait(delay_s):
-                self._wake.clear()
-                if self._stopping:
-                    return
-                self._call_urgent()
+            while (delay_s := deadline_s - self._monotonic()) > 0:
+                timed = self._timed_urgent(deadline_s)
+                if timed is not None:
+                    delay_s = max(0.0, timed[0] - self._monotonic())
+                # Event.wait doubles as the sleep so that stop() and wake() take effect at once.
+                if self._wake.wait(delay_s):
+                    self._wake.clear()
+                    if self._stopping:
+                        return
+                    self._call_urgent()
+                elif timed is not None:
+                    self._served_urgent_at = timed[1]
+                    self._call_urgent()
             if self._stopping:
                 return
             if self._wake.is_set():  # asked for while a tick ran: this tick serves it
@@ -209,6 +220,18 @@ class ControlLoop:
             self._duration_ring[slot] = self._monotonic() - woke_s
             self.ticks += 1
             k += 1
+
+    def _timed_urgent(self, deadline_s: float) -> tuple[float, float] | None:
+        """(monotonic, wall-clock) instant of a timed urgent call due before ``deadline_s``."""
+        if self._urgent_at is None:
+            return None
+        at_wall_s = self._urgent_at()
+        if at_wall_s is None or at_wall_s == self._served_urgent_at:
+            return None  # nothing asked for, or served already
+        at_s = at_wall_s - (self._wall_clock() - self._monotonic())
+        if at_s >= deadline_s or at_s < self._monotonic() - self.period_s:
+            return None  # the next tick serves it, or it is long past and the ticks did
+        return at_s, at_wall_s
 
     def _call_urgent(self) -> None:
         if self._urgent is None:

@@ -183,11 +183,26 @@ class RunManager:
             self._tick(now_s)
 
     def urgent(self, now_s: float) -> None:
-        """Between two ticks: if a stop frame is owed, send it now (a tick out of turn: the
-        ramp works from the time since the last tick, so an extra one changes nothing)."""
+        """Between two ticks: send a stop frame owed, or start a run whose time has come (a
+        tick out of turn: the ramp works from the time since the last tick, so an extra one
+        changes nothing else)."""
         with self._tick_lock:
-            if self._estop_frame_owed:
+            if self._estop_frame_owed or (
+                self._active is None
+                and self._schedule
+                and self._schedule[0].spec.start_at_s <= now_s
+            ):
                 self._tick(now_s)
+
+    def next_start_s(self) -> float | None:
+        """When the next staged run starts (epoch seconds): the control loop wakes then."""
+        # Read from the loop's thread between ticks; the list only changes inside a tick.
+        if self._active is not None:
+            return None
+        try:
+            return self._schedule[0].spec.start_at_s
+        except IndexError:
+            return None
 
     def shutdown(self, now_s: float) -> None:
         """Command the robot to zero and close the current run (the agent is stopping)."""

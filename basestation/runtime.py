@@ -61,6 +61,7 @@ class AgentRuntime:
             hz=self.config.control_hz,
             rt_priority=self.config.rt_priority,
             urgent=self.manager.urgent,
+            urgent_at=self.manager.next_start_s,
         )
         self.manager.on_wake = self.control_loop.wake
         self.control_loop.start()

@@ -142,3 +142,26 @@ def test_stop_is_not_taken_for_a_wake() -> None:
     loop.stop()
     assert not loop.running
     assert urgent == []
+
+
+def test_it_calls_urgent_once_at_the_instant_urgent_at_names_between_ticks() -> None:
+    ticks: list[float] = []
+    urgent: list[float] = []
+    at_s = time.time() + 0.2  # between the first tick (at start) and the second (0.5 s)
+    loop = ControlLoop(
+        lambda now_s: ticks.append(now_s),
+        hz=2.0,
+        urgent=urgent.append,
+        urgent_at=lambda: at_s,
+    )
+    loop.start()
+    try:
+        time.sleep(0.35)
+        assert len(urgent) == 1  # at the instant, and only once though still asked for
+        assert urgent[0] >= at_s
+        assert len(ticks) == 1
+        time.sleep(0.3)
+    finally:
+        loop.stop()
+    assert len(urgent) == 1
+    assert len(ticks) >= 2

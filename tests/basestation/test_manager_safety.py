@@ -94,6 +94,22 @@ def test_latching_wakes_the_loop_and_the_urgent_call_sends_the_stop_frame_once(
     assert wakes == [True]
 
 
+def test_the_urgent_call_starts_a_run_at_its_start_time_and_not_before(
+    runtime: AgentRuntime, robot: RecordingRobot
+) -> None:
+    manager = runtime.manager
+    _stage(runtime, "run-1", T0 + 0.03)
+    manager.tick(T0)  # reads the schedule
+    assert manager.next_start_s() == T0 + 0.03
+    manager.urgent(T0 + 0.02)  # not yet: no frame out of turn
+    assert len(robot.exchanges) == 1
+    manager.urgent(T0 + 0.03)
+    assert len(robot.exchanges) == 2
+    assert robot.exchanges[-1][1].velocity_mps > 0  # the program's first command
+    assert _state(runtime, "run-1")[0] == "running"
+    assert manager.next_start_s() is None  # the robot is taken until this run ends
+
+
 def test_the_estop_stays_latched_until_released_and_keeps_its_first_reason(
     runtime: AgentRuntime, robot: RecordingRobot, drive: Drive
 ) -> None:
