@@ -104,6 +104,25 @@ class RunEvent(models.Model):
         return f"{self.from_state or '∅'} → {self.to_state}"
 
 
+# The columns of a sample, in the order the agent sends, the worker stores and the downloads
+# give them.
+SAMPLE_FIELDS = (
+    "seq",
+    "t",
+    "segment",
+    "commanded_velocity_mps",
+    "velocity_mps",
+    "direction",
+    "battery_v",
+    "track_m",
+    "fix_quality",
+    "lat_deg",
+    "lon_deg",
+    "grid_id",
+    "lap",
+)
+
+
 class Sample(models.Model):
     """One telemetry sample of a run, as recorded by the base station at its control tick."""
 

@@ -15,7 +15,7 @@ from django.db.models import FloatField, Func, QuerySet
 from portal.accounts.models import User
 from portal.experiments.analysis import RunAnalysis, SampleRow, SeriesCollector, analyse
 from portal.experiments.choices import RUN_ACTIVE_STATES, RunState
-from portal.experiments.models import Experiment, Run, Sample
+from portal.experiments.models import SAMPLE_FIELDS, Experiment, Run, Sample
 
 
 def experiments_visible(*, user: User) -> QuerySet[Experiment]:
@@ -33,23 +33,6 @@ def run_samples(*, run: Run, after_seq: int = 0, limit: int | None = None) -> Qu
     return qs[:limit] if limit is not None else qs
 
 
-SAMPLE_EXPORT_FIELDS = (
-    "seq",
-    "t",
-    "segment",
-    "commanded_velocity_mps",
-    "velocity_mps",
-    "direction",
-    "battery_v",
-    "track_m",
-    "fix_quality",
-    "lat_deg",
-    "lon_deg",
-    "grid_id",
-    "lap",
-)
-
-
 CSV_TIME_FORMAT = "%Y-%m-%dT%H:%M:%S.%fZ"
 
 
@@ -59,12 +42,12 @@ def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[str]:
     On PostgreSQL the database writes the CSV itself (``COPY … TO STDOUT``); elsewhere rows
     are formatted here. Both give times as UTC ISO 8601 with microseconds.
     """
-    header = ",".join(SAMPLE_EXPORT_FIELDS) + "\r\n"
+    header = ",".join(SAMPLE_FIELDS) + "\r\n"
     yield header
     if connection.vendor == "postgresql":
         columns = ", ".join(
             """to_char(t AT TIME ZONE 'UTC', 'YYYY-MM-DD"T"HH24:MI:SS.US"Z"')""" if f == "t" else f
-            for f in SAMPLE_EXPORT_FIELDS
+            for f in SAMPLE_FIELDS
         )
         # COPY takes no bound parameters through Django's debug cursor; the identifiers are
         # this module's constants and the run id is an integer.
@@ -78,7 +61,7 @@ def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[str]:
         return
     buffer = io.StringIO()
     writer = csv.writer(buffer)
-    qs = Sample.objects.filter(run=run).order_by("seq").values_list(*SAMPLE_EXPORT_FIELDS)
+    qs = Sample.objects.filter(run=run).order_by("seq").values_list(*SAMPLE_FIELDS)
     for i, row in enumerate(qs.iterator(chunk_size=chunk_rows), start=1):
         writer.writerow([row[0], row[1].astimezone(UTC).strftime(CSV_TIME_FORMAT), *row[2:]])
         if i % chunk_rows == 0:
@@ -253,11 +236,11 @@ def run_samples_json(*, run: Run, chunk_rows: int = 2000) -> Iterator[str]:
         "rail_length_m": run.rail_length_m,
     }
     yield json.dumps(head)[:-1] + ', "samples": ['
-    qs = Sample.objects.filter(run=run).order_by("seq").values_list(*SAMPLE_EXPORT_FIELDS)
+    qs = Sample.objects.filter(run=run).order_by("seq").values_list(*SAMPLE_FIELDS)
     batch: list[str] = []
     first = True
     for row in qs.iterator(chunk_size=chunk_rows):
-        record = dict(zip(SAMPLE_EXPORT_FIELDS, row, strict=True))
+        record = dict(zip(SAMPLE_FIELDS, row, strict=True))
         record["t"] = record["t"].astimezone(UTC).strftime(CSV_TIME_FORMAT)
         batch.append(json.dumps(record))
         if len(batch) == chunk_rows:

@@ -17,7 +17,7 @@ from django.utils.dateparse import parse_datetime
 from portal.accounts.models import User
 from portal.errors import InvalidInput
 from portal.experiments.choices import Direction, RunState
-from portal.experiments.models import Experiment, Run, RunEvent, Sample
+from portal.experiments.models import SAMPLE_FIELDS, Experiment, Run, RunEvent, Sample
 
 logger = logging.getLogger(__name__)
 
@@ -143,23 +143,6 @@ def run_transition(
     return True
 
 
-SAMPLE_COLUMNS = (
-    "seq",
-    "t",
-    "segment",
-    "commanded_velocity_mps",
-    "velocity_mps",
-    "direction",
-    "battery_v",
-    "track_m",
-    "fix_quality",
-    "lat_deg",
-    "lon_deg",
-    "grid_id",
-    "lap",
-)
-
-
 def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
     """Store a page of samples from the agent; duplicates (same run and seq) are skipped.
 
@@ -193,7 +176,7 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
             _copy_samples(run.pk, rows)
         else:
             Sample.objects.bulk_create(
-                [Sample(run=run, **dict(zip(SAMPLE_COLUMNS, r, strict=True))) for r in rows],
+                [Sample(run=run, **dict(zip(SAMPLE_FIELDS, r, strict=True))) for r in rows],
                 batch_size=2000,
                 ignore_conflicts=True,
             )
@@ -205,7 +188,7 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
 def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> None:
     """COPY straight into the table; if a row is already there (a repeated or overlapping
     collection), roll that back and merge through a temporary table instead."""
-    columns = ", ".join(SAMPLE_COLUMNS)
+    columns = ", ".join(SAMPLE_FIELDS)
     table = Sample._meta.db_table
     try:
         with (

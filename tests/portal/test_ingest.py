@@ -67,3 +67,10 @@ def test_the_position_comes_through_to_the_csv(run, client):
     assert rows[-1].endswith(",4,40.6343,-8.6601,B2,1")
     page = client.get(f"/api/v1/runs/{run.pk}/samples/", {"limit": 1}).json()
     assert page["samples"][0]["grid_id"] == "B2"
+
+
+def test_the_sample_columns_are_every_field_of_a_sample():
+    from portal.experiments.models import SAMPLE_FIELDS
+
+    stored = [f.name for f in Sample._meta.concrete_fields if f.name not in ("id", "run")]
+    assert list(SAMPLE_FIELDS) == stored
