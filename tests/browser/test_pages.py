@@ -118,6 +118,7 @@ def test_pages_fit_a_phone_and_a_laptop(browser, live_server, viewport):
     # The run page's tables scroll inside their own box on a phone; its passes are there.
     page.goto(f"{live_server.url}{run_page}")
     expect(page.locator("#passes tbody tr")).to_have_count(3)
+    page.screenshot(path=str(SCREENSHOTS / f"run-{viewport['width']}.png"), full_page=True)
     page.goto(f"{live_server.url}/")
     page.screenshot(path=str(SCREENSHOTS / f"home-{viewport['width']}.png"))
     assert not failed, failed
