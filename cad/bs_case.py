@@ -31,9 +31,9 @@ from cad.boards import BS_COMM_BOARD, RPI_4B, Board, Port, board_solid
 from cad.checks import check_sizes
 from cad.enclosure import (
     MIN_WEB_MM,
-    Shell,
     base_shell,
     boss,
+    case_shell,
     centred_positions,
     vertical_slots,
 )
@@ -205,23 +205,12 @@ class BsLayout:
         self.rim = max(needs.values())
         self.duct_bottom = self.heatsink_top + p.duct_gap_mm
 
-        self.shell = Shell(
+        self.shell = case_shell(
+            p,
             inner_l_mm=self.inner_l,
             inner_w_mm=self.inner_w,
             inner_h_mm=self.rim - p.floor_mm,
-            wall_mm=p.wall_mm,
-            floor_mm=p.floor_mm,
-            corner_radius_mm=p.corner_radius_mm,
-            pillar_d_mm=p.pillar_d_mm,
-            pillar_hole_d_mm=p.lid_pilot_d_mm,
-            pillar_hole_depth_mm=p.lid_screw_depth_mm,
-        )
-        self.shell.validate(
-            {
-                "pillar_d_mm": "pillar_d_mm",
-                "pillar_hole_d_mm": "lid_pilot_d_mm",
-                "pillar_hole_depth_mm": "lid_screw_depth_mm",
-            }
+            pillar_hole=(p.lid_pilot_d_mm, "lid_pilot_d_mm"),
         )
         self._check_pillars(p)
         self._check_openings(p)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import cadquery as cq
 
@@ -16,6 +17,47 @@ from cad.geometry import box, cone, cylinder, rounded_box
 # Thinnest plastic left between a hole and a surface: two perimeters of a 0.4 mm nozzle plus
 # margin; thinner webs crack when a screw is driven.
 MIN_WEB_MM = 1.0
+
+
+class CaseParams(Protocol):
+    """The parameters every case names the same way."""
+
+    @property
+    def wall_mm(self) -> float: ...
+    @property
+    def floor_mm(self) -> float: ...
+    @property
+    def corner_radius_mm(self) -> float: ...
+    @property
+    def pillar_d_mm(self) -> float: ...
+    @property
+    def lid_screw_depth_mm(self) -> float: ...
+
+
+def case_shell(
+    p: CaseParams,
+    *,
+    inner_l_mm: float,
+    inner_w_mm: float,
+    inner_h_mm: float,
+    pillar_hole: tuple[float, str],
+) -> Shell:
+    """A case's shell from its parameters, checked; ``pillar_hole`` is the lid screw hole's
+    diameter and the name of the case's parameter for it (a pilot hole or an insert's)."""
+    hole_d_mm, hole_name = pillar_hole
+    shell = Shell(
+        inner_l_mm=inner_l_mm,
+        inner_w_mm=inner_w_mm,
+        inner_h_mm=inner_h_mm,
+        wall_mm=p.wall_mm,
+        floor_mm=p.floor_mm,
+        corner_radius_mm=p.corner_radius_mm,
+        pillar_d_mm=p.pillar_d_mm,
+        pillar_hole_d_mm=hole_d_mm,
+        pillar_hole_depth_mm=p.lid_screw_depth_mm,
+    )
+    shell.validate({"pillar_hole_d_mm": hole_name, "pillar_hole_depth_mm": "lid_screw_depth_mm"})
+    return shell
 
 
 @dataclass(frozen=True)

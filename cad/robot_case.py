@@ -27,7 +27,7 @@ import cadquery as cq
 from cad import hardware
 from cad.boards import ROBOT_BOARD, Board, board_solid
 from cad.checks import check_sizes
-from cad.enclosure import MIN_WEB_MM, Shell, base_shell, boss, centred_positions
+from cad.enclosure import MIN_WEB_MM, base_shell, boss, case_shell, centred_positions
 from cad.geometry import (
     box,
     cut,
@@ -139,23 +139,12 @@ class RobotLayout:
         self.inner_w = b.width_mm + 2 * c
         self.board_z = p.floor_mm + p.standoff_mm
         self.rim = self.board_z + b.top_mm + p.headroom_mm
-        self.shell = Shell(
+        self.shell = case_shell(
+            p,
             inner_l_mm=self.inner_l,
             inner_w_mm=self.inner_w,
             inner_h_mm=self.rim - p.floor_mm,
-            wall_mm=p.wall_mm,
-            floor_mm=p.floor_mm,
-            corner_radius_mm=p.corner_radius_mm,
-            pillar_d_mm=p.pillar_d_mm,
-            pillar_hole_d_mm=p.insert_hole_d_mm,
-            pillar_hole_depth_mm=p.lid_screw_depth_mm,
-        )
-        self.shell.validate(
-            {
-                "pillar_d_mm": "pillar_d_mm",
-                "pillar_hole_d_mm": "insert_hole_d_mm",
-                "pillar_hole_depth_mm": "lid_screw_depth_mm",
-            }
+            pillar_hole=(p.insert_hole_d_mm, "insert_hole_d_mm"),
         )
         reach = self.shell.pillar_reach_mm + c
         if p.antenna_gap_mm < reach:
