@@ -187,11 +187,8 @@ class RunManager:
         tick out of turn: the ramp works from the time since the last tick, so an extra one
         changes nothing else)."""
         with self._tick_lock:
-            if self._estop_frame_owed or (
-                self._active is None
-                and self._schedule
-                and self._schedule[0].spec.start_at_s <= now_s
-            ):
+            start_s = self.next_start_s()
+            if self._estop_frame_owed or (start_s is not None and start_s <= now_s):
                 self._tick(now_s)
 
     def next_start_s(self) -> float | None:

@@ -50,6 +50,16 @@ def scheduler_status(*, now_s: float | None = None) -> dict[str, Any]:
     }
 
 
+def scheduler_status_or_unknown() -> dict[str, Any]:
+    """:func:`scheduler_status`, or "unknown" (not ok) when the cache cannot say: whoever
+    asks must keep working when the cache does not."""
+    try:
+        return scheduler_status()
+    except Exception:
+        logger.exception("scheduler status unavailable")
+        return {"last_sweep_age_s": None, "ok": False}
+
+
 def health() -> tuple[bool, dict[str, Any]]:
     """Each check as ``"ok"`` or a short error (no internals), and whether the web can work."""
     body: dict[str, Any] = {}
@@ -68,10 +78,7 @@ def health() -> tuple[bool, dict[str, Any]]:
     except Exception as exc:
         logger.error("health: cache unreachable: %s", exc)
         body["cache"] = "unreachable"
-    try:
-        body["scheduler"] = scheduler_status()
-    except Exception:  # the cache failure is reported above
-        body["scheduler"] = {"last_sweep_age_s": None, "ok": False}
+    body["scheduler"] = scheduler_status_or_unknown()  # a cache failure is reported above
     ok = body["database"] == "ok" and body["cache"] == "ok"
     body["status"] = "ok" if ok else "failing"
     return ok, body

@@ -1,14 +1,11 @@
 from __future__ import annotations
 
-import logging
 from typing import Any
 
 from django.conf import settings
 from django.http import HttpRequest
 
-from portal.health import scheduler_status
-
-logger = logging.getLogger(__name__)
+from portal.health import scheduler_status_or_unknown
 
 
 def testbed(request: HttpRequest) -> dict[str, Any]:
@@ -21,14 +18,5 @@ def testbed(request: HttpRequest) -> dict[str, Any]:
         context["MOBILE_NODES"] = list(
             Resource.objects.filter(kind="mobile").values_list("name", flat=True)
         )
-        context["SCHEDULER"] = _scheduler()
+        context["SCHEDULER"] = scheduler_status_or_unknown()
     return context
-
-
-def _scheduler() -> dict[str, Any]:
-    """The scheduler's state for the admins' warning; a cache that fails says "unknown"."""
-    try:
-        return scheduler_status()
-    except Exception:  # a page must not fail because the cache does
-        logger.exception("scheduler status unavailable")
-        return {"last_sweep_age_s": None, "ok": False}
