@@ -10,8 +10,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from basestation.contract import DIRECTIONS, Direction
 from basestation.program import FieldErrors, InvalidRunBody, parse_number
-from basestation.robot import DIRECTIONS, Direction
 
 # The dead-man of a manual command: a client that stops sending stops the robot within
 # this. 10 s is the longest an admin may ask for; 1 s is what a UI holding a button sends.

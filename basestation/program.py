@@ -17,14 +17,16 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-from basestation.robot import DIRECTIONS, Direction
-
-MAX_SEGMENTS = 100
-MAX_OWNER_CHARS = 150
-MAX_TITLE_CHARS = 200
+from basestation.contract import (
+    DIRECTIONS,
+    MAX_OWNER_CHARS,
+    MAX_SEGMENTS,
+    MAX_TITLE_CHARS,
+    SEGMENT_FIELDS,
+    Direction,
+)
 
 BODY_FIELDS = frozenset({"owner", "title", "start_at", "end_at", "segments", "limits"})
-SEGMENT_FIELDS = frozenset({"velocity_mps", "direction", "duration_s"})
 LIMIT_FIELDS = frozenset({"max_velocity_mps", "max_accel_mps2"})
 
 FieldErrors = dict[str, list[str]]
@@ -332,7 +334,7 @@ def _segments(
             _add(errors, prefix, "must be an object")
             valid = False
             continue
-        for name in sorted(set(item) - SEGMENT_FIELDS, key=str):
+        for name in sorted(set(item) - set(SEGMENT_FIELDS), key=str):
             _add(errors, f"{prefix}.{name}", "unknown field")
             valid = False
         velocity = parse_number(item, "velocity_mps", errors, field=f"{prefix}.velocity_mps")

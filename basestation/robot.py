@@ -11,10 +11,11 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Protocol
 
-Direction = Literal["cw", "ccw"]
-DIRECTIONS: tuple[Direction, ...] = ("cw", "ccw")
+# Re-exported: the robot's interface speaks the contract's directions.
+from basestation.contract import DIRECTIONS as DIRECTIONS
+from basestation.contract import Direction as Direction
 
 
 @dataclass(frozen=True)

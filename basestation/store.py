@@ -24,20 +24,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
+from basestation import contract
+from basestation.contract import SAMPLE_FIELDS
 from basestation.errors import RunConflict
 from basestation.program import RunSpec, format_epoch
 
-STAGED: Final = "staged"
-RUNNING: Final = "running"
-COMPLETED: Final = "completed"
-CANCELLED: Final = "cancelled"
-ABORTED: Final = "aborted"
-INTERRUPTED: Final = "interrupted"
-FAILED: Final = "failed"
-RUN_STATES: Final = (STAGED, RUNNING, COMPLETED, CANCELLED, ABORTED, INTERRUPTED, FAILED)
+# The run states are the contract's (the portal maps their ends to its own states).
+STAGED: Final = contract.AGENT_STAGED
+RUNNING: Final = contract.AGENT_RUNNING
+COMPLETED: Final = contract.AGENT_COMPLETED
+CANCELLED: Final = contract.AGENT_CANCELLED
+ABORTED: Final = contract.AGENT_ABORTED
+INTERRUPTED: Final = contract.AGENT_INTERRUPTED
+FAILED: Final = contract.AGENT_FAILED
+RUN_STATES: Final = contract.AGENT_RUN_STATES
 # States that hold the robot's time: new runs must not overlap them.
-ACTIVE_STATES: Final = (STAGED, RUNNING)
-END_STATES: Final = (COMPLETED, CANCELLED, ABORTED, INTERRUPTED, FAILED)
+ACTIVE_STATES: Final = contract.AGENT_ACTIVE_STATES
+END_STATES: Final = contract.AGENT_END_STATES
+# The samples table's columns after run_id, in the contract's order (by name, never position).
+_SAMPLE_COLUMNS_SQL: Final = ", ".join(SAMPLE_FIELDS)
+_SAMPLE_PLACEHOLDERS: Final = ", ".join("?" for _ in SAMPLE_FIELDS)
 
 logger = logging.getLogger(__name__)
 
@@ -126,21 +132,11 @@ class Sample:
     lap: int | None = None
 
     def to_json_dict(self) -> dict[str, Any]:
-        return {
-            "seq": self.seq,
-            "t": self.t,
-            "segment": self.segment,
-            "commanded_velocity_mps": self.commanded_velocity_mps,
-            "velocity_mps": self.velocity_mps,
-            "direction": self.direction,
-            "battery_v": self.battery_v,
-            "track_m": self.track_m,
-            "fix_quality": self.fix_quality,
-            "lat_deg": self.lat_deg,
-            "lon_deg": self.lon_deg,
-            "grid_id": self.grid_id,
-            "lap": self.lap,
-        }
+        """The sample as the agent's API sends it: the contract's columns, by name."""
+        return {name: getattr(self, name) for name in SAMPLE_FIELDS}
+
+    def values(self) -> tuple[Any, ...]:
+        return tuple(getattr(self, name) for name in SAMPLE_FIELDS)
 
 
 @dataclass(frozen=True)
@@ -608,37 +604,17 @@ class RunStore:
             if row is None or row["state"] != RUNNING:
                 return False
             tx.executemany(
-                "INSERT INTO samples (run_id, seq, t, segment, commanded_velocity_mps, "
-                "velocity_mps, direction, battery_v, track_m, fix_quality, lat_deg, lon_deg, "
-                "grid_id, lap) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                [
-                    (
-                        run_id,
-                        s.seq,
-                        s.t,
-                        s.segment,
-                        s.commanded_velocity_mps,
-                        s.velocity_mps,
-                        s.direction,
-                        s.battery_v,
-                        s.track_m,
-                        s.fix_quality,
-                        s.lat_deg,
-                        s.lon_deg,
-                        s.grid_id,
-                        s.lap,
-                    )
-                    for s in samples
-                ],
+                f"INSERT INTO samples (run_id, {_SAMPLE_COLUMNS_SQL}) "  # noqa: S608 (constants)
+                f"VALUES (?, {_SAMPLE_PLACEHOLDERS})",
+                [(run_id, *s.values()) for s in samples],
             )
         return True
 
     def samples_after(self, run_id: str, after_seq: int, limit: int) -> list[Sample]:
         """Up to ``limit`` samples with ``seq > after_seq``, ordered by seq."""
         rows = self._conn().execute(
-            "SELECT seq, t, segment, commanded_velocity_mps, velocity_mps, direction, "
-            "battery_v, track_m, fix_quality, lat_deg, lon_deg, grid_id, lap "
-            "FROM samples WHERE run_id = ? AND seq > ? ORDER BY seq LIMIT ?",
+            f"SELECT {_SAMPLE_COLUMNS_SQL} FROM samples "  # noqa: S608 (constants)
+            "WHERE run_id = ? AND seq > ? ORDER BY seq LIMIT ?",
             (run_id, after_seq, limit),
         )
         return [_sample(row) for row in rows]
@@ -694,18 +670,4 @@ def _stats(row: sqlite3.Row) -> SampleStats:
 
 
 def _sample(row: sqlite3.Row) -> Sample:
-    return Sample(
-        seq=row["seq"],
-        t=row["t"],
-        segment=row["segment"],
-        commanded_velocity_mps=row["commanded_velocity_mps"],
-        velocity_mps=row["velocity_mps"],
-        direction=row["direction"],
-        battery_v=row["battery_v"],
-        track_m=row["track_m"],
-        fix_quality=row["fix_quality"],
-        lat_deg=row["lat_deg"],
-        lon_deg=row["lon_deg"],
-        grid_id=row["grid_id"],
-        lap=row["lap"],
-    )
+    return Sample(**{name: row[name] for name in SAMPLE_FIELDS})

@@ -13,6 +13,7 @@ from flask.typing import ResponseReturnValue
 
 from basestation.api.bodies import json_body
 from basestation.api.errors import invalid_response
+from basestation.contract import SAMPLE_FIELDS
 from basestation.errors import RunNotFound
 from basestation.program import FieldErrors
 from basestation.runtime import get_runtime
@@ -23,21 +24,8 @@ bp = Blueprint("runs", __name__)
 
 DEFAULT_PAGE = 1000
 MAX_PAGE = 5000
-SAMPLE_CSV_COLUMNS = (
-    "seq",
-    "t",
-    "segment",
-    "commanded_velocity_mps",
-    "velocity_mps",
-    "direction",
-    "battery_v",
-    "track_m",
-    "fix_quality",
-    "lat_deg",
-    "lon_deg",
-    "grid_id",
-    "lap",
-)
+# The CSV page has the contract's columns, in its order.
+SAMPLE_CSV_COLUMNS = SAMPLE_FIELDS
 _UNSIGNED = re.compile(r"[0-9]{1,15}")
 ENCODE_SLICE = 100
 
@@ -120,8 +108,7 @@ def get_samples(run_id: str) -> ResponseReturnValue:
         writer = csv.writer(buffer, lineterminator="\n")
         writer.writerow(SAMPLE_CSV_COLUMNS)
         for sample in samples:
-            row = sample.to_json_dict()
-            writer.writerow([row[column] for column in SAMPLE_CSV_COLUMNS])
+            writer.writerow(sample.values())
         response = Response(buffer.getvalue(), mimetype="text/csv")
         response.headers["X-Run-State"] = record.state
         response.headers["X-Last-Seq"] = str(last_seq)

@@ -1,0 +1,160 @@
+"""What the base-station agent and the portal agree on, in one Django-free module.
+
+Both sides build from these names instead of restating them: the agent's store, its REST
+answers and its run-body checks; the portal's ``Sample`` model (a test compares them), its
+ingest, its CSV and JSON downloads, its program validation and its run states. Changing a
+column or a limit here changes it everywhere; a side that disagrees fails its tests.
+
+Columns are matched by name, never by position: reordering this tuple only reorders the
+downloads.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Final, Literal
+
+# --- Programs -------------------------------------------------------------------------------
+
+Direction = Literal["cw", "ccw"]
+# cw increases the position along the rail (track_m); ccw decreases it.
+DIRECTIONS: Final[tuple[Direction, ...]] = ("cw", "ccw")
+SEGMENT_FIELDS: Final = ("velocity_mps", "direction", "duration_s")
+MAX_SEGMENTS: Final = 100
+# A program longer than a day is a mistake, not an experiment: no reservation is that long.
+MAX_PROGRAM_S: Final = 24 * 3600.0
+MAX_TITLE_CHARS: Final = 200
+MAX_OWNER_CHARS: Final = 150
+
+
+# --- Samples --------------------------------------------------------------------------------
+
+ColumnKind = Literal["int", "float", "text", "epoch"]
+
+
+def _as_int(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"not an integer: {value!r}")
+    return value
+
+
+def _as_float(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"not a number: {value!r}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"not a finite number: {value!r}")
+    return number
+
+
+def _as_text(value: Any) -> str:
+    if not isinstance(value, str):
+        raise ValueError(f"not a string: {value!r}")
+    return value
+
+
+_CONVERTERS: Final[dict[ColumnKind, Callable[[Any], Any]]] = {
+    "int": _as_int,
+    "float": _as_float,
+    "text": _as_text,
+    "epoch": _as_float,
+}
+
+
+@dataclass(frozen=True)
+class SampleColumn:
+    """One column of a telemetry sample, as the agent sends it in JSON.
+
+    ``epoch`` is seconds since 1970 (UTC) on the agent's clock; the portal stores it as a
+    timestamp. ``max_length`` bounds a text column; ``choices`` lists the values it may take.
+    """
+
+    name: str
+    kind: ColumnKind
+    nullable: bool = False
+    max_length: int | None = None
+    choices: tuple[str, ...] | None = None
+    doc: str = ""
+
+    def parse(self, value: Any) -> Any:
+        """The JSON ``value`` checked against this column; ``ValueError`` names the column."""
+        if value is None:
+            if self.nullable:
+                return None
+            raise ValueError(f"{self.name}: is required")
+        try:
+            parsed = _CONVERTERS[self.kind](value)
+        except ValueError as exc:
+            raise ValueError(f"{self.name}: {exc}") from None
+        if self.max_length is not None and len(parsed) > self.max_length:
+            raise ValueError(f"{self.name}: longer than {self.max_length} characters")
+        if self.choices is not None and parsed not in self.choices:
+            raise ValueError(f"{self.name}: {parsed!r} is not one of {', '.join(self.choices)}")
+        return parsed
+
+
+SAMPLE_COLUMNS: Final[tuple[SampleColumn, ...]] = (
+    SampleColumn("seq", "int", doc="sequence number within the run, from 1, no gaps on the agent"),
+    SampleColumn("t", "epoch", doc="when the agent recorded it (control tick)"),
+    SampleColumn("segment", "int", nullable=True, doc="program segment (0-based); none after it"),
+    SampleColumn("commanded_velocity_mps", "float", doc="what the program asked for"),
+    SampleColumn("velocity_mps", "float", doc="what the robot measured, never negative"),
+    SampleColumn("direction", "text", max_length=3, choices=DIRECTIONS, doc="cw or ccw"),
+    SampleColumn("battery_v", "float", doc="median-filtered battery voltage"),
+    SampleColumn("track_m", "float", doc="position along the rail, wraps at rail_length_m"),
+    SampleColumn("fix_quality", "int", nullable=True, doc="GGA fix: 4 RTK fixed, 5 RTK float"),
+    SampleColumn("lat_deg", "float", nullable=True),
+    SampleColumn("lon_deg", "float", nullable=True),
+    SampleColumn("grid_id", "text", nullable=True, max_length=8, doc="thesis grid cell, e.g. A2"),
+    SampleColumn("lap", "int", nullable=True, doc="whole laps since the start; negative: ccw"),
+)
+SAMPLE_FIELDS: Final[tuple[str, ...]] = tuple(c.name for c in SAMPLE_COLUMNS)
+
+
+def sample_parse(raw: Mapping[str, Any]) -> tuple[Any, ...]:
+    """One sample from the agent's JSON as a tuple in ``SAMPLE_FIELDS`` order.
+
+    A missing nullable column is None (an older agent); anything else wrong raises
+    ``ValueError`` naming the column and the sequence number.
+    """
+    values = []
+    for column in SAMPLE_COLUMNS:
+        try:
+            values.append(column.parse(raw.get(column.name)))
+        except ValueError as exc:
+            raise ValueError(f"sample {raw.get('seq')!r}: {exc}") from None
+    return tuple(values)
+
+
+# --- Run states -----------------------------------------------------------------------------
+
+# On the agent: a run is staged, then running, then ends in one of the end states.
+AGENT_STAGED: Final = "staged"
+AGENT_RUNNING: Final = "running"
+AGENT_COMPLETED: Final = "completed"
+AGENT_CANCELLED: Final = "cancelled"
+AGENT_ABORTED: Final = "aborted"
+AGENT_INTERRUPTED: Final = "interrupted"
+AGENT_FAILED: Final = "failed"
+AGENT_ACTIVE_STATES: Final = (AGENT_STAGED, AGENT_RUNNING)
+AGENT_END_STATES: Final = (
+    AGENT_COMPLETED,
+    AGENT_CANCELLED,
+    AGENT_ABORTED,
+    AGENT_INTERRUPTED,
+    AGENT_FAILED,
+)
+AGENT_RUN_STATES: Final = (*AGENT_ACTIVE_STATES, *AGENT_END_STATES)
+
+# How a run's end on the agent ends it in the portal (the portal's ``RunState`` values).
+# Aborted (stopped by request, e-stop or low battery) and interrupted (the agent restarted
+# mid-run) both keep their partial data there as "interrupted".
+PORTAL_STATE_FOR_AGENT_END: Final[Mapping[str, str]] = {
+    AGENT_COMPLETED: "completed",
+    AGENT_ABORTED: "interrupted",
+    AGENT_INTERRUPTED: "interrupted",
+    AGENT_CANCELLED: "cancelled",
+    AGENT_FAILED: "failed",
+}
