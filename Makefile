@@ -19,7 +19,7 @@ TEST_ENV := DJANGO_DEBUG=1 AMAZING_TEST_REQUIRE_POSTGRES=1 DATABASE_URL=$(TEST_D
 help:
 	@echo "make run    - set up and start the whole system locally (simulated robot)"
 	@echo "make test   - set up and run every test suite against PostgreSQL and Redis"
-	@echo "make lint   - ruff, mypy and compose validation"
+	@echo "make lint   - ruff, mypy, import layers and compose validation"
 	@echo "make bench  - benchmarks (results go to docs/performance.md)"
 	@echo "make firmware - cross-compile the robot firmware"
 	@echo "make cad   - build the 3D models (STEP, STL) into var/cad and refresh docs/cad"
@@ -83,6 +83,7 @@ lint: setup system-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation cad bench
+	$(VENV)/bin/lint-imports --no-cache
 	docker-compose -f docker-compose.yml config --quiet
 	DJANGO_DEBUG=1 $(PY) manage.py makemigrations --check --dry-run
 	DJANGO_DEBUG=1 $(PY) -W error manage.py spectacular --validate --fail-on-warn --file /dev/null

@@ -31,7 +31,8 @@ def _best_of(fn: Callable[[], Any], repeats: int = REPEATS) -> float:
 def _fresh_run() -> Any:
     from bookings.models import Reservation, Resource
     from portal.accounts.models import User
-    from portal.experiments.models import Experiment, Run
+    from portal.experiments.models import Experiment
+    from portal.runs.models import Run
 
     user, _ = User.objects.get_or_create(username="bench")
     resource, _ = Resource.objects.get_or_create(
@@ -74,7 +75,7 @@ def _agent_samples(n: int) -> list[dict[str, Any]]:
 
 
 def _ingest(samples: list[dict[str, Any]]) -> None:
-    from portal.experiments.services import samples_ingest
+    from portal.runs.services.collection import samples_ingest
 
     run = _fresh_run()
     for i in range(0, len(samples), PAGE):
@@ -109,13 +110,13 @@ def _copy_in(samples: list[dict[str, Any]]) -> None:
 
 def _export_csv(run: Any) -> int:
     """The chunks the CSV download streams, without the HTTP round trip."""
-    from portal.experiments.selectors import run_samples_csv
+    from portal.runs.selectors import run_samples_csv
 
     return sum(len(chunk) for chunk in run_samples_csv(run=run))
 
 
 def _export_json(run: Any) -> int:
-    from portal.experiments.selectors import run_samples_json
+    from portal.runs.selectors import run_samples_json
 
     return sum(len(chunk) for chunk in run_samples_json(run=run))
 
@@ -124,7 +125,7 @@ def _report(run: Any) -> None:
     """What the run page computes: one read of the samples, analysis with passes, series.
 
     The run is still ``scheduled`` here, so nothing is served from the cache."""
-    from portal.experiments.selectors import run_report
+    from portal.runs.selectors import run_report
 
     report = run_report(run=run, pass_at_m=10.0)
     assert report.analysis.samples == run.samples.count()
@@ -146,7 +147,7 @@ def _copy_out(run: Any) -> int:
 
 
 def run(*, samples: int) -> str:
-    from portal.experiments.services import samples_ingest
+    from portal.runs.services.collection import samples_ingest
 
     data = _agent_samples(samples)
     ingest_s = _best_of(lambda: _ingest(data))

@@ -12,7 +12,6 @@ from datetime import UTC, datetime
 
 from django.conf import settings
 from django.db.models import Q
-from django.urls import reverse
 from icalendar import Calendar, Event
 
 from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState
@@ -31,7 +30,6 @@ class Entry:
     reservation_id: int | None = None
     state: str = ""
     editable: bool = False
-    url: str = ""
 
 
 def calendar_entries(
@@ -44,12 +42,9 @@ def calendar_entries(
     only_own: bool = False,
 ) -> list[Entry]:
     reservations = (
-        Reservation.objects.filter(
-            state__in=(*RESERVATION_ACTIVE_STATES, ReservationState.COMPLETED),
-            start_at__lt=end_at,
-            end_at__gt=start_at,
-        )
-        .select_related("owner", "run")
+        Reservation.objects.overlapping(start_at, end_at)
+        .filter(state__in=(*RESERVATION_ACTIVE_STATES, ReservationState.COMPLETED))
+        .select_related("owner")
         .prefetch_related("items__resource")
         .order_by("start_at")
     )
@@ -62,7 +57,6 @@ def calendar_entries(
         names = tuple(item.resource.name for item in r.items.all())
         mine = r.owner_id == viewer.pk
         if mine or viewer.is_testbed_admin:
-            run = getattr(r, "run", None)
             label = r.title or ", ".join(names)
             if not mine:
                 label = f"{r.owner.get_username()}: {label}"
@@ -79,7 +73,6 @@ def calendar_entries(
                     reservation_id=r.pk,
                     state=r.state,
                     editable=mine and r.is_active and r.start_at > now,
-                    url=reverse("run", args=[run.pk]) if run is not None else "",
                 )
             )
         else:
@@ -94,7 +87,7 @@ def calendar_entries(
                 )
             )
     if not only_own:
-        blackouts = Blackout.objects.filter(start_at__lt=end_at, end_at__gt=start_at)
+        blackouts = Blackout.objects.overlapping(start_at, end_at)
         if resource is not None:
             blackouts = blackouts.filter(Q(all_resources=True) | Q(resources=resource))
         for b in blackouts.prefetch_related("resources").distinct():

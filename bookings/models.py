@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+from datetime import datetime
+from typing import TypeVar
 from urllib.parse import urlsplit
 
 from django.conf import settings
@@ -8,6 +10,20 @@ from django.core.exceptions import ValidationError
 from django.db import models
 
 from bookings.choices import QuotaPeriod, ReservationState, ResourceKind
+
+_Timed = TypeVar("_Timed", bound=models.Model)
+
+
+class PeriodQuerySet(models.QuerySet[_Timed]):
+    """Rows that hold a half-open period ``[start_at, end_at)``."""
+
+    def overlapping(self, start_at: datetime, end_at: datetime) -> PeriodQuerySet[_Timed]:
+        """Rows sharing an instant with ``[start_at, end_at)``: back to back is no overlap.
+
+        The one place the portal spells this condition; the PostgreSQL exclusion constraint
+        on reservation items (migration 0002) uses the same half-open ``[)`` ranges.
+        """
+        return self.filter(start_at__lt=end_at, end_at__gt=start_at)
 
 
 def validate_agent_url(value: str) -> None:
@@ -118,6 +134,8 @@ class Reservation(models.Model):
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 
+    objects = PeriodQuerySet["Reservation"].as_manager()
+
     class Meta:
         ordering = ["start_at"]
         indexes = [
@@ -154,6 +172,8 @@ class ReservationItem(models.Model):
     end_at = models.DateTimeField()
     active = models.BooleanField(default=True)
 
+    objects = PeriodQuerySet["ReservationItem"].as_manager()
+
     class Meta:
         indexes = [models.Index(fields=["resource", "start_at", "end_at"])]
         constraints = [
@@ -182,6 +202,8 @@ class Blackout(models.Model):
         settings.AUTH_USER_MODEL, null=True, on_delete=models.SET_NULL, related_name="+"
     )
     created_at = models.DateTimeField(auto_now_add=True)
+
+    objects = PeriodQuerySet["Blackout"].as_manager()
 
     class Meta:
         ordering = ["start_at"]

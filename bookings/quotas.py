@@ -13,14 +13,13 @@ from datetime import UTC, date, datetime, time, timedelta
 from zoneinfo import ZoneInfo
 
 from django.conf import settings
-from django.db.models import QuerySet
 
 from bookings.choices import (
     RESERVATION_ACTIVE_STATES,
     RESERVATION_COUNTED_STATES,
     QuotaPeriod,
 )
-from bookings.models import QuotaPolicy, Reservation, Resource
+from bookings.models import PeriodQuerySet, QuotaPolicy, Reservation, Resource
 from portal.accounts.models import User
 
 
@@ -102,7 +101,7 @@ def policies_for(
     ]
 
 
-def scoped_reservations(policy: QuotaPolicy, user: User) -> QuerySet[Reservation]:
+def scoped_reservations(policy: QuotaPolicy, user: User) -> PeriodQuerySet[Reservation]:
     """The user's reservations a policy counts: those holding a resource in its scope."""
     qs = Reservation.objects.filter(owner=user, state__in=RESERVATION_COUNTED_STATES)
     if policy.resource_id is not None:
@@ -141,7 +140,7 @@ def period_usage(
     *,
     exclude_id: int | None = None,
 ) -> PeriodUsage:
-    qs = scoped_reservations(policy, user).filter(start_at__lt=period_end, end_at__gt=period_start)
+    qs = scoped_reservations(policy, user).overlapping(period_start, period_end)
     if exclude_id is not None:
         qs = qs.exclude(pk=exclude_id)
     used_s = 0.0

@@ -22,11 +22,8 @@ def usage_hours(*, start_at: datetime, end_at: datetime, by: str) -> list[tuple[
         raise ValueError(f"group usage by one of {GROUPINGS}")
     start_at, end_at = start_at.astimezone(UTC), end_at.astimezone(UTC)
     items = (
-        ReservationItem.objects.filter(
-            reservation__state__in=RESERVATION_COUNTED_STATES,
-            start_at__lt=end_at,
-            end_at__gt=start_at,
-        )
+        ReservationItem.objects.overlapping(start_at, end_at)
+        .filter(reservation__state__in=RESERVATION_COUNTED_STATES)
         .select_related("resource", "reservation__owner")
         .prefetch_related("reservation__owner__groups")
     )

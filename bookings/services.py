@@ -11,145 +11,69 @@ import logging
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime, timedelta
+from datetime import datetime
 from functools import partial
 from typing import Any
 
-from django.conf import settings
 from django.core.exceptions import ValidationError
 from django.db import IntegrityError, transaction
 from django.utils import timezone
 
 from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState, ResourceKind
 from bookings.models import Blackout, QuotaPolicy, Reservation, ReservationItem, Resource
-from bookings.quotas import quota_violations
-from bookings.selectors import first_conflict
+from bookings.rules import Program, aware_utc, booking_problems
+from bookings.tasks import reservation_notify
 from portal.accounts.models import User
 from portal.audit.services import audit_record
 from portal.errors import Conflict, InvalidInput, NotAllowed
-from portal.experiments.choices import RunState
-from portal.experiments.models import Experiment, Run
-from portal.experiments.services import run_create, run_transition, segments_validate
 
 logger = logging.getLogger(__name__)
 
 
-class QuotaExceeded(Conflict):
-    code = "quota_exceeded"
-
-
-def _aware(value: datetime, field: str) -> datetime:
-    """The instant in UTC: lengths computed from it are real elapsed time, DST or not."""
-    if timezone.is_naive(value):
-        raise InvalidInput.on_field(field, "Give a time zone (for example 2026-05-01T10:00+01:00).")
-    return value.astimezone(UTC)
-
-
 def _notify(kind: str, reservation_id: int, **extra: Any) -> None:
-    from bookings.tasks import reservation_notify
-
     transaction.on_commit(partial(reservation_notify.delay, kind, reservation_id, **extra))
 
 
-def _lock(owner: User, resources: Sequence[Resource]) -> None:
+def _lock(owner: User, resources: Sequence[Resource]) -> list[Resource]:
     """Serialise bookings per user (quotas) and per resource (overlaps), in a fixed order.
 
-    Whether a resource is in service is read under the lock: taking it out of service while
-    someone books it must not let the booking through.
+    Returns the resources as locked: whether one is in service is judged on these rows, so
+    taking it out of service while someone books it cannot let the booking through.
     """
     list(User.objects.select_for_update().filter(pk=owner.pk).values_list("pk"))
-    in_service = dict(
-        Resource.objects.select_for_update()
-        .filter(pk__in=[r.pk for r in resources])
-        .order_by("pk")
-        .values_list("name", "enabled")
+    return list(
+        Resource.objects.select_for_update().filter(pk__in=[r.pk for r in resources]).order_by("pk")
     )
-    for name, enabled in sorted(in_service.items()):
-        if not enabled:
-            raise InvalidInput.on_field("resources", f"{name} is out of service.")
 
 
-def _validate_window(start_at: datetime, end_at: datetime, now: datetime) -> None:
-    if end_at <= start_at:
-        raise InvalidInput.on_field("end_at", "The end must be after the start.")
-    if start_at < now:
-        raise InvalidInput.on_field("start_at", "The start is in the past.")
-    max_length = timedelta(seconds=settings.RESERVATION_MAX_S)
-    if end_at - start_at > max_length:
-        raise InvalidInput.on_field(
-            "end_at", f"A reservation lasts at most {max_length.total_seconds() / 3600:g} h."
-        )
-
-
-def _validate_program(
-    resources: Sequence[Resource],
-    experiment: Experiment | None,
-    owner: User,
-    start_at: datetime,
-    end_at: datetime,
-) -> Resource | None:
-    """The mobile node that runs ``experiment``, after checking the program fits it."""
-    mobiles = [r for r in resources if r.kind == ResourceKind.MOBILE]
-    if len(mobiles) > 1:
-        raise InvalidInput.on_field("resources", "Book one mobile node per reservation.")
-    if not mobiles:
-        if experiment is not None:
-            raise InvalidInput.on_field("experiment", "Only mobile nodes run experiments.")
-        return None
-    mobile = mobiles[0]
-    if experiment is None:
-        raise InvalidInput.on_field("experiment", "Choose the experiment the robot will run.")
-    if experiment.owner_id != owner.pk:
-        raise NotAllowed.on_field("experiment", "That experiment belongs to someone else.")
-    segments_validate(experiment.segments, max_velocity_mps=mobile.max_velocity_mps)
-    length_s = (end_at - start_at).total_seconds()
-    if experiment.duration_s > length_s:
-        raise InvalidInput.on_field(
-            "end_at",
-            f"The experiment lasts {experiment.duration_s:g} s but the reservation only "
-            f"{length_s:g} s.",
-        )
-    return mobile
-
-
-def _check_capacity(
+def _check(
     *,
     owner: User,
     resources: Sequence[Resource],
     start_at: datetime,
     end_at: datetime,
+    program: Program | None,
     now: datetime,
     exclude_id: int | None,
     override_reason: str,
 ) -> list[str]:
-    """Blackouts and overlaps always; quotas unless overridden. Returns what was overridden."""
-    local = timezone.localtime
-    conflict = first_conflict(
-        resources=resources, start_at=start_at, end_at=end_at, exclude_reservation_id=exclude_id
-    )
-    if conflict is not None:
-        since = f"{local(conflict['start_at']):%Y-%m-%d %H:%M}"
-        until = f"{local(conflict['end_at']):%Y-%m-%d %H:%M}"
-        if conflict["kind"] == "blackout":
-            raise Conflict.on_field(
-                "start_at",
-                f"Maintenance “{conflict['label']}” from {since} to {until}: "
-                "nothing can be booked then.",
-            )
-        raise Conflict.on_field(
-            "start_at", f"{conflict['label']} is already booked from {since} to {until}."
-        )
-    problems = quota_violations(
-        user=owner,
+    """Raise the first problem with this booking; returns the quota rules overridden."""
+    problems = booking_problems(
+        owner=owner,
         resources=resources,
         start_at=start_at,
         end_at=end_at,
+        program=program,
         now=now,
-        exclude_id=exclude_id,
+        exclude_reservation_id=exclude_id,
+        first_only=True,
     )
-    if problems and not override_reason:
-        raise QuotaExceeded(problems[0], fields={"quota": problems})
-    return problems
+    if not problems:
+        return []
+    problem = problems[0]
+    if problem.overridable and override_reason:
+        return list(problem.messages)
+    raise problem.as_error()
 
 
 def reservation_create(
@@ -159,18 +83,21 @@ def reservation_create(
     resource: Resource | None = None,
     start_at: datetime,
     end_at: datetime,
-    experiment: Experiment | None = None,
+    program: Program | None = None,
     title: str = "",
     by: User | None = None,
     override_reason: str = "",
     ip: str | None = None,
     now: datetime | None = None,
 ) -> Reservation:
-    """Book ``resources`` for ``[start_at, end_at)``; on a mobile node, also schedule the run.
+    """Book ``resources`` for ``[start_at, end_at)``.
 
-    ``by`` is who acts (an admin booking for ``owner``; defaults to ``owner``). Only an admin
-    may pass ``override_reason``, which lets the booking past quota rules (never past another
-    booking or a maintenance window) and is recorded in the audit log.
+    ``program`` is what a mobile node among them will run; it is checked against the node
+    (velocity, length) but not stored here — the runs layer books a run and its reservation
+    together by calling this inside its own transaction. ``by`` is who acts (an admin booking
+    for ``owner``; defaults to ``owner``). Only an admin may pass ``override_reason``, which
+    lets the booking past quota rules (never past another booking or a maintenance window)
+    and is recorded in the audit log.
     """
     now = now or timezone.now()
     by = by or owner
@@ -184,24 +111,20 @@ def reservation_create(
     override_reason = override_reason.strip()
     if override_reason and not by.is_testbed_admin:
         raise NotAllowed.on_field("override_reason", "Only admins can override quotas.")
-    start_at = _aware(start_at, "start_at")
-    end_at = _aware(end_at, "end_at")
-    _validate_window(start_at, end_at, now)
-    for r in resources:
-        if not r.enabled:
-            raise InvalidInput.on_field("resources", f"{r.name} is out of service.")
-    mobile = _validate_program(resources, experiment, owner, start_at, end_at)
+    start_at = aware_utc(start_at, "start_at")
+    end_at = aware_utc(end_at, "end_at")
     needs_approval = any(r.requires_approval for r in resources) and not by.is_testbed_admin
     state = ReservationState.REQUESTED if needs_approval else ReservationState.CONFIRMED
 
     try:
         with transaction.atomic():
-            _lock(owner, resources)
-            overridden = _check_capacity(
+            locked = _lock(owner, resources)
+            overridden = _check(
                 owner=owner,
-                resources=resources,
+                resources=locked,
                 start_at=start_at,
                 end_at=end_at,
+                program=program,
                 now=now,
                 exclude_id=None,
                 override_reason=override_reason,
@@ -211,7 +134,7 @@ def reservation_create(
                 start_at=start_at,
                 end_at=end_at,
                 state=state,
-                title=title or (experiment.title if experiment else ""),
+                title=title,
                 override_reason=override_reason if overridden else "",
             )
             # The window was checked above and the database enforces the constraint again;
@@ -224,8 +147,6 @@ def reservation_create(
                 )
                 for r in resources
             )
-            if mobile is not None and experiment is not None:
-                run_create(reservation=reservation, resource=mobile, experiment=experiment)
             audit_record(
                 actor=by,
                 action="reservation.create",
@@ -255,38 +176,43 @@ def reservation_create(
     return reservation
 
 
+def reservation_mobile(reservation: Reservation) -> Resource | None:
+    """The mobile node a reservation holds, if any (a booking holds at most one)."""
+    return next(
+        (item.resource for item in reservation.items.all() if item.resource.is_mobile), None
+    )
+
+
 def reservation_reschedule(
     *,
     reservation: Reservation,
     by: User,
     start_at: datetime,
     end_at: datetime,
+    program: Program | None = None,
     ip: str | None = None,
     now: datetime | None = None,
 ) -> Reservation:
-    """Move an upcoming reservation (every check again, itself excluded)."""
+    """Move an upcoming reservation (every check again, itself excluded).
+
+    ``program`` is what its mobile node will run, if it holds one (see reservation_create).
+    """
     now = now or timezone.now()
     if reservation.owner_id != by.pk and not by.is_testbed_admin:
         raise NotAllowed("Only the owner or an admin can change this reservation.")
-    start_at = _aware(start_at, "start_at")
-    end_at = _aware(end_at, "end_at")
-    _validate_window(start_at, end_at, now)
+    start_at = aware_utc(start_at, "start_at")
+    end_at = aware_utc(end_at, "end_at")
     with transaction.atomic():
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
         if locked.state not in RESERVATION_ACTIVE_STATES or locked.start_at <= now:
             raise Conflict("Only upcoming reservations can be moved.")
-        resources = list(locked.resources.all())
-        run = Run.objects.filter(reservation=locked).select_related("experiment").first()
-        if run is not None:
-            if run.state != RunState.SCHEDULED:
-                raise Conflict("Its run is already on the base station; cancel and book again.")
-            _validate_program(resources, run.experiment, locked.owner, start_at, end_at)
-        _lock(locked.owner, resources)
-        _check_capacity(
+        resources = _lock(locked.owner, list(locked.resources.all()))
+        _check(
             owner=locked.owner,
             resources=resources,
             start_at=start_at,
             end_at=end_at,
+            program=program,
             now=now,
             exclude_id=locked.pk,
             override_reason=locked.override_reason,
@@ -296,8 +222,6 @@ def reservation_reschedule(
         locked.full_clean()
         locked.save(update_fields=["start_at", "end_at", "updated_at"])
         locked.items.update(start_at=start_at, end_at=end_at)
-        if run is not None:
-            Run.objects.filter(pk=run.pk).update(start_at=start_at, end_at=end_at)
         audit_record(
             actor=by,
             action="reservation.reschedule",
@@ -309,26 +233,13 @@ def reservation_reschedule(
     return locked
 
 
-def _release(reservation: Reservation, state: str, why: str) -> None:
-    """End a reservation's hold on its resources and withdraw its run."""
-    from bookings.tasks import run_unstage
-
-    reservation.items.update(active=False)
-    run = Run.objects.filter(reservation=reservation).first()
-    if run is None or run_transition(
-        run_id=run.pk, from_states=[RunState.SCHEDULED], to_state=RunState.CANCELLED, reason=why
-    ):
-        return
-    if run.state in (RunState.STAGED, RunState.RUNNING):
-        # The agent decides: a staged run is cancelled there, a running one is aborted
-        # (the robot ramps to zero) and its data collected as an interrupted run.
-        transaction.on_commit(partial(run_unstage.delay, run.pk))
-
-
 def reservation_cancel(
     *, reservation: Reservation, by: User, reason: str = "", ip: str | None = None
 ) -> Reservation:
-    """Cancel a reservation and its run; a staged or running run is withdrawn from its agent."""
+    """Cancel a reservation: its resources are free again at once.
+
+    A run booked with it is withdrawn by the runs layer, which calls this in its transaction.
+    """
     if reservation.owner_id != by.pk and not by.is_testbed_admin:
         raise NotAllowed("Only the owner or an admin can cancel this reservation.")
     with transaction.atomic():
@@ -342,7 +253,7 @@ def reservation_cancel(
         locked.cancelled_by = by
         locked.cancel_reason = reason
         locked.save(update_fields=["state", "cancelled_by", "cancel_reason", "updated_at"])
-        _release(locked, ReservationState.CANCELLED, reason or f"cancelled by {by.get_username()}")
+        locked.items.update(active=False)
         audit_record(actor=by, action="reservation.cancel", target=locked, ip=ip, reason=reason)
         if by_admin:
             _notify("cancelled_by_admin", locked.pk)
@@ -358,7 +269,10 @@ def reservation_decide(
     reason: str = "",
     ip: str | None = None,
 ) -> Reservation:
-    """An admin approves or rejects a requested reservation; the owner is told."""
+    """An admin approves or rejects a requested reservation; the owner is told.
+
+    A rejected reservation frees its resources; its run is withdrawn by the runs layer.
+    """
     if not by.is_testbed_admin:
         raise NotAllowed("Only admins decide on reservations.")
     if not approve and not reason.strip():
@@ -377,7 +291,7 @@ def reservation_decide(
             update_fields=["state", "decided_by", "decided_at", "decision_reason", "updated_at"]
         )
         if not approve:
-            _release(locked, ReservationState.REJECTED, f"request rejected: {reason}")
+            locked.items.update(active=False)
         audit_record(
             actor=by,
             action="reservation.approve" if approve else "reservation.reject",
@@ -386,6 +300,38 @@ def reservation_decide(
             reason=reason,
         )
         _notify("approved" if approve else "rejected", locked.pk)
+    return locked
+
+
+def reservation_complete(*, reservation_id: int) -> bool:
+    """Mark a confirmed reservation used up (its run completed); False if it was not confirmed."""
+    return bool(
+        Reservation.objects.filter(pk=reservation_id, state=ReservationState.CONFIRMED).update(
+            state=ReservationState.COMPLETED, updated_at=timezone.now()
+        )
+    )
+
+
+def resource_set_service(
+    *, resource: Resource, by: User, enabled: bool, reason: str, ip: str | None = None
+) -> Resource:
+    """Take a resource out of service (no new bookings) or back in; audited."""
+    if not by.is_testbed_admin:
+        raise NotAllowed("Only admins take resources in or out of service.")
+    if not reason.strip():
+        raise InvalidInput.on_field("reason", "Say why.")
+    with transaction.atomic():
+        # The same row lock bookings take: none is half-way through while this changes.
+        locked = Resource.objects.select_for_update().get(pk=resource.pk)
+        locked.enabled = enabled
+        locked.save(update_fields=["enabled"])
+        audit_record(
+            actor=by,
+            action="resource.in_service" if enabled else "resource.out_of_service",
+            target=locked,
+            ip=ip,
+            reason=reason,
+        )
     return locked
 
 
@@ -411,8 +357,8 @@ def blackout_create(
         raise InvalidInput.on_field("resources", "Choose the resources, or all of them.")
     if not reason.strip():
         raise InvalidInput.on_field("reason", "Say what the maintenance is.")
-    start_at = _aware(start_at, "start_at")
-    end_at = _aware(end_at, "end_at")
+    start_at = aware_utc(start_at, "start_at")
+    end_at = aware_utc(end_at, "end_at")
     if end_at <= start_at:
         raise InvalidInput.on_field("end_at", "The end must be after the start.")
     with transaction.atomic():
@@ -426,9 +372,7 @@ def blackout_create(
         blackout.full_clean()
         blackout.save()
         blackout.resources.set(resources)
-        items = ReservationItem.objects.filter(
-            active=True, start_at__lt=end_at, end_at__gt=start_at
-        )
+        items = ReservationItem.objects.overlapping(start_at, end_at).filter(active=True)
         if not all_resources:
             items = items.filter(resource__in=resources)
         conflicted = list(

@@ -84,6 +84,7 @@ INSTALLED_APPS = [
     "portal.web",
     "portal.accounts",
     "portal.experiments",
+    "portal.runs",
     "portal.audit",
     "bookings",
     "allauth",
@@ -219,7 +220,7 @@ RUN_SWEEP_INTERVAL_S = env.float("RUN_SWEEP_INTERVAL_S", default=2.0)
 RUN_STAGE_LEAD_S = env.float("RUN_STAGE_LEAD_S", default=300.0)
 RESERVATION_REMINDER_LEAD_S = env.float("RESERVATION_REMINDER_LEAD_S", default=3600.0)
 CELERY_BEAT_SCHEDULE = {
-    "runs-sweep": {"task": "bookings.tasks.runs_sweep", "schedule": RUN_SWEEP_INTERVAL_S},
+    "runs-sweep": {"task": "portal.runs.tasks.runs_sweep", "schedule": RUN_SWEEP_INTERVAL_S},
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
 }
 CELERY_BEAT_SCHEDULE_FILENAME = str(VAR_DIR / "celerybeat-schedule")

@@ -11,6 +11,7 @@ urlpatterns = [
     path("api/schema/", SpectacularAPIView.as_view(), name="schema"),
     path("api/docs/", SpectacularSwaggerView.as_view(url_name="schema"), name="swagger-ui"),
     path("api/v1/", include("portal.experiments.urls")),
+    path("api/v1/", include("portal.runs.urls")),
     path("api/v1/", include("bookings.urls")),
     path("", include("portal.web.urls")),
 ]

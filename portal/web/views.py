@@ -29,17 +29,23 @@ from bookings.choices import ReservationState
 from bookings.models import CalendarFeed, Reservation, Resource
 from bookings.quotas import quota_summary
 from bookings.reports import GROUPINGS, usage_hours
-from bookings.selectors import reservations_visible, resources_bookable
-from bookings.services import reservation_cancel, reservation_create, reservation_decide
+from bookings.selectors import resources_bookable
 from portal.accounts.models import User
 from portal.audit.services import client_ip
 from portal.errors import DomainError
-from portal.experiments.apis import is_asgi, samples_csv_response, samples_json_response
-from portal.experiments.choices import RUN_ACTIVE_STATES, RunState
-from portal.experiments.models import Run
-from portal.experiments.selectors import experiments_visible, run_report, runs_visible
+from portal.experiments.selectors import experiments_visible
 from portal.experiments.services import experiment_create, experiment_update
 from portal.health import health
+from portal.runs.downloads import is_asgi, samples_csv_response, samples_json_response
+from portal.runs.models import Run
+from portal.runs.selectors import (
+    reservations_with_runs_visible,
+    run_ids_by_reservation,
+    run_report,
+    runs_visible,
+)
+from portal.runs.services.booking import booking_cancel, booking_create, booking_decide
+from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
 
@@ -79,7 +85,9 @@ def home(request: HttpRequest) -> HttpResponse:
     user = _user(request)
     now = timezone.now()
     context = {
-        "upcoming": reservations_visible(user=user).filter(end_at__gte=now, state="confirmed")[:20],
+        "upcoming": reservations_with_runs_visible(user=user).filter(
+            end_at__gte=now, state="confirmed"
+        )[:20],
         "recent_runs": runs_visible(user=user).filter(start_at__lt=now)[:10],
         "experiments": experiments_visible(user=user).filter(owner=user)[:20],
     }
@@ -126,9 +134,7 @@ def book(request: HttpRequest) -> HttpResponse:
         form = BookingForm(request.POST, user=user)
         if form.is_valid():
             try:
-                reservation = reservation_create(
-                    owner=user, ip=client_ip(request), **form.cleaned_data
-                )
+                reservation = booking_create(owner=user, ip=client_ip(request), **form.cleaned_data)
             except DomainError as exc:
                 _form_error(form, exc)
             else:
@@ -149,10 +155,10 @@ def book(request: HttpRequest) -> HttpResponse:
 
 @login_required
 def reservation_cancel_view(request: HttpRequest, pk: int) -> HttpResponse:
-    reservation = get_object_or_404(reservations_visible(user=_user(request)), pk=pk)
+    reservation = get_object_or_404(reservations_with_runs_visible(user=_user(request)), pk=pk)
     if request.method == "POST":
         try:
-            reservation_cancel(
+            booking_cancel(
                 reservation=reservation,
                 by=_user(request),
                 reason=request.POST.get("reason", ""),
@@ -270,10 +276,13 @@ def calendar_events(request: HttpRequest) -> JsonResponse:
     if request.GET.get("resource"):
         resource = get_object_or_404(Resource, name=request.GET["resource"])
     colours = {"own": "#1e6fb8", "other": "#7a5195", "busy": "#8a8f98", "blackout": "#c62828"}
-    events = []
-    for e in calendar_entries(
+    entries = calendar_entries(
         viewer=_user(request), start_at=start, end_at=end, resource=resource, now=timezone.now()
-    ):
+    )
+    runs = run_ids_by_reservation([e.reservation_id for e in entries if e.reservation_id])
+    events = []
+    for e in entries:
+        run_id = runs.get(e.reservation_id) if e.reservation_id else None
         event: dict[str, Any] = {
             "id": e.uid,
             "title": e.title,
@@ -286,7 +295,7 @@ def calendar_events(request: HttpRequest) -> JsonResponse:
                 "reservation": e.reservation_id,
                 "state": e.state,
                 "resources": list(e.resources),
-                "url": e.url,
+                "url": reverse("run", args=[run_id]) if run_id else "",
             },
         }
         if e.kind == "blackout":
@@ -365,7 +374,7 @@ def approvals(request: HttpRequest) -> HttpResponse:
     if request.method == "POST":
         reservation = get_object_or_404(Reservation, pk=request.POST.get("reservation"))
         try:
-            reservation_decide(
+            booking_decide(
                 reservation=reservation,
                 by=_user(request),
                 approve=request.POST.get("decision") == "approve",

@@ -15,7 +15,8 @@ from django.contrib.auth.models import Group
 from bookings.choices import QuotaPeriod
 from bookings.models import QuotaPolicy, ResourceGroup
 from bookings.quotas import period_bounds, policies_for, quota_summary
-from bookings.services import QuotaExceeded, reservation_cancel, reservation_create
+from bookings.rules import QuotaExceeded
+from bookings.services import reservation_cancel, reservation_create
 from portal.audit.models import AuditEvent
 from portal.errors import NotAllowed
 from tests.factories import FixedResourceFactory

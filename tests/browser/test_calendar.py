@@ -58,8 +58,12 @@ def test_book_by_dragging_on_the_calendar_then_cancel(browser, live_server):
     expect(dialog.get_by_label("Start")).to_have_value(f"{wednesday}T10:00")
     expect(dialog.get_by_label("End")).to_have_value(f"{wednesday}T11:00")
     dialog.get_by_label("resources").select_option(["mobile-1"])
-    expect(page.locator("#booking-feedback")).to_contain_text("Free, and within your quota")
+    # The live check applies booking's rules: the robot needs a program.
+    expect(page.locator("#booking-feedback")).to_contain_text(
+        "Choose the experiment the robot will run."
+    )
     dialog.get_by_label("experiment").select_option(label="loop test (6 s)")
+    expect(page.locator("#booking-feedback")).to_contain_text("Free, and within your quota")
     dialog.get_by_role("button", name="Confirm booking").click()
     expect(dialog).to_be_hidden()
     event = page.locator(".fc-event", has_text="loop test")

@@ -5,13 +5,14 @@ import pytest
 from portal.errors import InvalidInput
 from portal.experiments.models import Experiment
 from portal.experiments.services import experiment_create, segments_validate
+from tests.factories import MobileResourceFactory
 
 pytestmark = pytest.mark.django_db
 
 
 def test_it_normalises_a_valid_program():
     clean = segments_validate(
-        [{"velocity_mps": "0.5", "direction": "cw", "duration_s": 3}], max_velocity_mps=2.0
+        [{"velocity_mps": "0.5", "direction": "cw", "duration_s": 3}], robot=MobileResourceFactory()
     )
     assert clean == [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 3.0}]
 
@@ -34,7 +35,7 @@ def test_it_normalises_a_valid_program():
 )
 def test_it_rejects_a_bad_program_naming_the_fault(segments, message):
     with pytest.raises(InvalidInput) as excinfo:
-        segments_validate(segments, max_velocity_mps=2.0)
+        segments_validate(segments, robot=MobileResourceFactory())
     assert message in " ".join(excinfo.value.fields["segments"])
 
 
@@ -44,7 +45,7 @@ def test_it_names_the_segment_at_fault():
         {"velocity_mps": 9, "direction": "cw", "duration_s": 1},
     ]
     with pytest.raises(InvalidInput, match="Segment 2"):
-        segments_validate(segments, max_velocity_mps=2.0)
+        segments_validate(segments, robot=MobileResourceFactory())
 
 
 def test_experiment_velocity_is_checked_against_the_robots(owner, mobile):

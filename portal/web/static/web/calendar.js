@@ -56,10 +56,13 @@
       feedback.className = "";
       return;
     }
-    const result = await api("POST", "/api/v1/quota/check/", { resources: body.resources, start_at: body.start_at, end_at: body.end_at });
+    // The same rules booking applies (time, service, program, maintenance, overlaps, quota).
+    const check = { resources: body.resources, start_at: body.start_at, end_at: body.end_at };
+    if (body.experiment) check.experiment = body.experiment;
+    const result = await api("POST", "/api/v1/quota/check/", check);
     if (!result.ok) { feedback.textContent = explain(result.data); feedback.className = "error"; return; }
     const d = result.data;
-    const problems = [].concat(d.conflicts, d.blackouts.map((b) => "Maintenance: " + b), d.quota);
+    const problems = d.problems.flatMap((p) => (p.code === "quota" ? d.quota : [p.message]));
     feedback.textContent = d.fits ? "Free, and within your quota." : problems.join(" ");
     feedback.className = d.fits ? "ok" : "error";
   }

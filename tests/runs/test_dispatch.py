@@ -12,11 +12,11 @@ import pytest
 from django.utils import timezone
 
 from basestation.client import AgentError
-from bookings import dispatch
 from bookings.choices import ReservationState
-from bookings.services import reservation_cancel, reservation_create
-from portal.experiments.choices import RunState
-from portal.experiments.models import Run, Sample
+from portal.runs.models import Run, Sample
+from portal.runs.services import collection, staging
+from portal.runs.services.booking import booking_cancel, booking_create
+from portal.runs.states import RunState
 from tests.factories import ExperimentFactory
 
 pytestmark = pytest.mark.django_db
@@ -36,7 +36,7 @@ def booked(agent, owner, mobile):
         ],
     )
     start = timezone.now() + timedelta(minutes=2)
-    reservation = reservation_create(
+    reservation = booking_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -52,21 +52,21 @@ def _state(run: Run) -> str:
 
 
 def test_staging_puts_the_program_on_the_agent_once(agent, booked):
-    dispatch.run_stage(run_id=booked.pk)
+    staging.run_stage(run_id=booked.pk)
     assert _state(booked) == RunState.STAGED
     on_agent = agent.client.get_run(booked.agent_run_id)
     assert on_agent["state"] == "staged"
     assert on_agent["segments"] == booked.segments
     assert on_agent["owner"] == "alice"
-    dispatch.run_stage(run_id=booked.pk)  # already past this step: nothing happens
+    staging.run_stage(run_id=booked.pk)  # already past this step: nothing happens
     assert [e.to_state for e in booked.events.all()] == ["scheduled", "staged"]
 
 
 def test_a_conflicting_run_on_the_agent_fails_the_run_with_the_reason(agent, booked):
-    body = dispatch.run_agent_body(booked)
+    body = staging.run_agent_body(booked)
     body["title"] = "something else"
     agent.client.put_run(booked.agent_run_id, body)
-    dispatch.run_stage(run_id=booked.pk)
+    staging.run_stage(run_id=booked.pk)
     assert _state(booked) == RunState.FAILED
     assert "refused" in booked.reason
 
@@ -75,29 +75,29 @@ def test_an_unreachable_agent_is_a_retryable_error_and_changes_nothing(booked, m
     mobile.agent_url = "http://127.0.0.1:9"  # discard port: nothing listens
     mobile.save()
     with pytest.raises(AgentError) as excinfo:
-        dispatch.run_stage(run_id=booked.pk)
+        staging.run_stage(run_id=booked.pk)
     assert excinfo.value.retryable
     assert _state(booked) == RunState.SCHEDULED
 
 
 def test_a_run_not_staged_before_its_end_fails(agent, booked):
-    dispatch.run_stage(run_id=booked.pk, now=booked.end_at + timedelta(seconds=1))
+    staging.run_stage(run_id=booked.pk, now=booked.end_at + timedelta(seconds=1))
     assert _state(booked) == RunState.FAILED
     assert "before the reservation ended" in booked.reason
 
 
 def test_collection_follows_the_run_and_verifies_the_count(agent, booked):
-    dispatch.run_stage(run_id=booked.pk)
+    staging.run_stage(run_id=booked.pk)
     start_s = booked.start_at.timestamp()
     agent.run_clock(start_s, start_s + 1.0)
-    dispatch.run_collect(run_id=booked.pk)
+    collection.run_collect(run_id=booked.pk)
     assert _state(booked) == RunState.RUNNING
     partial = Sample.objects.filter(run=booked).count()
     assert partial == agent.client.get_run(booked.agent_run_id)["sample_count"] > 0
 
     agent.run_clock(start_s + 1.0 + TICK_S, start_s + 9.0)
-    dispatch.run_collect(run_id=booked.pk)
-    dispatch.run_collect(run_id=booked.pk)  # a duplicate collection stores nothing twice
+    collection.run_collect(run_id=booked.pk)
+    collection.run_collect(run_id=booked.pk)  # a duplicate collection stores nothing twice
     on_agent = agent.client.get_run(booked.agent_run_id)
     assert on_agent["state"] == "completed"
     assert _state(booked) == RunState.COMPLETED
@@ -129,32 +129,32 @@ def test_a_missing_or_unusable_rail_length_is_left_unset(agent, booked, monkeypa
         return answer
 
     monkeypatch.setattr(type(agent.client), "get_run", get_run)
-    dispatch.run_stage(run_id=booked.pk)
+    staging.run_stage(run_id=booked.pk)
     start_s = booked.start_at.timestamp()
     agent.run_clock(start_s, start_s + 1.0)
-    dispatch.run_collect(run_id=booked.pk)
+    collection.run_collect(run_id=booked.pk)
     assert _state(booked) == RunState.RUNNING  # collection itself goes on
     assert booked.rail_length_m is None
 
 
 def test_cancelling_a_staged_run_withdraws_it_from_the_agent(agent, booked, owner):
-    dispatch.run_stage(run_id=booked.pk)
-    reservation_cancel(reservation=booked.reservation, by=owner)
-    dispatch.run_unstage(run_id=booked.pk)  # what the task queued on commit does
+    staging.run_stage(run_id=booked.pk)
+    booking_cancel(reservation=booked.reservation, by=owner)
+    staging.run_unstage(run_id=booked.pk)  # what the task queued on commit does
     assert _state(booked) == RunState.CANCELLED
     assert agent.client.get_run(booked.agent_run_id)["state"] == "cancelled"
 
 
 def test_cancelling_a_running_run_aborts_it_and_keeps_the_data(agent, booked, owner):
-    dispatch.run_stage(run_id=booked.pk)
+    staging.run_stage(run_id=booked.pk)
     start_s = booked.start_at.timestamp()
     agent.run_clock(start_s, start_s + 1.0)
-    dispatch.run_collect(run_id=booked.pk)
-    reservation_cancel(reservation=booked.reservation, by=owner)
-    dispatch.run_unstage(run_id=booked.pk)
+    collection.run_collect(run_id=booked.pk)
+    booking_cancel(reservation=booked.reservation, by=owner)
+    staging.run_unstage(run_id=booked.pk)
     assert _state(booked) == RunState.RUNNING  # still to be collected
     agent.run_clock(start_s + 1.0 + TICK_S, start_s + 2.0)
-    dispatch.run_collect(run_id=booked.pk)
+    collection.run_collect(run_id=booked.pk)
     assert _state(booked) == RunState.INTERRUPTED
     on_agent = agent.client.get_run(booked.agent_run_id)
     assert Sample.objects.filter(run=booked).count() == on_agent["sample_count"] > 0
@@ -162,6 +162,6 @@ def test_cancelling_a_running_run_aborts_it_and_keeps_the_data(agent, booked, ow
 
 def test_a_run_the_agent_does_not_know_fails(agent, booked):
     Run.objects.filter(pk=booked.pk).update(state=RunState.STAGED)
-    dispatch.run_collect(run_id=booked.pk)
+    collection.run_collect(run_id=booked.pk)
     assert _state(booked) == RunState.FAILED
     assert "no record" in booked.reason

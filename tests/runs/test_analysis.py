@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from portal.experiments.analysis import SeriesCollector, analyse, lttb
-from tests.portal.driving import HZ, RAIL_M, drive, segments
+from portal.runs.analysis import SeriesCollector, analyse, lttb
+from tests.runs.driving import HZ, RAIL_M, drive, segments
 
 
 def test_laps_are_timed_where_the_robot_completes_each_one():

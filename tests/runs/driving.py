@@ -8,11 +8,11 @@ from typing import Any
 
 from django.utils import timezone
 
-from bookings.services import reservation_create
-from portal.experiments.analysis import SampleRow
-from portal.experiments.choices import RunState
-from portal.experiments.models import Run
-from portal.experiments.services import samples_ingest
+from portal.runs.analysis import SampleRow
+from portal.runs.models import Run
+from portal.runs.services.booking import booking_create
+from portal.runs.services.collection import samples_ingest
+from portal.runs.states import RunState
 from tests.factories import ExperimentFactory
 
 HZ = 20
@@ -88,7 +88,7 @@ def completed_run(
     """A booked run of ``program`` on ``mobile``, its samples stored, marked completed."""
     experiment = ExperimentFactory(owner=owner, segments=segments(program))
     start = timezone.now() + timedelta(hours=1)
-    reservation = reservation_create(
+    reservation = booking_create(
         owner=owner,
         resource=mobile,
         start_at=start,

@@ -7,10 +7,10 @@ from django.utils import timezone
 
 from bookings.choices import ReservationState
 from bookings.models import Reservation
-from bookings.services import reservation_cancel, reservation_create
 from portal.errors import Conflict, InvalidInput, NotAllowed
-from portal.experiments.choices import RunState
-from portal.experiments.models import Run
+from portal.runs.models import Run
+from portal.runs.services.booking import booking_cancel, booking_create
+from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, FixedResourceFactory
 
 pytestmark = pytest.mark.django_db
@@ -25,7 +25,7 @@ def test_booking_the_mobile_node_schedules_a_run_with_a_copy_of_the_program(
     owner, mobile, experiment
 ):
     start, end = _window()
-    reservation = reservation_create(
+    reservation = booking_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
     )
     run = Run.objects.get(reservation=reservation)
@@ -40,12 +40,10 @@ def test_booking_the_mobile_node_schedules_a_run_with_a_copy_of_the_program(
 
 def test_it_rejects_overlapping_reservation(owner, other, mobile, experiment):
     start, end = _window()
-    reservation_create(
-        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
-    )
+    booking_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
     theirs = ExperimentFactory(owner=other)
     with pytest.raises(Conflict, match="already booked"):
-        reservation_create(
+        booking_create(
             owner=other,
             resource=mobile,
             start_at=start + timedelta(minutes=29),
@@ -57,10 +55,8 @@ def test_it_rejects_overlapping_reservation(owner, other, mobile, experiment):
 
 def test_back_to_back_reservations_do_not_overlap(owner, mobile, experiment):
     start, end = _window()
-    reservation_create(
-        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
-    )
-    reservation_create(
+    booking_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+    booking_create(
         owner=owner,
         resource=mobile,
         start_at=end,
@@ -72,14 +68,12 @@ def test_back_to_back_reservations_do_not_overlap(owner, mobile, experiment):
 
 def test_a_cancelled_reservation_frees_its_slot(owner, mobile, experiment):
     start, end = _window()
-    first = reservation_create(
+    first = booking_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
     )
-    reservation_cancel(reservation=first, by=owner)
+    booking_cancel(reservation=first, by=owner)
     assert Run.objects.get(reservation=first).state == RunState.CANCELLED
-    reservation_create(
-        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
-    )
+    booking_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
 
 
 @pytest.mark.parametrize(
@@ -97,7 +91,7 @@ def test_it_rejects_bad_windows(owner, mobile, experiment, change, field, messag
     if "end_at" in change:
         end = start + timedelta(seconds=change["end_at"])
     with pytest.raises(InvalidInput) as excinfo:
-        reservation_create(
+        booking_create(
             owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
         )
     assert message in excinfo.value.fields[field][0]
@@ -110,7 +104,7 @@ def test_the_program_must_fit_in_the_reservation(owner, mobile):
     )
     start = timezone.now() + timedelta(minutes=5)
     with pytest.raises(InvalidInput, match="lasts 600 s but the reservation only 300 s"):
-        reservation_create(
+        booking_create(
             owner=owner,
             resource=mobile,
             start_at=start,
@@ -122,19 +116,19 @@ def test_the_program_must_fit_in_the_reservation(owner, mobile):
 def test_the_mobile_node_needs_an_experiment_and_fixed_nodes_refuse_one(owner, mobile, experiment):
     start, end = _window()
     with pytest.raises(InvalidInput, match="Choose the experiment"):
-        reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end)
+        booking_create(owner=owner, resource=mobile, start_at=start, end_at=end)
     fixed = FixedResourceFactory()
     with pytest.raises(InvalidInput, match="Only mobile nodes"):
-        reservation_create(
+        booking_create(
             owner=owner, resource=fixed, start_at=start, end_at=end, experiment=experiment
         )
-    assert reservation_create(owner=owner, resource=fixed, start_at=start, end_at=end).pk
+    assert booking_create(owner=owner, resource=fixed, start_at=start, end_at=end).pk
 
 
 def test_someone_elses_experiment_cannot_be_booked(other, mobile, experiment):
     start, end = _window()
     with pytest.raises(NotAllowed):
-        reservation_create(
+        booking_create(
             owner=other, resource=mobile, start_at=start, end_at=end, experiment=experiment
         )
 
@@ -144,22 +138,22 @@ def test_a_resource_out_of_service_cannot_be_booked(owner, mobile, experiment):
     mobile.save()
     start, end = _window()
     with pytest.raises(InvalidInput, match="out of service"):
-        reservation_create(
+        booking_create(
             owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
         )
 
 
 def test_only_owner_or_admin_cancels(owner, other, admin_user, mobile, experiment):
     start, end = _window()
-    reservation = reservation_create(
+    reservation = booking_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
     )
     with pytest.raises(NotAllowed):
-        reservation_cancel(reservation=reservation, by=other)
+        booking_cancel(reservation=reservation, by=other)
     with pytest.raises(InvalidInput, match="Say why"):
-        reservation_cancel(reservation=reservation, by=admin_user)
-    reservation_cancel(reservation=reservation, by=admin_user, reason="roof inspection")
+        booking_cancel(reservation=reservation, by=admin_user)
+    booking_cancel(reservation=reservation, by=admin_user, reason="roof inspection")
     reservation.refresh_from_db()
     assert reservation.state == ReservationState.CANCELLED
     with pytest.raises(Conflict, match="already cancelled"):
-        reservation_cancel(reservation=reservation, by=owner)
+        booking_cancel(reservation=reservation, by=owner)

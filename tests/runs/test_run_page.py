@@ -8,10 +8,10 @@ from datetime import timedelta
 
 import pytest
 
-from portal.experiments.choices import RunState
-from portal.experiments.models import Run
+from portal.runs.models import Run
+from portal.runs.states import RunState
 from tests.factories import UserFactory
-from tests.portal.driving import RAIL_M, completed_run, ingest
+from tests.runs.driving import RAIL_M, completed_run, ingest
 
 pytestmark = pytest.mark.django_db
 

@@ -114,19 +114,19 @@ def test_an_unreachable_base_station_is_a_clear_503_and_still_audited(
 
 
 def test_the_daily_log_comes_from_the_base_station(robot, agent, admin_user, owner, client_for):
-    from bookings import dispatch
-    from bookings.services import reservation_create
+    from portal.runs.services import staging
+    from portal.runs.services.booking import booking_create
     from tests.factories import ExperimentFactory
 
     start = timezone.now() + timedelta(minutes=1)
-    reservation = reservation_create(
+    reservation = booking_create(
         owner=owner,
         resource=robot,
         start_at=start,
         end_at=start + timedelta(seconds=20),
         experiment=ExperimentFactory(owner=owner, title="log me"),
     )
-    dispatch.run_stage(run_id=reservation.run.pk)
+    staging.run_stage(run_id=reservation.run.pk)
     agent.run_clock(start.timestamp(), start.timestamp() + 1)
     day = start.astimezone(UTC).date()
     log = client_for(admin_user).get(f"/api/v1/resources/mobile-1/robot/logs/{day.isoformat()}/")
@@ -142,8 +142,8 @@ def test_the_daily_log_comes_from_the_base_station(robot, agent, admin_user, own
 def test_taking_the_robot_out_of_service_stops_bookings(
     robot, admin_user, owner, experiment, client_for
 ):
-    from bookings.services import reservation_create
     from portal.errors import InvalidInput
+    from portal.runs.services.booking import booking_create
 
     client = client_for(admin_user)
     response = client.post(
@@ -155,7 +155,7 @@ def test_taking_the_robot_out_of_service_stops_bookings(
     assert response.json()["enabled"] is False
     start = timezone.now() + timedelta(hours=1)
     with pytest.raises(InvalidInput, match="out of service"):
-        reservation_create(
+        booking_create(
             owner=owner,
             resource=robot,
             start_at=start,

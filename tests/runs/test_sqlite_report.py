@@ -14,14 +14,15 @@ import json
 from datetime import timedelta
 from django.utils import timezone
 from bookings.models import Resource
-from bookings.services import reservation_create
+from portal.runs.services.booking import booking_create
 from portal.accounts.models import User
-from portal.experiments.models import Experiment, Run
-from portal.experiments.selectors import (
+from portal.experiments.models import Experiment
+from portal.runs.models import Run
+from portal.runs.selectors import (
     run_report, run_report_json, run_samples_csv, run_samples_json,
 )
-from portal.experiments.services import samples_ingest
-from tests.portal.driving import RAIL_M, drive, segments
+from portal.runs.services.collection import samples_ingest
+from tests.runs.driving import RAIL_M, drive, segments
 
 program = [(2.0, "cw", 60.0), (1.0, "ccw", 60.0)]
 alice = User.objects.create_user("alice")
@@ -30,7 +31,7 @@ robot = Resource.objects.create(name="mobile-1", kind="mobile", agent_url="http:
 experiment = Experiment.objects.create(owner=alice, title="there and back",
                                        segments=segments(program))
 start = timezone.now() + timedelta(hours=1)
-reservation = reservation_create(owner=alice, resource=robot, start_at=start,
+reservation = booking_create(owner=alice, resource=robot, start_at=start,
                                  end_at=start + timedelta(minutes=3), experiment=experiment)
 run = reservation.run
 samples = [{**{k: v for k, v in r._asdict().items() if k != "t_s"},

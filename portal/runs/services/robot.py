@@ -9,14 +9,14 @@ from __future__ import annotations
 from datetime import date
 from typing import Any
 
-from django.db import transaction
-
 from basestation.client import AgentConflict, AgentError, AgentRejected
-from bookings.agents import agent_client_for
+from basestation.contract import DIRECTIONS
 from bookings.models import Resource
+from bookings.rules import velocity_problem
 from portal.accounts.models import User
 from portal.audit.services import audit_record
 from portal.errors import Conflict, DomainError, InvalidInput, NotAllowed
+from portal.runs.agents import agent_client_for
 
 MAX_MANUAL_TTL_S = 10.0
 
@@ -88,13 +88,11 @@ def robot_drive(
     _mobile(resource)
     if not reason.strip():
         raise InvalidInput.on_field("reason", "Say why you drive the robot by hand.")
-    if direction not in ("cw", "ccw"):
+    if direction not in DIRECTIONS:
         raise InvalidInput.on_field("direction", "Direction is cw or ccw.")
-    limit = resource.max_velocity_mps or 0.0
-    if not 0 <= velocity_mps <= limit:
-        raise InvalidInput.on_field(
-            "velocity_mps", f"Velocity is 0 to {limit:g} m/s on {resource.name}."
-        )
+    why = velocity_problem(resource=resource, velocity_mps=velocity_mps)
+    if why is not None:
+        raise InvalidInput.on_field("velocity_mps", why[0].upper() + why[1:])
     if not 0 < ttl_s <= MAX_MANUAL_TTL_S:
         raise InvalidInput.on_field("ttl_s", f"Hold a command for at most {MAX_MANUAL_TTL_S:g} s.")
     client = agent_client_for(resource)
@@ -162,25 +160,3 @@ def robot_day_log(*, resource: Resource, by: User, day: date) -> dict[str, Any]:
         raise AgentUnavailable(
             f"The base station of {resource.name} did not answer: {exc.message}"
         ) from exc
-
-
-def resource_set_service(
-    *, resource: Resource, by: User, enabled: bool, reason: str, ip: str | None = None
-) -> Resource:
-    """Take a resource out of service (no new bookings) or back in; audited."""
-    _admin(by)
-    if not reason.strip():
-        raise InvalidInput.on_field("reason", "Say why.")
-    with transaction.atomic():
-        # The same row lock bookings take: none is half-way through while this changes.
-        locked = Resource.objects.select_for_update().get(pk=resource.pk)
-        locked.enabled = enabled
-        locked.save(update_fields=["enabled"])
-        audit_record(
-            actor=by,
-            action="resource.in_service" if enabled else "resource.out_of_service",
-            target=locked,
-            ip=ip,
-            reason=reason,
-        )
-    return locked

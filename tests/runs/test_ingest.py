@@ -8,9 +8,9 @@ from datetime import timedelta
 import pytest
 from django.utils import timezone
 
-from bookings.services import reservation_create
-from portal.experiments.models import Sample
-from portal.experiments.services import samples_ingest
+from portal.runs.models import Sample
+from portal.runs.services.booking import booking_create
+from portal.runs.services.collection import samples_ingest
 
 pytestmark = pytest.mark.django_db
 
@@ -28,7 +28,7 @@ def _page(first: int, last: int) -> list[dict]:
 @pytest.fixture
 def run(owner, mobile, experiment):
     start = timezone.now() + timedelta(hours=1)
-    reservation = reservation_create(
+    reservation = booking_create(
         owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=5),
         experiment=experiment,
     )  # fmt: skip
@@ -70,7 +70,7 @@ def test_the_position_comes_through_to_the_csv(run, client):
 
 
 def test_the_sample_columns_are_every_field_of_a_sample():
-    from portal.experiments.models import SAMPLE_FIELDS
+    from portal.runs.models import SAMPLE_FIELDS
 
     stored = [f.name for f in Sample._meta.concrete_fields if f.name not in ("id", "run")]
     assert list(SAMPLE_FIELDS) == stored

@@ -1,0 +1,185 @@
+"""Booking with a robot program: a reservation and its run change together, or not at all.
+
+Each function here opens one transaction and, inside it, calls the booking service of
+``bookings/services.py`` (which takes the booking locks and asks ``bookings.rules`` whether
+the booking can be made) and then does the run's part. Bookings know nothing of runs; pages
+and the API book through these functions.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from datetime import datetime
+from functools import partial
+
+from django.db import transaction
+from django.utils import timezone
+
+from bookings.models import Reservation, Resource
+from bookings.rules import Problem, aware_utc, booking_problems
+from bookings.services import (
+    reservation_cancel,
+    reservation_create,
+    reservation_decide,
+    reservation_mobile,
+    reservation_reschedule,
+)
+from portal.accounts.models import User
+from portal.errors import Conflict, InvalidInput, NotAllowed
+from portal.experiments.models import Experiment
+from portal.runs.models import Run
+from portal.runs.services.transitions import run_create, run_transition
+from portal.runs.states import Cause, RunState
+from portal.runs.tasks import run_unstage
+
+logger = logging.getLogger(__name__)
+
+
+def _own_experiment(experiment: Experiment | None, owner: User) -> None:
+    if experiment is not None and experiment.owner_id != owner.pk:
+        raise NotAllowed.on_field("experiment", "That experiment belongs to someone else.")
+
+
+def booking_create(
+    *,
+    owner: User,
+    resources: Sequence[Resource] | None = None,
+    resource: Resource | None = None,
+    start_at: datetime,
+    end_at: datetime,
+    experiment: Experiment | None = None,
+    title: str = "",
+    by: User | None = None,
+    override_reason: str = "",
+    ip: str | None = None,
+    now: datetime | None = None,
+) -> Reservation:
+    """Book resources; on a mobile node, also schedule the run of ``experiment`` there."""
+    _own_experiment(experiment, owner)
+    with transaction.atomic():
+        reservation = reservation_create(
+            owner=owner,
+            resources=resources,
+            resource=resource,
+            start_at=start_at,
+            end_at=end_at,
+            program=experiment,
+            title=title or (experiment.title if experiment is not None else ""),
+            by=by,
+            override_reason=override_reason,
+            ip=ip,
+            now=now,
+        )
+        mobile = reservation_mobile(reservation)
+        if mobile is not None and experiment is not None:
+            run_create(
+                reservation=reservation, resource=mobile, experiment=experiment, by=by or owner
+            )
+    return reservation
+
+
+def booking_reschedule(
+    *,
+    reservation: Reservation,
+    by: User,
+    start_at: datetime,
+    end_at: datetime,
+    ip: str | None = None,
+    now: datetime | None = None,
+) -> Reservation:
+    """Move an upcoming booking and its run; refused once the run is on its base station."""
+    with transaction.atomic():
+        # Reservation first, then run: the order every path that takes both locks uses.
+        locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
+        run = Run.objects.select_for_update().filter(reservation=locked).first()
+        if run is not None and run.state != RunState.SCHEDULED:
+            raise Conflict("Its run is already on the base station; cancel and book again.")
+        moved = reservation_reschedule(
+            reservation=locked,
+            by=by,
+            start_at=start_at,
+            end_at=end_at,
+            program=run,
+            ip=ip,
+            now=now,
+        )
+        if run is not None:
+            Run.objects.filter(pk=run.pk).update(start_at=moved.start_at, end_at=moved.end_at)
+    return moved
+
+
+def _withdraw_run(reservation: Reservation, *, reason: str, by: User) -> None:
+    """The run of a reservation that no longer holds its robot: cancelled, or withdrawn from
+    its agent after commit (a running one is aborted there and collected as interrupted)."""
+    run = Run.objects.filter(reservation=reservation).first()
+    if run is None:
+        return
+    if run_transition(
+        run_id=run.pk,
+        to_state=RunState.CANCELLED,
+        cause=Cause.BOOKING,
+        from_states=[RunState.SCHEDULED],
+        reason=reason,
+        by=by,
+    ):
+        return
+    if run.state in (RunState.STAGED, RunState.RUNNING):
+        transaction.on_commit(partial(run_unstage.delay, run.pk))
+
+
+def booking_cancel(
+    *, reservation: Reservation, by: User, reason: str = "", ip: str | None = None
+) -> Reservation:
+    """Cancel a booking and withdraw its run."""
+    with transaction.atomic():
+        cancelled = reservation_cancel(reservation=reservation, by=by, reason=reason, ip=ip)
+        _withdraw_run(cancelled, reason=reason or f"cancelled by {by.get_username()}", by=by)
+    return cancelled
+
+
+def booking_decide(
+    *,
+    reservation: Reservation,
+    by: User,
+    approve: bool,
+    reason: str = "",
+    ip: str | None = None,
+) -> Reservation:
+    """An admin approves or rejects a requested booking; a rejected one's run is withdrawn."""
+    with transaction.atomic():
+        decided = reservation_decide(
+            reservation=reservation, by=by, approve=approve, reason=reason, ip=ip
+        )
+        if not approve:
+            _withdraw_run(decided, reason=f"request rejected: {reason}", by=by)
+    return decided
+
+
+def booking_check(
+    *,
+    owner: User,
+    resources: Sequence[Resource],
+    start_at: datetime,
+    end_at: datetime,
+    experiment: Experiment | None,
+    exclude_reservation_id: int | None = None,
+    now: datetime | None = None,
+) -> list[Problem]:
+    """Everything that would refuse this booking now, for the calendar's live check.
+
+    The same rules ``booking_create`` applies under its locks (``bookings.rules``), all of
+    them at once and without locking; nothing is written.
+    """
+    _own_experiment(experiment, owner)
+    if not resources:
+        raise InvalidInput.on_field("resources", "Choose at least one resource.")
+    return booking_problems(
+        owner=owner,
+        resources=resources,
+        start_at=aware_utc(start_at, "start_at"),
+        end_at=aware_utc(end_at, "end_at"),
+        program=experiment,
+        now=now or timezone.now(),
+        exclude_reservation_id=exclude_reservation_id,
+    )

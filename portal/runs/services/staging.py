@@ -1,0 +1,118 @@
+"""Moving runs onto their base-station agents, and off them again.
+
+The database is the schedule: a periodic sweep finds what is due and these services do one
+step each, idempotently. Every step re-reads the run and does nothing if the run is already
+past it, so duplicated or late tasks are harmless.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from datetime import datetime, timedelta
+from typing import Any
+
+from django.conf import settings
+from django.db.models import QuerySet
+from django.utils import timezone
+
+from basestation.client import AgentConflict, AgentRejected
+from bookings.choices import ReservationState
+from portal.runs.agents import agent_client_for
+from portal.runs.models import Run
+from portal.runs.services.transitions import run_transition
+from portal.runs.states import Cause, RunState
+
+logger = logging.getLogger(__name__)
+
+
+def runs_due_for_staging(*, now: datetime) -> QuerySet[Run]:
+    lead = timedelta(seconds=settings.RUN_STAGE_LEAD_S)
+    return Run.objects.filter(state=RunState.SCHEDULED, start_at__lte=now + lead)
+
+
+def run_agent_body(run: Run) -> dict[str, Any]:
+    """What the agent is asked to run: the program, its window and the robot's limits."""
+    reservation = run.reservation
+    resource = run.resource
+    return {
+        "owner": reservation.owner.get_username(),
+        "title": run.title,
+        "start_at": run.start_at.isoformat(),
+        "end_at": run.end_at.isoformat(),
+        "segments": run.segments,
+        "limits": {
+            "max_velocity_mps": resource.max_velocity_mps,
+            "max_accel_mps2": resource.max_accel_mps2,
+        },
+    }
+
+
+def _load(run_id: int) -> Run:
+    return Run.objects.select_related("resource", "reservation__owner").get(pk=run_id)
+
+
+def _fail(run: Run, reason: str) -> None:
+    run_transition(
+        run_id=run.pk,
+        to_state=RunState.FAILED,
+        cause=Cause.DISPATCH,
+        from_states=[RunState.SCHEDULED],
+        reason=reason,
+    )
+
+
+def run_stage(*, run_id: int, now: datetime | None = None) -> None:
+    """Send a scheduled run to its agent (``PUT``, idempotent by run id) → ``staged``.
+
+    Raises ``AgentError`` with ``retryable`` set for the caller to retry.
+    """
+    now = now or timezone.now()
+    run = _load(run_id)
+    if run.state != RunState.SCHEDULED:
+        return
+    confirmed = run.reservation.state == ReservationState.CONFIRMED
+    if not confirmed and run.end_at > now:
+        return  # awaiting approval: staged once an admin confirms it
+    if not confirmed:
+        _fail(run, "the reservation was not approved before it ended")
+        return
+    if run.end_at <= now:
+        _fail(run, "the base station could not be reached before the reservation ended")
+        return
+    client = agent_client_for(run.resource)
+    try:
+        client.put_run(run.agent_run_id, run_agent_body(run))
+    except (AgentConflict, AgentRejected) as exc:
+        _fail(run, f"the base station refused the run: {exc}")
+        return
+    if not run_transition(
+        run_id=run.pk,
+        to_state=RunState.STAGED,
+        cause=Cause.DISPATCH,
+        from_states=[RunState.SCHEDULED],
+        reason=f"staged on {run.resource.name}",
+    ):
+        # Cancelled while we were staging it: withdraw it again.
+        run.refresh_from_db(fields=["state"])
+        if run.state == RunState.CANCELLED:
+            client.delete_run(run.agent_run_id)
+
+
+def run_unstage(*, run_id: int) -> None:
+    """Withdraw a staged run from its agent, or abort it there if it is running."""
+    run = _load(run_id)
+    if run.state not in (RunState.STAGED, RunState.RUNNING):
+        return
+    client = agent_client_for(run.resource)
+    # A conflict means it had already ended there; collection records how.
+    with contextlib.suppress(AgentConflict):
+        client.delete_run(run.agent_run_id)
+    # A staged run cancelled on the agent ends here; a running one goes on to be collected.
+    run_transition(
+        run_id=run.pk,
+        to_state=RunState.CANCELLED,
+        cause=Cause.DISPATCH,
+        from_states=[RunState.STAGED],
+        reason="withdrawn from the base station",
+    )

@@ -1,0 +1,126 @@
+"""The only way a run comes to be or changes state (the table is ``portal/runs/states.py``)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable
+
+from django.db import transaction
+from django.utils import timezone
+
+from bookings.models import Reservation, Resource
+from portal.accounts.models import User
+from portal.audit.services import audit_record
+from portal.errors import Conflict, InvalidInput, NotAllowed
+from portal.experiments.models import Experiment
+from portal.runs.models import Run, RunEvent
+from portal.runs.states import Cause, RunState, allowed, sources
+
+logger = logging.getLogger(__name__)
+
+
+class TransitionNotAllowed(ValueError):
+    """A change of state the table does not allow for this cause: a programming error."""
+
+
+def run_create(
+    *, reservation: Reservation, resource: Resource, experiment: Experiment, by: User | None
+) -> Run:
+    """The run of ``experiment`` on ``resource`` in a just-made reservation (``scheduled``).
+
+    The program is copied: editing the experiment later never changes what is sent.
+    """
+    run = Run(
+        reservation=reservation,
+        resource=resource,
+        experiment=experiment,
+        title=experiment.title,
+        segments=experiment.segments,
+        start_at=reservation.start_at,
+        end_at=reservation.end_at,
+        state=RunState.SCHEDULED,
+    )
+    run.full_clean(exclude=["reservation", "resource"])
+    run.save()
+    RunEvent.objects.create(
+        run=run,
+        from_state="",
+        to_state=RunState.SCHEDULED,
+        reason="booked",
+        cause=Cause.BOOKING,
+        by=by,
+    )
+    return run
+
+
+def run_transition(
+    *,
+    run_id: int,
+    to_state: RunState,
+    cause: Cause,
+    reason: str = "",
+    from_states: Iterable[RunState] | None = None,
+    by: User | None = None,
+) -> bool:
+    """Move a run to ``to_state`` if it is in one of ``from_states``; False if it was not.
+
+    ``from_states`` defaults to every state ``cause`` may leave for ``to_state``; naming a
+    state the table does not allow raises :class:`TransitionNotAllowed`. A compare-and-set
+    under a row lock, so two workers racing on the same run change it once, and a task that
+    finds the run already past its step does nothing.
+    """
+    allowed_from = sources(to_state, cause)
+    if from_states is None:
+        wanted = allowed_from
+    else:
+        wanted = tuple(from_states)
+        refused = [s for s in wanted if not allowed(s, to_state, cause)]
+        if refused:
+            raise TransitionNotAllowed(
+                f"{cause} may not move a run from {', '.join(refused)} to {to_state}"
+            )
+    with transaction.atomic():
+        current = (
+            Run.objects.select_for_update()
+            .filter(pk=run_id, state__in=wanted)
+            .values_list("state", flat=True)
+            .first()
+        )
+        if current is None:
+            return False
+        Run.objects.filter(pk=run_id).update(
+            state=to_state, reason=reason, updated_at=timezone.now()
+        )
+        RunEvent.objects.create(
+            run_id=run_id,
+            from_state=current,
+            to_state=to_state,
+            reason=reason,
+            cause=cause,
+            by=by,
+        )
+    logger.info("run %s: %s → %s (%s) %s", run_id, current, to_state, cause, reason)
+    return True
+
+
+def run_give_up(*, run: Run, by: User, reason: str) -> None:
+    """An admin marks a run failed that will never finish by itself; audited."""
+    if not by.is_testbed_admin:
+        raise NotAllowed("Only admins give up on runs.")
+    if not reason.strip():
+        raise InvalidInput.on_field("reason", "Say why the run is given up.")
+    with transaction.atomic():
+        changed = run_transition(
+            run_id=run.pk,
+            to_state=RunState.FAILED,
+            cause=Cause.ADMIN,
+            reason=f"given up by {by.get_username()}: {reason}",
+            by=by,
+        )
+        if not changed:
+            run.refresh_from_db(fields=["state"])
+            raise Conflict(
+                f"The run is {run.get_state_display()}: only a scheduled run or one stuck "
+                "collecting can be given up (cancel the booking to stop a running one)."
+            )
+        audit_record(actor=by, action="run.give_up", target=run, reason=reason)

@@ -1,0 +1,66 @@
+"""Celery tasks for runs: thin wrappers that take ids and call one service each."""
+
+from __future__ import annotations
+
+import logging
+
+from celery import Task, shared_task
+from django.conf import settings
+from django.utils import timezone
+
+from basestation.client import AgentError
+from portal.health import SWEEP, heartbeat_record
+from portal.runs.services import collection, staging
+
+logger = logging.getLogger(__name__)
+
+MAX_RETRIES = 5
+
+
+@shared_task(time_limit=30, soft_time_limit=25)
+def runs_sweep() -> None:
+    """Find runs due for staging or collection and queue one task each.
+
+    Queued tasks expire after two sweeps: a backlog never turns into a pile of duplicates,
+    and the next sweep queues whatever is still due.
+    """
+    now = timezone.now()
+    expires_s = 2 * settings.RUN_SWEEP_INTERVAL_S
+    for run_id in staging.runs_due_for_staging(now=now).values_list("pk", flat=True):
+        run_stage.apply_async((run_id,), expires=expires_s)
+    for run_id in collection.runs_due_for_collection(now=now).values_list("pk", flat=True):
+        run_collect.apply_async((run_id,), expires=expires_s)
+    heartbeat_record(SWEEP)
+
+
+def _retry_if_transient(task: Task, exc: AgentError) -> None:
+    if not exc.retryable:
+        raise exc
+    countdown_s = min(30, 2**task.request.retries)
+    logger.warning("%s: %s; retry in %ss", task.name, exc, countdown_s)
+    raise task.retry(exc=exc, countdown=countdown_s, max_retries=MAX_RETRIES)
+
+
+@shared_task(bind=True, time_limit=60, soft_time_limit=50)
+def run_stage(self: Task, run_id: int) -> None:
+    try:
+        staging.run_stage(run_id=run_id)
+    except AgentError as exc:
+        _retry_if_transient(self, exc)
+
+
+@shared_task(bind=True, time_limit=60, soft_time_limit=50)
+def run_unstage(self: Task, run_id: int) -> None:
+    try:
+        staging.run_unstage(run_id=run_id)
+    except AgentError as exc:
+        _retry_if_transient(self, exc)
+
+
+@shared_task(time_limit=120, soft_time_limit=110)
+def run_collect(run_id: int) -> None:
+    # No retry here: the next sweep collects again, resuming after the last stored sample.
+    try:
+        collection.run_collect(run_id=run_id)
+    except AgentError as exc:
+        logger.warning("run %s: collection deferred: %s", run_id, exc)

@@ -1,0 +1,43 @@
+from django.urls import path
+
+from portal.runs.apis import reservations, robot, runs
+
+urlpatterns = [
+    path("runs/", runs.RunListApi.as_view(), name="api-runs"),
+    path("runs/<int:pk>/", runs.RunDetailApi.as_view(), name="api-run"),
+    path("runs/<int:pk>/samples/", runs.RunSamplesApi.as_view(), name="api-run-samples"),
+    path("runs/<int:pk>/samples.csv", runs.RunSamplesCsvApi.as_view(), name="api-run-samples-csv"),
+    path(
+        "runs/<int:pk>/samples.json", runs.RunSamplesJsonApi.as_view(), name="api-run-samples-json"
+    ),
+    path("runs/<int:pk>/analysis/", runs.RunAnalysisApi.as_view(), name="api-run-analysis"),
+    path("reservations/", reservations.ReservationListApi.as_view(), name="api-reservations"),
+    path(
+        "reservations/<int:pk>/",
+        reservations.ReservationDetailApi.as_view(),
+        name="api-reservation",
+    ),
+    path(
+        "reservations/<int:pk>/decision/",
+        reservations.ReservationDecisionApi.as_view(),
+        name="api-reservation-decision",
+    ),
+    path("quota/check/", reservations.BookingCheckApi.as_view(), name="api-quota-check"),
+    path("resources/<slug:name>/robot/", robot.RobotStatusApi.as_view(), name="api-robot"),
+    path(
+        "resources/<slug:name>/robot/control/",
+        robot.RobotDriveApi.as_view(),
+        name="api-robot-drive",
+    ),
+    path("resources/<slug:name>/robot/stop/", robot.RobotStopApi.as_view(), name="api-robot-stop"),
+    path(
+        "resources/<slug:name>/robot/release/",
+        robot.RobotReleaseApi.as_view(),
+        name="api-robot-release",
+    ),
+    path(
+        "resources/<slug:name>/robot/logs/<str:day>/",
+        robot.RobotLogApi.as_view(),
+        name="api-robot-log",
+    ),
+]
