@@ -24,7 +24,9 @@ A duplicate that arrives while the first is still running is recognised without 
 - PostgreSQL: the request first takes a transaction-level advisory lock on a hash of
   (user, key) with ``pg_try_advisory_xact_lock``; a duplicate that cannot take it gets 409 at
   once. The lock ends with the transaction, also when the server drops the connection of a
-  killed process, so no key stays locked.
+  killed process, so no key stays locked (and it is safe with pooled connections). A host
+  that vanishes without closing its connections is noticed through TCP keepalives or the
+  server's ``idle_in_transaction_session_timeout``; production should set one of them.
 - SQLite (the embedded mode of ``make run``): every transaction begins IMMEDIATE (see
   settings), so writing requests already run one at a time; a duplicate waits for the first
   to commit and then gets its replay.
@@ -140,17 +142,16 @@ def idempotent(method: ViewMethod) -> ViewMethod:
                 return _in_progress()
             now = timezone.now()
             stored = IdempotencyKey.objects.filter(user=user, key=key).first()
-            if stored is not None and stored.created_at <= now - _ttl():
-                stored = None  # expired: a new key (the row goes below)
-            if stored is not None:
+            if stored is not None and stored.created_at > now - _ttl():
                 answer = _answer(stored=stored, digest=digest, now=now)
                 if answer is not None:
                     return answer
+            # New, expired or abandoned: the view does the work.
             response = method(view, request, *args, **kwargs)
             if 200 <= response.status_code < 300:
-                # An expired or abandoned row goes only now, with the new answer: if the view
-                # fails, nothing about the key has changed.
-                IdempotencyKey.objects.filter(user=user, key=key).delete()
+                if stored is not None:
+                    # Replaced only now, with the new answer: a failed view leaves it as it was.
+                    IdempotencyKey.objects.filter(pk=stored.pk).delete()
                 IdempotencyKey.objects.create(
                     user=user,
                     key=key,
