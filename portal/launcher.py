@@ -1,9 +1,10 @@
 """``make run``: the whole system on this machine, with the simulated robot.
 
-Prepares the embedded setup (database, demo data, agent token) and then runs the web server,
-a Celery worker, Celery beat and the base-station agent as child processes, each line of
-their output prefixed with the process's name. Ctrl-C (or SIGTERM) stops every child and
-its own children; if any child dies, the rest are stopped too and the exit code says so.
+Prepares the embedded setup (database, demo data, agent token) and then runs the system's
+processes (``portal.processes``: the agent, the web server, a Celery worker and beat) as
+children, each line of their output prefixed with the process's name. Ctrl-C (or SIGTERM)
+stops every child and its own children; if any child dies, the rest are stopped too and the
+exit code says so.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from portal.processes import system_processes
+
 BASE_DIR = Path(__file__).resolve().parent.parent
 STOP_GRACE_S = 10.0
 
@@ -28,6 +31,7 @@ STOP_GRACE_S = 10.0
 class Child:
     name: str
     argv: list[str]
+    env: dict[str, str] = field(default_factory=dict)
     process: subprocess.Popen[bytes] | None = None
     pump: threading.Thread | None = field(default=None, repr=False)
 
@@ -124,57 +128,15 @@ def main() -> int:
     _manage(env, "migrate", "--no-input", "-v", "0")
     _manage(env, "demo_setup")
 
-    py = sys.executable
     children = [
-        Child("agent", [py, "-m", "basestation", "--host", "127.0.0.1", "--port", str(agent_port)]),
-        Child(
-            "web",
-            [
-                py,
-                "-m",
-                "uvicorn",
-                "portal.asgi:application",
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(portal_port),
-                "--no-access-log",
-            ],
-        ),
-        Child(
-            "worker",
-            [
-                py,
-                "-m",
-                "celery",
-                "-A",
-                "portal",
-                "worker",
-                "--loglevel",
-                "INFO",
-                "--pool",
-                "threads",
-                "--concurrency",
-                "4",
-                "--without-mingle",
-                "--without-gossip",
-            ],
-        ),
-        Child(
-            "beat",
-            [
-                py,
-                "-m",
-                "celery",
-                "-A",
-                "portal",
-                "beat",
-                "--loglevel",
-                "INFO",
-                "--schedule",
-                str(var_dir / "celerybeat-schedule"),
-            ],
-        ),
+        Child(spec.name, list(spec.argv), dict(spec.env))
+        for spec in system_processes(
+            python=sys.executable,
+            portal_port=portal_port,
+            agent_port=agent_port,
+            var_dir=var_dir,
+            access_log=False,  # a line per request would drown everything else
+        )
     ]
 
     stopping = threading.Event()
@@ -191,7 +153,7 @@ def main() -> int:
             child.process = subprocess.Popen(
                 child.argv,
                 cwd=BASE_DIR,
-                env=env,
+                env={**env, **child.env},
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,

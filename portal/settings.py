@@ -222,6 +222,10 @@ RESERVATION_REMINDER_LEAD_S = env.float("RESERVATION_REMINDER_LEAD_S", default=3
 CELERY_BEAT_SCHEDULE = {
     "runs-sweep": {"task": "portal.runs.tasks.runs_sweep", "schedule": RUN_SWEEP_INTERVAL_S},
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
+    "idempotency-keys-delete-expired": {
+        "task": "portal.audit.tasks.idempotency_keys_delete_expired",
+        "schedule": 3600.0,
+    },
 }
 CELERY_BEAT_SCHEDULE_FILENAME = str(VAR_DIR / "celerybeat-schedule")
 
@@ -246,6 +250,9 @@ SPECTACULAR_SETTINGS = {
     "SWAGGER_UI_DIST": "/static/vendor/swagger-ui-dist",
     "SWAGGER_UI_FAVICON_HREF": "/static/vendor/swagger-ui-dist/favicon-32x32.png",
 }
+
+# How long a stored X-Idempotency-Key answer is replayed; after that the key is new again.
+IDEMPOTENCY_KEY_TTL_S = env.float("IDEMPOTENCY_KEY_TTL_S", default=24 * 3600.0)
 
 if not DEBUG:
     SESSION_COOKIE_SECURE = env.bool("DJANGO_SECURE_COOKIES", default=True)

@@ -40,17 +40,21 @@ class AuditEvent(models.Model):
 
 
 class IdempotencyKey(models.Model):
-    """The answer to a creating request sent with ``X-Idempotency-Key``, for replays."""
+    """The answer to a creating request sent with ``X-Idempotency-Key``, for replays.
+
+    Written in the same transaction as the request's work (``portal.audit.idempotency``).
+    """
 
     user = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="+")
     key = models.CharField(max_length=128)
     method = models.CharField(max_length=8)
     path = models.CharField(max_length=255)
     request_hash = models.CharField(max_length=64)
-    # Null while the first request is still being handled: a concurrent duplicate gets 409.
+    # Null only in rows of the previous release, which stored the key before the work.
     status = models.PositiveSmallIntegerField(null=True)
     response = models.JSONField(null=True)
-    created_at = models.DateTimeField(auto_now_add=True)
+    # Indexed for the expiry sweep, which deletes by age.
+    created_at = models.DateTimeField(auto_now_add=True, db_index=True)
 
     class Meta:
         constraints = [

@@ -10,6 +10,7 @@ import redis
 from django.conf import settings
 
 from basestation.client import AgentClient
+from portal.processes import system_processes
 from tests.integration.processes import Proc, free_port, python, wait_http
 
 
@@ -24,6 +25,8 @@ def stack(tmp_path):
 
     token = secrets.token_urlsafe(24)
     agent_port, web_port = free_port(), free_port()
+    var_dir = tmp_path / "var"
+    var_dir.mkdir()
     env = dict(os.environ)
     env.update(
         {
@@ -32,66 +35,29 @@ def stack(tmp_path):
             "CELERY_BROKER_URL": broker_url,
             "AGENT_TOKEN": token,
             "AGENT_DATA_DIR": str(tmp_path / "agent"),
-            "AMAZING_VAR_DIR": str(tmp_path / "var"),
+            "AMAZING_VAR_DIR": str(var_dir),
             "RUN_SWEEP_INTERVAL_S": "0.5",
             "PYTHONUNBUFFERED": "1",
         }
     )
-    procs = [
-        Proc("agent", [python(), "-m", "basestation", "--port", str(agent_port)], env),
-        Proc(
-            "web",
-            [python(), "-m", "uvicorn", "portal.asgi:application", "--port", str(web_port)],
-            env,
-        ),
-        Proc(
-            "worker",
-            [
-                python(),
-                "-m",
-                "celery",
-                "-A",
-                "portal",
-                "worker",
-                "--pool",
-                "threads",
-                "--concurrency",
-                "4",
-                "--loglevel",
-                "INFO",
-                "--without-mingle",
-                "--without-gossip",
-            ],
-            env,
-        ),
-        Proc(
-            "beat",
-            [
-                python(),
-                "-m",
-                "celery",
-                "-A",
-                "portal",
-                "beat",
-                "--loglevel",
-                "INFO",
-                "--schedule",
-                str(tmp_path / "beat-schedule"),
-            ],
-            env,
-        ),
-    ]
+    specs = system_processes(
+        python=python(), portal_port=web_port, agent_port=agent_port, var_dir=var_dir
+    )
+    procs: dict[str, Proc] = {}
     try:
-        wait_http(f"http://127.0.0.1:{agent_port}/healthz", 30, procs)
-        wait_http(f"http://127.0.0.1:{web_port}/accounts/login/", 30, procs)
-        procs[2].wait_for_line(lambda line: "ready." in line, 30)
+        for spec in specs:
+            procs[spec.name] = Proc(spec.name, list(spec.argv), {**env, **spec.env})
+        running = list(procs.values())
+        wait_http(f"http://127.0.0.1:{agent_port}/healthz", 30, running)
+        wait_http(f"http://127.0.0.1:{web_port}/accounts/login/", 30, running)
+        procs["worker"].wait_for_line(lambda line: "ready." in line, 30)
         yield {
             "web": f"http://127.0.0.1:{web_port}",
             "agent": AgentClient(f"http://127.0.0.1:{agent_port}", token),
             "agent_url": f"http://127.0.0.1:{agent_port}",
             "token": token,
-            "procs": procs,
+            "procs": running,
         }
     finally:
-        for proc in reversed(procs):
+        for proc in reversed(procs.values()):
             proc.stop()

@@ -1,0 +1,115 @@
+"""The system's processes and their command lines, in one list.
+
+``make run`` (``portal.launcher``) and the integration and browser tests' stack
+(``tests/integration/stack.py``) both start the processes this module lists, so whatever runs
+in one runs in the other. Each process has its own small builder; an optional process gets a
+flag of ``system_processes`` that adds it.
+
+No Django here: the launcher builds the list before Django is set up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+DEFAULT_HOST = "127.0.0.1"
+
+
+@dataclass(frozen=True)
+class ProcessSpec:
+    """One process: its name (as in logs), its command line, and what it adds to the environment.
+
+    ``env`` holds only what differs from the environment every process shares.
+    """
+
+    name: str
+    argv: tuple[str, ...]
+    env: Mapping[str, str] = field(default_factory=dict)
+
+
+def agent_process(*, python: str, port: int, host: str = DEFAULT_HOST) -> ProcessSpec:
+    """The base-station agent with the simulated robot (``AGENT_*`` from the environment)."""
+    return ProcessSpec("agent", (python, "-m", "basestation", "--host", host, "--port", str(port)))
+
+
+def web_process(
+    *, python: str, port: int, host: str = DEFAULT_HOST, access_log: bool = True
+) -> ProcessSpec:
+    """The portal behind the ASGI server."""
+    argv = [python, "-m", "uvicorn", "portal.asgi:application", "--host", host]
+    argv += ["--port", str(port)]
+    if not access_log:
+        argv.append("--no-access-log")
+    return ProcessSpec("web", tuple(argv))
+
+
+def worker_process(*, python: str, concurrency: int = 4, log_level: str = "INFO") -> ProcessSpec:
+    """A Celery worker. Threads, not forks: the tasks wait on the network, not the CPU."""
+    return ProcessSpec(
+        "worker",
+        (
+            python,
+            "-m",
+            "celery",
+            "-A",
+            "portal",
+            "worker",
+            "--loglevel",
+            log_level,
+            "--pool",
+            "threads",
+            "--concurrency",
+            str(concurrency),
+            # One worker: nothing to synchronise with at start or to chat with afterwards.
+            "--without-mingle",
+            "--without-gossip",
+        ),
+    )
+
+
+def beat_process(*, python: str, schedule_file: Path, log_level: str = "INFO") -> ProcessSpec:
+    """Celery beat, keeping its schedule state in ``schedule_file``."""
+    return ProcessSpec(
+        "beat",
+        (
+            python,
+            "-m",
+            "celery",
+            "-A",
+            "portal",
+            "beat",
+            "--loglevel",
+            log_level,
+            "--schedule",
+            str(schedule_file),
+        ),
+    )
+
+
+def system_processes(
+    *,
+    python: str,
+    portal_port: int,
+    agent_port: int,
+    var_dir: Path,
+    host: str = DEFAULT_HOST,
+    access_log: bool = True,
+    worker_concurrency: int = 4,
+    log_level: str = "INFO",
+) -> list[ProcessSpec]:
+    """The agent, the web server, a Celery worker and beat, in the order to start them.
+
+    ``python`` runs every process; ``host`` is the address the agent and the web server listen
+    on; ``var_dir`` holds local state (beat's schedule); ``access_log`` turns the web server's
+    line per request on or off.
+    """
+    return [
+        agent_process(python=python, port=agent_port, host=host),
+        web_process(python=python, port=portal_port, host=host, access_log=access_log),
+        worker_process(python=python, concurrency=worker_concurrency, log_level=log_level),
+        beat_process(
+            python=python, schedule_file=var_dir / "celerybeat-schedule", log_level=log_level
+        ),
+    ]

@@ -1,0 +1,85 @@
+"""The one list of the system's processes that ``make run`` and the test stack both start."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from portal.processes import ProcessSpec, system_processes
+
+REPO = Path(__file__).resolve().parents[2]
+PYTHON = "/opt/amazing/bin/python"
+
+
+def _processes(**options: Any) -> dict[str, ProcessSpec]:
+    specs = system_processes(
+        python=PYTHON, portal_port=8123, agent_port=8765, var_dir=Path("/srv/amazing/var"),
+        **options,
+    )  # fmt: skip
+    return {spec.name: spec for spec in specs}
+
+
+def _option(argv: tuple[str, ...], flag: str) -> str:
+    return argv[argv.index(flag) + 1]
+
+
+def test_it_lists_agent_web_worker_and_beat_in_start_order_all_on_the_given_python():
+    processes = _processes()
+    assert list(processes) == ["agent", "web", "worker", "beat"]
+    for spec in processes.values():
+        assert spec.argv[0] == PYTHON
+        assert spec.env == {}
+
+
+def test_the_ports_and_the_host_go_to_the_agent_and_the_web_server():
+    processes = _processes(host="192.0.2.10")
+    agent, web = processes["agent"].argv, processes["web"].argv
+    assert agent[1:3] == ("-m", "basestation")
+    assert (_option(agent, "--port"), _option(agent, "--host")) == ("8765", "192.0.2.10")
+    assert "portal.asgi:application" in web
+    assert (_option(web, "--port"), _option(web, "--host")) == ("8123", "192.0.2.10")
+    for other in ("worker", "beat"):
+        assert "8123" not in processes[other].argv
+        assert "8765" not in processes[other].argv
+
+
+def test_the_host_is_loopback_unless_given():
+    processes = _processes()
+    assert _option(processes["agent"].argv, "--host") == "127.0.0.1"
+    assert _option(processes["web"].argv, "--host") == "127.0.0.1"
+
+
+def test_the_access_log_can_be_turned_off():
+    assert "--no-access-log" not in _processes()["web"].argv
+    assert "--no-access-log" in _processes(access_log=False)["web"].argv
+
+
+def test_the_worker_and_beat_run_the_portals_celery_app_with_beats_state_under_var_dir():
+    processes = _processes(worker_concurrency=2, log_level="DEBUG")
+    worker, beat = processes["worker"].argv, processes["beat"].argv
+    assert worker[1:6] == ("-m", "celery", "-A", "portal", "worker")
+    assert (_option(worker, "--concurrency"), _option(worker, "--loglevel")) == ("2", "DEBUG")
+    assert beat[1:6] == ("-m", "celery", "-A", "portal", "beat")
+    assert _option(beat, "--schedule") == "/srv/amazing/var/celerybeat-schedule"
+    assert _option(beat, "--loglevel") == "DEBUG"
+
+
+def test_the_list_is_built_without_setting_up_django():
+    # Production settings without their secrets fail on import: the list must not need them.
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("DJANGO_", "AGENT_"))}
+    script = (
+        "import sys\n"
+        "from pathlib import Path\n"
+        "from portal.processes import system_processes\n"
+        "specs = system_processes(python='py', portal_port=1, agent_port=2, var_dir=Path('v'))\n"
+        "print([s.name for s in specs], 'django.apps' in sys.modules, 'django.db' in sys.modules)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script], cwd=REPO, env=env, capture_output=True, text=True,
+        timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "['agent', 'web', 'worker', 'beat'] False False"
