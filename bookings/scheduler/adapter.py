@@ -191,6 +191,10 @@ class Scheduler(Protocol):
         """Release connections."""
         ...
 
+    def __enter__(self) -> Scheduler: ...
+
+    def __exit__(self, *exc_info: object) -> None: ...
+
 
 _EPOCH_UTC = datetime(1970, 1, 1, tzinfo=UTC)
 

@@ -768,7 +768,7 @@ def _envelope(code: int, reason: str) -> Response:
 # -- the process --------------------------------------------------------------------------
 
 
-def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m bookings.scheduler.standin",
         description="Stand-in omf_sfa broker (leases of the fixed nodes). Flags override "
@@ -796,7 +796,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=None,
         help="serve /_standin/ endpoints: clock, faults, reset (tests only)",
     )
-    return parser.parse_args(argv)
+    return parser
 
 
 def config_from(args: argparse.Namespace, environ: Mapping[str, str]) -> StandinConfig:
@@ -828,7 +828,7 @@ def _raise_stop(signum: int, frame: types.FrameType | None) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parse_args(argv)
+    args = build_parser().parse_args(argv)
     logging.basicConfig(
         stream=sys.stderr,
         level=args.log_level.upper(),
