@@ -8,10 +8,13 @@ allowed hosts and the agent token.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import environ
 from django.core.exceptions import ImproperlyConfigured
+
+from bookings.scheduler import config as scheduler_config
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 VAR_DIR = Path(environ.Env().str("AMAZING_VAR_DIR", default=str(BASE_DIR / "var")))
@@ -69,6 +72,13 @@ if AGENT_TOKEN is None and not DEBUG:
 AGENT_TOKENS: dict[str, str] = {"default": AGENT_TOKEN or ""}
 AGENT_URL = env.str("AGENT_URL", default="http://127.0.0.1:8700")
 AGENT_TIMEOUT_S = env.float("AGENT_TIMEOUT_S", default=5.0)
+
+# The testbed's scheduler, which owns the fixed nodes (SCHEDULER_*, docs/integration.md).
+# None: no scheduler configured.
+try:
+    SCHEDULER: scheduler_config.SchedulerConfig | None = scheduler_config.from_env(os.environ)
+except ValueError as exc:
+    raise ImproperlyConfigured(str(exc)) from exc
 
 INSTALLED_APPS = [
     "django.contrib.admin",
