@@ -24,6 +24,7 @@ from bookings.scheduler.adapter import (
     covering_window,
 )
 from bookings.scheduler.config import SchedulerConfig, from_env
+from bookings.scheduler.omf import OmfScheduler
 
 __all__ = [
     "ALL_STATUSES",
@@ -48,7 +49,5 @@ __all__ = [
 def build_scheduler(config: SchedulerConfig) -> Scheduler:
     """The implementation of the configured dialect (``SCHEDULER_DIALECT``)."""
     if config.dialect == "omf":
-        from bookings.scheduler.omf import OmfScheduler
-
         return OmfScheduler(config)
     raise ValueError(f"no scheduler dialect {config.dialect!r}")
