@@ -6,9 +6,21 @@ robot: they change runs in the store and call :meth:`RunManager.notify_runs_chan
 hand over a manual command or the e-stop latch (:meth:`RunManager.drive_manually`,
 :meth:`RunManager.latch_estop`); the next tick picks the change up.
 
-What the robot is told, in order of precedence: the e-stop latch (stop flag, velocity 0);
-the running run's program, only inside its booked window; an admin's manual command until
-its time-to-live runs out; otherwise velocity 0.
+A tick has three steps. :func:`decide` is the rule book, a pure function of what the tick
+knows (e-stop latch, running run, staged runs, manual command, battery, clock): it says
+which run ends, fails or starts and what to command. The manager applies the state changes,
+makes the one exchange with the robot, and records what came back.
+
+What the robot is told, in order of precedence:
+
+1. the e-stop latch: the stop flag and velocity 0. It aborts the running run and ends manual
+   control; no run starts while it holds, and a run whose window passes meanwhile fails;
+2. the running run's program, only inside its booked window. The end of the window finishes
+   the run; a filtered battery held below ``AGENT_LOW_BATTERY_V`` for ``LOW_BATTERY_HOLD_S``
+   aborts it (and a run due on a low battery fails instead of starting). A booked run takes
+   the robot from manual control;
+3. an admin's manual command, until its time-to-live runs out;
+4. otherwise velocity 0.
 """
 
 from __future__ import annotations
@@ -18,7 +30,7 @@ import math
 import sqlite3
 import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -111,6 +123,185 @@ class AgentSnapshot:
     loss_pct: float | None = None  # exchanges without telemetry, over the last LOSS_WINDOW
     current_run: str | None = None
     command: Command | None = None  # what the last tick sent
+
+
+# A staged run that will never start, and why.
+RunFailure = tuple[RunRecord, str]
+
+
+@dataclass(frozen=True, slots=True)
+class RunEnd:
+    """The running run ends: ``to_state`` is COMPLETED or ABORTED."""
+
+    run: RunRecord
+    to_state: str
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class RunStart:
+    run: RunRecord
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class TickDecision:
+    """What one tick does: state changes first, in this order, then the command.
+
+    ``run`` and ``manual`` are what holds the robot once the changes are made;
+    ``commanded_mps``, ``direction`` and ``segment`` are what the run's program or the manual
+    command asks for (recorded with the sample), ``accel_mps2`` the ramp towards it. With
+    ``stop`` the frame carries the e-stop flag and velocity 0 whatever was asked.
+    """
+
+    end: RunEnd | None
+    fail: tuple[RunFailure, ...]
+    start: RunStart | None
+    end_manual: ManualDrive | None  # taken from the admin: a run or the e-stop holds the robot
+    run: RunRecord | None
+    manual: ManualDrive | None
+    stop: bool
+    segment: int | None
+    commanded_mps: float
+    direction: Direction
+    accel_mps2: float
+
+
+def decide(
+    *,
+    now_s: float,
+    estop: EstopLatch | None,
+    stop_frame_owed: bool,
+    run: RunRecord | None,
+    schedule: Sequence[RunRecord],
+    manual: ManualDrive | None,
+    battery_v: float | None,
+    battery_low: bool,
+    battery_low_for_s: float,
+    low_battery_v: float,
+    direction: Direction,
+    max_accel_mps2: float,
+) -> TickDecision:
+    """The tick's decision at agent time ``now_s``, from what the tick knows; no side effects.
+
+    ``run`` is the running run, ``schedule`` the staged runs by start time, ``manual`` the
+    latest manual command (expired or not), ``battery_*`` the filtered battery as the last
+    tick left it, ``direction`` the last one commanded (kept when nothing sets another).
+    The rules are the module docstring's, in its order of precedence.
+    """
+    # 1. The e-stop latch aborts the running run (the HTTP thread that latched it has done so
+    #    already; this covers a latch that found no run yet in the store). Then the run's own
+    #    ends: its booked window is over (whatever it is doing), or the battery stayed low.
+    end: RunEnd | None = None
+    if run is not None:
+        if estop is not None:
+            end = RunEnd(run, ABORTED, f"emergency stop: {estop.reason}")
+        elif now_s >= run.spec.end_at_s:
+            end = RunEnd(run, COMPLETED, "booked window ended before the robot had stopped")
+        elif battery_low_for_s >= LOW_BATTERY_HOLD_S:
+            end = RunEnd(
+                run,
+                ABORTED,
+                f"battery low: {battery_v:.1f} V, below {low_battery_v:g} V (AGENT_LOW_BATTERY_V)",
+            )
+        if end is not None:
+            run = None
+
+    # 2. With the robot free, a due run starts, unless the e-stop is latched: then due runs
+    #    wait (staged) until their window has passed, and fail.
+    fail: tuple[RunFailure, ...] = ()
+    start: RunStart | None = None
+    if run is None:
+        if estop is None:
+            fail, start = _due_run(
+                now_s,
+                schedule,
+                battery_low=battery_low,
+                battery_v=battery_v,
+                low_battery_v=low_battery_v,
+            )
+            if start is not None:
+                run = start.run
+        else:
+            fail = _passed_runs(
+                now_s, schedule, "the booked window passed while the emergency stop was latched"
+            )
+
+    # 3. A manual command holds until its time-to-live runs out; a run holding the robot or
+    #    the e-stop ends it.
+    if manual is not None and now_s >= manual.expires_at_s:
+        manual = None
+    end_manual: ManualDrive | None = None
+    if manual is not None and (run is not None or estop is not None):
+        end_manual, manual = manual, None
+
+    # 4. What the robot is told: the run's program, only inside its booked window (a clock
+    #    stepped back must not replay it early), at the gentler of the two acceleration
+    #    limits; else the manual command; else velocity 0. The e-stop flag overrides both,
+    #    and goes out at least once for every accepted stop request, even one released since.
+    segment: int | None = None
+    commanded_mps = 0.0
+    accel_mps2 = max_accel_mps2
+    if run is not None:
+        if run.spec.start_at_s <= now_s < run.spec.end_at_s:
+            segment, commanded_mps, direction = run.spec.program_at(now_s)
+        accel_mps2 = min(accel_mps2, run.spec.limits.max_accel_mps2)
+    elif manual is not None:
+        commanded_mps, direction = manual.velocity_mps, manual.direction
+    return TickDecision(
+        end=end,
+        fail=fail,
+        start=start,
+        end_manual=end_manual,
+        run=run,
+        manual=manual,
+        stop=estop is not None or stop_frame_owed,
+        segment=segment,
+        commanded_mps=commanded_mps,
+        direction=direction,
+        accel_mps2=accel_mps2,
+    )
+
+
+def _due_run(
+    now_s: float,
+    schedule: Sequence[RunRecord],
+    *,
+    battery_low: bool,
+    battery_v: float | None,
+    low_battery_v: float,
+) -> tuple[tuple[RunFailure, ...], RunStart | None]:
+    """The first due run that can start, and the due runs before it that never will."""
+    fail: tuple[RunFailure, ...] = ()
+    for record in schedule:
+        if record.spec.start_at_s > now_s:
+            break  # the schedule is ordered by start: nothing later is due either
+        if record.spec.end_at_s <= now_s:
+            fail += ((record, "the booked window passed while the agent was not running"),)
+        elif battery_low:
+            reason = (
+                f"not started: battery at {battery_v:.1f} V, below {low_battery_v:g} V "
+                "(AGENT_LOW_BATTERY_V)"
+            )
+            fail += ((record, reason),)
+        else:
+            late_s = now_s - record.spec.start_at_s
+            reason = "started" if late_s < 1.0 else f"started {late_s:.1f} s late"
+            return fail, RunStart(record, reason)
+    return fail, None
+
+
+def _passed_runs(
+    now_s: float, schedule: Sequence[RunRecord], reason: str
+) -> tuple[RunFailure, ...]:
+    """Due runs whose window has passed (the others stay staged)."""
+    fail: tuple[RunFailure, ...] = ()
+    for record in schedule:
+        if record.spec.start_at_s > now_s:
+            break
+        if record.spec.end_at_s <= now_s:
+            fail += ((record, reason),)
+    return fail
 
 
 class RunManager:
@@ -358,72 +549,82 @@ class RunManager:
         ):
             self._runs_changed.clear()
             self._refresh(now_s)
+        decision = self._decide(now_s)
+        while not self._apply(decision, now_s):
+            # The store refused the start (the run was withdrawn a moment ago): decide again
+            # without it, as if it had never been due.
+            decision = self._decide(now_s)
+        command = self._command(decision, now_s)
+        telemetry = self._exchange(command, now_s)
+        self._record_tick(decision, command, telemetry, now_s)
 
-        estop = self._estop
-        run = self._active
-        if run is not None and estop is not None:
-            # The HTTP thread that latched it has aborted the run already; this covers a
-            # latch that found no run yet in the store.
-            self._abort(run, now_s, f"emergency stop: {estop.reason}")
-            run = None
-        if run is not None and now_s >= run.spec.end_at_s:
-            # The booked window is over: no more motion for this run, whatever its state.
-            self._finish(run, now_s, "booked window ended before the robot had stopped")
-            run = None
-        if run is not None and self._battery_low_for(now_s) >= LOW_BATTERY_HOLD_S:
-            battery_v = self.snapshot.battery_v
-            self._abort(
-                run,
-                now_s,
-                f"battery low: {battery_v:.1f} V, below {self.config.low_battery_v:g} V "
-                "(AGENT_LOW_BATTERY_V)",
+    def _decide(self, now_s: float) -> TickDecision:
+        snapshot = self.snapshot
+        since_s = self._low_battery_since_s
+        return decide(
+            now_s=now_s,
+            estop=self._estop,
+            stop_frame_owed=self._estop_frame_owed,
+            run=self._active,
+            schedule=self._schedule,
+            manual=self._manual,
+            battery_v=snapshot.battery_v,
+            battery_low=snapshot.battery_low,
+            battery_low_for_s=0.0 if since_s is None else now_s - since_s,
+            low_battery_v=self.config.low_battery_v,
+            direction=self._direction,
+            max_accel_mps2=self.config.max_accel_mps2,
+        )
+
+    def _apply(self, decision: TickDecision, now_s: float) -> bool:
+        """Make the decision's state changes, in order with the samples (through the writer).
+        False when the store refuses the run it starts: nothing after that is applied."""
+        ended = decision.end
+        if ended is not None:
+            self._end_run(ended.run, ended.to_state, ended.reason, now_s)
+        for record, reason in decision.fail:
+            self._schedule.remove(record)
+            self._transition(record.id, STAGED, FAILED, reason, now_s)
+        start = decision.start
+        if start is not None:
+            self._schedule.remove(start.run)
+            # Queued with the writer, the start is optimistic: should an HTTP thread have
+            # cancelled the run a moment ago, the writer refuses its samples and the next
+            # refresh lets go of it. A run starts once, so its samples begin at seq 1.
+            if self._transition(start.run.id, STAGED, RUNNING, start.reason, now_s) is False:
+                return False
+            self._active = start.run
+            self._next_seq = 1
+        manual = decision.end_manual
+        if manual is not None and self._take_manual(manual) is manual:
+            session_id = manual.session_id
+            self.writer.submit(lambda: self.store.manual_session_end(session_id, ended_at_s=now_s))
+            run = decision.run
+            logger.info(
+                "manual control by %s ended: %s",
+                manual.user,
+                "e-stop latched" if run is None else f"run {run.id} starts",
             )
-            run = None
-        if run is None:
-            if estop is None:
-                run = self._start_due_run(now_s)
-            else:
-                self._fail_passed_runs(
-                    now_s, "the booked window passed while the emergency stop was latched"
-                )
+        return True
 
-        manual = self.manual(now_s)
-        if manual is not None and (run is not None or estop is not None):
-            # A booked run takes the robot from manual control (an e-stop ends it too).
-            if self._take_manual(manual) is manual:
-                session_id = manual.session_id
-                self.writer.submit(
-                    lambda: self.store.manual_session_end(session_id, ended_at_s=now_s)
-                )
-                logger.info(
-                    "manual control by %s ended: %s",
-                    manual.user,
-                    "e-stop latched" if run is None else f"run {run.id} starts",
-                )
-            manual = None
-
-        segment: int | None = None
-        commanded_mps = 0.0
-        accel_mps2 = self.config.max_accel_mps2
-        if run is not None:
-            # Motion for a run only inside its booked window (a clock stepped back must not
-            # replay the program early).
-            if run.spec.start_at_s <= now_s < run.spec.end_at_s:
-                segment, commanded_mps, self._direction = run.spec.program_at(now_s)
-            accel_mps2 = min(accel_mps2, run.spec.limits.max_accel_mps2)
-        elif manual is not None:
-            commanded_mps, self._direction = manual.velocity_mps, manual.direction
-
-        if estop is not None or self._estop_frame_owed:
+    def _command(self, decision: TickDecision, now_s: float) -> Command:
+        self._direction = decision.direction
+        if decision.stop:
             # The robot brakes by itself on the flag; our ramp restarts from zero after release.
             self._estop_frame_owed = False
             self._setpoint_signed_mps = 0.0
-            command = Command(velocity_mps=0.0, direction=self._direction, estop=True)
+            command = Command(velocity_mps=0.0, direction=decision.direction, estop=True)
         else:
             command = self._slew(
-                now_s, signed_velocity_mps(commanded_mps, self._direction), accel_mps2
+                now_s,
+                signed_velocity_mps(decision.commanded_mps, decision.direction),
+                decision.accel_mps2,
             )
         self._last_tick_s = now_s
+        return command
+
+    def _exchange(self, command: Command, now_s: float) -> Telemetry | None:
+        """One command frame out, one telemetry frame back, or None (counted as lost)."""
         telemetry: Telemetry | None
         try:
             telemetry = self.robot.exchange(command, now_s)
@@ -432,21 +633,32 @@ class RunManager:
             logger.debug("no telemetry at %.3f: %s", now_s, exc)
             telemetry = None
         self._answered.append(telemetry is not None)
+        return telemetry
 
+    def _record_tick(
+        self,
+        decision: TickDecision,
+        command: Command,
+        telemetry: Telemetry | None,
+        now_s: float,
+    ) -> None:
+        """Keep what the tick saw: the battery, the run's sample (finishing the run once its
+        program is over and the robot has stopped), and the snapshot for /status."""
+        run = decision.run
         if telemetry is not None:
             # 0 V is the robot's "not measured yet" (before its first ADC reading after a
             # reset, docs/protocol.md): no real pack reads 0 V, and a median must not take it.
             if math.isfinite(telemetry.battery_v) and telemetry.battery_v > 0:
                 self._battery.add(telemetry.battery_v)
             if run is not None:
-                self._record(run, now_s, segment, commanded_mps, telemetry)
+                self._record(run, now_s, decision.segment, decision.commanded_mps, telemetry)
                 program_over = now_s >= run.spec.start_at_s + run.spec.program_duration_s
                 if (
                     self._active is not None
                     and program_over
                     and telemetry.velocity_mps < STOPPED_BELOW_MPS
                 ):
-                    self._finish(run, now_s, "program finished")
+                    self._end_run(run, COMPLETED, "program finished", now_s)
 
         battery_v = self._battery.battery_v
         threshold_v = self.config.low_battery_v
@@ -471,10 +683,6 @@ class RunManager:
             current_run=self._active.id if self._active is not None else None,
             command=command,
         )
-
-    def _battery_low_for(self, now_s: float) -> float:
-        since_s = self._low_battery_since_s
-        return 0.0 if since_s is None else now_s - since_s
 
     def _slew(self, now_s: float, target_signed_mps: float, accel_mps2: float) -> Command:
         period_s = self.config.control_period_s
@@ -563,33 +771,6 @@ class RunManager:
         active_id = None if self._active is None else self._active.id
         self._schedule = [run for run in self.store.staged_runs() if run.id != active_id]
 
-    def _start_due_run(self, now_s: float) -> RunRecord | None:
-        for record in list(self._schedule):
-            if record.spec.start_at_s > now_s:
-                break  # the schedule is ordered by start: nothing later is due either
-            self._schedule.remove(record)
-            if record.spec.end_at_s <= now_s:
-                reason = "the booked window passed while the agent was not running"
-                self._transition(record.id, STAGED, FAILED, reason, now_s)
-                continue
-            if self.snapshot.battery_low:
-                reason = (
-                    f"not started: battery at {self.snapshot.battery_v:.1f} V, below "
-                    f"{self.config.low_battery_v:g} V (AGENT_LOW_BATTERY_V)"
-                )
-                self._transition(record.id, STAGED, FAILED, reason, now_s)
-                continue
-            late_s = now_s - record.spec.start_at_s
-            reason = "started" if late_s < 1.0 else f"started {late_s:.1f} s late"
-            # Queued with the writer, the start is optimistic: should an HTTP thread have
-            # cancelled the run a moment ago, the writer refuses its samples and the next
-            # refresh lets go of it. A run starts once, so its samples begin at seq 1.
-            if self._transition(record.id, STAGED, RUNNING, reason, now_s) is not False:
-                self._active = record
-                self._next_seq = 1
-                return record
-        return None
-
     def _transition(
         self, run_id: str, from_state: str, to_state: str, reason: str, now_s: float
     ) -> bool | None:
@@ -603,20 +784,8 @@ class RunManager:
         result = self.writer.submit(apply)
         return None if result is None else bool(result)
 
-    def _fail_passed_runs(self, now_s: float, reason: str) -> None:
-        """Runs due but held back (e-stop) stay staged until their window has passed."""
-        for record in list(self._schedule):
-            if record.spec.start_at_s > now_s:
-                break
-            if record.spec.end_at_s <= now_s:
-                self._schedule.remove(record)
-                self._transition(record.id, STAGED, FAILED, reason, now_s)
-
-    def _finish(self, run: RunRecord, now_s: float, reason: str) -> None:
-        self._transition(run.id, RUNNING, COMPLETED, reason, now_s)
-        self._active = None
-
-    def _abort(self, run: RunRecord, now_s: float, reason: str) -> None:
-        """End the run now; the following ticks ramp the robot to zero (no run, no manual)."""
-        self._transition(run.id, RUNNING, ABORTED, reason, now_s)
+    def _end_run(self, run: RunRecord, to_state: str, reason: str, now_s: float) -> None:
+        """End the running run; the following ticks ramp the robot to zero unless another run
+        or a manual command takes it."""
+        self._transition(run.id, RUNNING, to_state, reason, now_s)
         self._active = None

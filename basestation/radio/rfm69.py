@@ -20,6 +20,33 @@ from dataclasses import dataclass, field
 from typing import Final, Protocol
 
 from basestation.radio.registers import (
+    ADDRESS_FILTERING_NODE_OR_BROADCAST,
+    AES_KEY_BYTES,
+    CHIP_VERSION,
+    DIO0_RX_PAYLOAD_READY,
+    DIO0_TX_PACKET_SENT,
+    FIFO_SIZE,
+    FIFOTHRESH_TX_START_NOT_EMPTY,
+    IRQ1_MODE_READY,
+    IRQ2_FIFO_OVERRUN,
+    IRQ2_PACKET_SENT,
+    IRQ2_PAYLOAD_READY,
+    MODE_NAMES,
+    MODE_RX,
+    MODE_SLEEP,
+    MODE_STANDBY,
+    MODE_TX,
+    PACKET1_ADDRESS_FILTERING_SHIFT,
+    PACKET1_CRC_ON,
+    PACKET1_VARIABLE_LENGTH,
+    PACKET2_AES_ON,
+    PACKET2_AUTO_RX_RESTART,
+    PACKET2_INTER_PACKET_RX_DELAY_SHIFT,
+    PACKET2_RESTART_RX,
+    PALEVEL_OUTPUT_POWER_MASK,
+    PALEVEL_PA0_ON,
+    PALEVEL_PA1_ON,
+    PALEVEL_PA2_ON,
     REG_AESKEY1,
     REG_BITRATELSB,
     REG_BITRATEMSB,
@@ -53,50 +80,35 @@ from basestation.radio.registers import (
     REG_SYNCVALUE2,
     REG_TESTDAGC,
     REG_VERSION,
+    SPI_ADDRESS_MASK,
+    SPI_WRITE,
+    SYNCCONFIG_SIZE_SHIFT,
+    SYNCCONFIG_SYNC_ON,
+    TESTDAGC_IMPROVED_LOW_BETA_OFF,
+    dio_mapping1_with_dio0,
+    opmode_with_mode,
 )
 
-SPI_WRITE: Final = 0x80
-
-# RegOpMode: sequencer on, listen off; the mode sits in bits 4..2.
-MODE_SLEEP: Final = 0x00
-MODE_STANDBY: Final = 0x04
-MODE_FS: Final = 0x08
-MODE_TX: Final = 0x0C
-MODE_RX: Final = 0x10
-MODE_MASK: Final = 0x1C
-MODE_NAMES: Final = {
-    MODE_SLEEP: "sleep",
-    MODE_STANDBY: "standby",
-    MODE_FS: "FS",
-    MODE_TX: "TX",
-    MODE_RX: "RX",
-}
-
-IRQ1_MODE_READY: Final = 0x80
-IRQ2_FIFO_OVERRUN: Final = 0x10
-IRQ2_PACKET_SENT: Final = 0x08
-IRQ2_PAYLOAD_READY: Final = 0x04
-PACKET2_RESTART_RX: Final = 0x04
-PACKET2_AES_ON: Final = 0x01
-
-DIO0_PAYLOAD_READY: Final = 0x40  # DIO0 mapping 01 in RX
-DIO0_PACKET_SENT: Final = 0x00  # DIO0 mapping 00 in TX
-
-CHIP_VERSION: Final = 0x24
+# The settings of docs/protocol.md §1 that are not a plain number, in the map's terms.
 SYNC_WORD_1: Final = 0x2D
+SYNC_WORD_BYTES: Final = 2  # SYNC_WORD_1, then the network id
 DEFAULT_NETWORK: Final = 100
-PA_LEVEL_HIGH_POWER: Final = 0x7F  # RFM69HW/HCW: PA1 + PA2 on PA_BOOST, +17 dBm
-PA_LEVEL_LOW_POWER: Final = 0x9F  # RFM69W: PA0, +13 dBm
-PACKET_CONFIG2: Final = 0x12  # inter-packet RX delay 1, auto RX restart on
-AES_KEY_BYTES: Final = 16
-FIFO_BYTES: Final = 66
-MAX_FRAME_BYTES: Final = FIFO_BYTES  # length byte included
+PA_LEVEL_HIGH_POWER: Final = (  # RFM69HW/HCW: PA1 + PA2 on PA_BOOST, +17 dBm
+    PALEVEL_PA1_ON | PALEVEL_PA2_ON | PALEVEL_OUTPUT_POWER_MASK
+)
+PA_LEVEL_LOW_POWER: Final = PALEVEL_PA0_ON | PALEVEL_OUTPUT_POWER_MASK  # RFM69W: PA0, +13 dBm
+# Inter-packet RX delay 1 (2 bit times), auto RX restart on.
+PACKET_CONFIG2: Final = (1 << PACKET2_INTER_PACKET_RX_DELAY_SHIFT) | PACKET2_AUTO_RX_RESTART
+# DIO0 shows PayloadReady in RX and PacketSent in TX; DIO1-3 are unused (mapping 00).
+RX_DIO_MAPPING: Final = dio_mapping1_with_dio0(0x00, DIO0_RX_PAYLOAD_READY)
+TX_DIO_MAPPING: Final = dio_mapping1_with_dio0(0x00, DIO0_TX_PACKET_SENT)
+MAX_FRAME_BYTES: Final = FIFO_SIZE  # length byte included
 MAX_LENGTH_BYTE: Final = MAX_FRAME_BYTES - 1
 
 # docs/protocol.md §1, in the order they are written. Node address, second sync byte, PA
 # level and PacketConfig2 depend on the settings and follow these.
 COMMON_REGISTERS: Final[tuple[tuple[int, int], ...]] = (
-    (REG_OPMODE, MODE_STANDBY),
+    (REG_OPMODE, opmode_with_mode(0x00, MODE_STANDBY)),  # sequencer on, listen off
     (REG_DATAMODUL, 0x00),  # packet mode, FSK, no shaping
     (REG_BITRATEMSB, 0x02),  # 32 MHz / 0x0240 = 55 555 bit/s
     (REG_BITRATELSB, 0x40),
@@ -107,19 +119,26 @@ COMMON_REGISTERS: Final[tuple[tuple[int, int], ...]] = (
     (REG_FRFLSB, 0x00),
     (REG_LNA, 0x88),  # 200 ohm input, gain by AGC
     (REG_RXBW, 0x42),  # DccFreq 010, mantissa 16, exponent 2: 125 kHz
-    (REG_DIOMAPPING1, DIO0_PAYLOAD_READY),
+    (REG_DIOMAPPING1, RX_DIO_MAPPING),
     (REG_DIOMAPPING2, 0x07),  # ClkOut off
     (REG_IRQFLAGS2, IRQ2_FIFO_OVERRUN),  # clears the FIFO
     (REG_RSSITHRESH, 0xDC),  # -110 dBm
     (REG_PREAMBLEMSB, 0x00),
     (REG_PREAMBLELSB, 0x03),  # 3-byte preamble
-    (REG_SYNCCONFIG, 0x88),  # sync on, 2 bytes, no bit errors tolerated
+    # Sync on, 2 bytes, no bit errors tolerated.
+    (REG_SYNCCONFIG, SYNCCONFIG_SYNC_ON | (SYNC_WORD_BYTES - 1) << SYNCCONFIG_SIZE_SHIFT),
     (REG_SYNCVALUE1, SYNC_WORD_1),
-    (REG_PACKETCONFIG1, 0x94),  # variable length, CRC on, auto clear, node or broadcast
-    (REG_PAYLOADLENGTH, FIFO_BYTES),  # longest frame accepted in RX
+    (  # variable length, CRC on, auto clear, node or broadcast
+        REG_PACKETCONFIG1,
+        PACKET1_VARIABLE_LENGTH
+        | PACKET1_CRC_ON
+        | ADDRESS_FILTERING_NODE_OR_BROADCAST << PACKET1_ADDRESS_FILTERING_SHIFT,
+    ),
+    (REG_PAYLOADLENGTH, FIFO_SIZE),  # longest frame accepted in RX
     (REG_BROADCASTADRS, 0xFF),
-    (REG_FIFOTHRESH, 0x8F),  # TX starts as soon as the FIFO is not empty
-    (REG_TESTDAGC, 0x30),  # continuous DAGC, improved fading margin
+    # TX starts as soon as the FIFO is not empty (the level, 15, is the reset value).
+    (REG_FIFOTHRESH, FIFOTHRESH_TX_START_NOT_EMPTY | 0x0F),
+    (REG_TESTDAGC, TESTDAGC_IMPROVED_LOW_BETA_OFF),  # continuous DAGC, improved fading margin
 )
 # Registers that hold what was written (RegOpMode and RegIrqFlags2 change by themselves,
 # the AES key is write-only): read back after initialisation to prove the chip took them.
@@ -224,7 +243,7 @@ class RFM69:
         self.packet_sent_timeout_s = packet_sent_timeout_s
         self.poll_interval_s = poll_interval_s
         self.mode_poll_interval_s = mode_poll_interval_s
-        self.mode: int | None = None
+        self.mode: int | None = None  # the RegOpMode mode field value last set (MODE_*)
         self.last_rssi_dbm: float | None = None
         self.frames_sent = 0
         self.frames_received = 0
@@ -242,13 +261,13 @@ class RFM69:
         return list(answer)
 
     def read_register(self, address: int) -> int:
-        return self._xfer([address & 0x7F, 0])[1]
+        return self._xfer([address & SPI_ADDRESS_MASK, 0])[1]
 
     def write_register(self, address: int, value: int) -> None:
         self._xfer([address | SPI_WRITE, value & 0xFF])
 
     def read_burst(self, address: int, count: int) -> bytes:
-        return bytes(self._xfer([address & 0x7F] + [0] * count)[1:])
+        return bytes(self._xfer([address & SPI_ADDRESS_MASK] + [0] * count)[1:])
 
     def write_burst(self, address: int, values: Sequence[int]) -> None:
         self._xfer([address | SPI_WRITE, *values])
@@ -302,9 +321,10 @@ class RFM69:
     # -- modes -------------------------------------------------------------------------------
 
     def set_mode(self, mode: int) -> None:
-        """Switch the operating mode and wait for ModeReady (bounded)."""
+        """Switch to ``mode`` (a mode field value, ``MODE_*``) and wait for ModeReady
+        (bounded)."""
         opmode = self.read_register(REG_OPMODE)
-        self.write_register(REG_OPMODE, (opmode & ~MODE_MASK & 0xFF) | mode)
+        self.write_register(REG_OPMODE, opmode_with_mode(opmode, mode))
         self.mode = mode
         self._wait(
             lambda: bool(self.read_register(REG_IRQFLAGS1) & IRQ1_MODE_READY),
@@ -318,7 +338,7 @@ class RFM69:
         if self.read_register(REG_IRQFLAGS2) & IRQ2_PAYLOAD_READY:
             packet_config2 = self.read_register(REG_PACKETCONFIG2)
             self.write_register(REG_PACKETCONFIG2, packet_config2 | PACKET2_RESTART_RX)
-        self.write_register(REG_DIOMAPPING1, DIO0_PAYLOAD_READY)
+        self.write_register(REG_DIOMAPPING1, RX_DIO_MAPPING)
         self.set_mode(MODE_RX)
 
     def standby(self) -> None:
@@ -348,7 +368,7 @@ class RFM69:
         self.set_mode(MODE_STANDBY)
         self.clear_fifo()
         self.write_burst(REG_FIFO, list(frame))
-        self.write_register(REG_DIOMAPPING1, DIO0_PACKET_SENT)
+        self.write_register(REG_DIOMAPPING1, TX_DIO_MAPPING)
         try:
             self.set_mode(MODE_TX)
             self._wait(

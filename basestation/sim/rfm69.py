@@ -45,17 +45,56 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Protocol
 
-from basestation.radio.registers import (  # noqa: F401 (the datasheet map)
+from basestation.radio.registers import (
+    ADDRESS_FILTERING_NODE_OR_BROADCAST,
+    AES_KEY_BYTES,
+    FIFO_SIZE,
+    FIFOTHRESH_LEVEL_MASK,
+    FIFOTHRESH_TX_START_NOT_EMPTY,
+    IRQ1_MODE_READY,
+    IRQ1_PLL_LOCK,
+    IRQ1_RSSI,
+    IRQ1_RX_READY,
+    IRQ1_SYNC_ADDRESS_MATCH,
+    IRQ1_TX_READY,
+    IRQ2_CRC_OK,
+    IRQ2_FIFO_FULL,
+    IRQ2_FIFO_LEVEL,
+    IRQ2_FIFO_NOT_EMPTY,
+    IRQ2_FIFO_OVERRUN,
+    IRQ2_PACKET_SENT,
+    IRQ2_PAYLOAD_READY,
+    MODE_FS,
+    MODE_NAMES,
+    MODE_RX,
+    MODE_SLEEP,
+    MODE_STANDBY,
+    MODE_TX,
+    OPMODE_UNUSED_MASK,
+    OSC1_RCCAL_DONE,
+    OSC1_RCCAL_START,
+    PACKET1_ADDRESS_FILTERING_MASK,
+    PACKET1_ADDRESS_FILTERING_SHIFT,
+    PACKET1_CRC_AUTO_CLEAR_OFF,
+    PACKET1_CRC_ON,
+    PACKET1_VARIABLE_LENGTH,
+    PACKET2_AES_ON,
+    PACKET2_AUTO_RX_RESTART,
+    PACKET2_INTER_PACKET_RX_DELAY_SHIFT,
+    PACKET2_RESTART_RX,
+    PALEVEL_OUTPUT_POWER_MASK,
+    PALEVEL_PA0_ON,
+    PALEVEL_PA1_ON,
+    PALEVEL_PA2_ON,
     REG_AESKEY1,
-    REG_AFCFEI,
+    REG_AFCLSB,
+    REG_AFCMSB,
     REG_BITRATELSB,
     REG_BITRATEMSB,
     REG_BROADCASTADRS,
-    REG_DATAMODUL,
     REG_DIOMAPPING1,
-    REG_DIOMAPPING2,
-    REG_FDEVLSB,
-    REG_FDEVMSB,
+    REG_FEILSB,
+    REG_FEIMSB,
     REG_FIFO,
     REG_FIFOTHRESH,
     REG_FRFLSB,
@@ -63,7 +102,6 @@ from basestation.radio.registers import (  # noqa: F401 (the datasheet map)
     REG_FRFMSB,
     REG_IRQFLAGS1,
     REG_IRQFLAGS2,
-    REG_LNA,
     REG_NODEADRS,
     REG_OPMODE,
     REG_OSC1,
@@ -76,15 +114,26 @@ from basestation.radio.registers import (  # noqa: F401 (the datasheet map)
     REG_RSSICONFIG,
     REG_RSSITHRESH,
     REG_RSSIVALUE,
-    REG_RXBW,
     REG_SYNCCONFIG,
     REG_SYNCVALUE1,
     REG_TEMP1,
     REG_TEMP2,
-    REG_TESTDAGC,
     REG_TESTPA1,
     REG_TESTPA2,
     REG_VERSION,
+    RESET_VALUES,
+    RSSICONFIG_DONE,
+    RSSICONFIG_START,
+    SPI_ADDRESS_MASK,
+    SPI_WRITE,
+    SYNCCONFIG_SIZE_MASK,
+    SYNCCONFIG_SIZE_SHIFT,
+    SYNCCONFIG_SYNC_ON,
+    TESTPA1_BOOST,
+    TESTPA2_BOOST,
+    dio0_mapping,
+    opmode_mode,
+    opmode_with_mode,
 )
 from basestation.sim.channel import (
     FXOSC_HZ,
@@ -99,60 +148,10 @@ from basestation.sim.channel import (
 )
 from basestation.sim.clock import Clock
 
-# --- RegOpMode --------------------------------------------------------------------------------
-MODE_SLEEP: Final = 0
-MODE_STANDBY: Final = 1
-MODE_FS: Final = 2
-MODE_TX: Final = 3
-MODE_RX: Final = 4
-MODE_NAMES: Final = {0: "sleep", 1: "standby", 2: "fs", 3: "tx", 4: "rx"}
-OPMODE_MODE_MASK: Final = 0x1C
-
-# --- RegIrqFlags1 / 2 -------------------------------------------------------------------------
-IRQ1_MODE_READY: Final = 0x80
-IRQ1_RX_READY: Final = 0x40
-IRQ1_TX_READY: Final = 0x20
-IRQ1_PLL_LOCK: Final = 0x10
-IRQ1_RSSI: Final = 0x08
-IRQ1_TIMEOUT: Final = 0x04
-IRQ1_AUTO_MODE: Final = 0x02
-IRQ1_SYNC_ADDRESS_MATCH: Final = 0x01
-IRQ2_FIFO_FULL: Final = 0x80
-IRQ2_FIFO_NOT_EMPTY: Final = 0x40
-IRQ2_FIFO_LEVEL: Final = 0x20
-IRQ2_FIFO_OVERRUN: Final = 0x10
-IRQ2_PACKET_SENT: Final = 0x08
-IRQ2_PAYLOAD_READY: Final = 0x04
-IRQ2_CRC_OK: Final = 0x02
-IRQ2_LOW_BAT: Final = 0x01
-
-PACKET2_RESTART_RX: Final = 0x04
-PACKET2_AUTO_RX_RESTART: Final = 0x02
-PACKET2_AES_ON: Final = 0x01
-
-FIFO_SIZE: Final = 66
-VERSION: Final = 0x24
-
-#: SX1231 datasheet, "Reset" column of the register summary (values after power-on reset).
-RESET_VALUES: Final[dict[int, int]] = {
-    0x01: 0x04, 0x02: 0x00, 0x03: 0x1A, 0x04: 0x0B, 0x05: 0x00, 0x06: 0x52,
-    0x07: 0xE4, 0x08: 0xC0, 0x09: 0x00, 0x0A: 0x41, 0x0B: 0x00, 0x0C: 0x02,
-    0x0D: 0x92, 0x0E: 0xF5, 0x0F: 0x20, 0x10: VERSION, 0x11: 0x9F, 0x12: 0x09,
-    0x13: 0x1A, 0x14: 0x40, 0x15: 0xB0, 0x16: 0x7B, 0x17: 0x9B, 0x18: 0x08,
-    0x19: 0x86, 0x1A: 0x8A, 0x1B: 0x40, 0x1C: 0x80, 0x1D: 0x06, 0x1E: 0x10,
-    0x1F: 0x00, 0x20: 0x00, 0x21: 0x00, 0x22: 0x00, 0x23: 0x02, 0x24: 0xFF,
-    0x25: 0x00, 0x26: 0x05, 0x27: 0x80, 0x28: 0x00, 0x29: 0xFF, 0x2A: 0x00,
-    0x2B: 0x00, 0x2C: 0x00, 0x2D: 0x03, 0x2E: 0x98,
-    **{address: 0x00 for address in range(0x2F, 0x37)},  # RegSyncValue1..8
-    0x37: 0x10, 0x38: 0x40, 0x39: 0x00, 0x3A: 0x00, 0x3B: 0x00, 0x3C: 0x0F,
-    0x3D: 0x02,
-    **{address: 0x00 for address in range(0x3E, 0x4E)},  # RegAesKey1..16
-    0x4E: 0x01, 0x4F: 0x00, 0x58: 0x1B, 0x59: 0x09, 0x5A: 0x55, 0x5C: 0x70,
-    0x5F: 0x08, 0x6F: 0x00, 0x71: 0x00,
-}  # fmt: skip
-
 #: Registers (or bits) the chip alone writes; SPI writes to them are ignored.
-_READ_ONLY: Final = frozenset({REG_VERSION, REG_RSSIVALUE, 0x1F, 0x20, 0x21, 0x22, REG_TEMP2})
+_READ_ONLY: Final = frozenset(
+    {REG_VERSION, REG_RSSIVALUE, REG_AFCMSB, REG_AFCLSB, REG_FEIMSB, REG_FEILSB, REG_TEMP2}
+)
 
 
 class SpiDevice(Protocol):
@@ -237,7 +236,7 @@ class EmulatedRFM69:
     # --- power and reset ----------------------------------------------------------------------
 
     def _power_on(self, now_s: float) -> None:
-        self._regs = bytearray(0x80)
+        self._regs = bytearray(SPI_ADDRESS_MASK + 1)
         for address, value in RESET_VALUES.items():
             self._regs[address] = value
         self._fifo = bytearray()
@@ -287,8 +286,8 @@ class EmulatedRFM69:
         with self._lock:
             now_s = self._clock()
             self._update(now_s)
-            address = values[0] & 0x7F
-            write = bool(values[0] & 0x80)
+            address = values[0] & SPI_ADDRESS_MASK
+            write = bool(values[0] & SPI_WRITE)
             answer = [0x00]
             for value in values[1:]:
                 if write:
@@ -296,7 +295,7 @@ class EmulatedRFM69:
                 else:
                     answer.append(self._read(address, now_s))
                 if address != REG_FIFO:
-                    address = (address + 1) & 0x7F
+                    address = (address + 1) & SPI_ADDRESS_MASK
             self._maybe_start_tx(now_s)
             return answer
 
@@ -310,7 +309,7 @@ class EmulatedRFM69:
         with self._lock:
             now_s = self._clock()
             self._update(now_s)
-            mapping = (self._regs[REG_DIOMAPPING1] >> 6) & 0x03
+            mapping = dio0_mapping(self._regs[REG_DIOMAPPING1])
             flags1 = self._irq_flags1(now_s)
             if self._mode == MODE_RX:
                 return bool(
@@ -380,7 +379,7 @@ class EmulatedRFM69:
             flags |= IRQ2_FIFO_FULL
         if count:
             flags |= IRQ2_FIFO_NOT_EMPTY
-        if count > (self._regs[REG_FIFOTHRESH] & 0x7F):
+        if count > (self._regs[REG_FIFOTHRESH] & FIFOTHRESH_LEVEL_MASK):
             flags |= IRQ2_FIFO_LEVEL
         if self._fifo_overrun:
             flags |= IRQ2_FIFO_OVERRUN
@@ -405,7 +404,7 @@ class EmulatedRFM69:
         if address == REG_IRQFLAGS2:
             return self._irq_flags2()
         if address == REG_RSSICONFIG:
-            return 0x02 if self._rssi_done else 0x00
+            return RSSICONFIG_DONE if self._rssi_done else 0x00
         return self._regs[address]
 
     def _write(self, address: int, value: int, now_s: float) -> int:
@@ -419,12 +418,12 @@ class EmulatedRFM69:
         if address in _READ_ONLY:
             return old
         if address == REG_OPMODE:
-            mode = (value & OPMODE_MODE_MASK) >> 2
+            mode = opmode_mode(value)
             if mode in MODE_NAMES:
-                self._regs[address] = value & 0xFC  # bits 1-0 unused
+                self._regs[address] = value & ~OPMODE_UNUSED_MASK & 0xFF
                 self._set_mode(mode, now_s)
             else:  # a reserved mode: keep the running one
-                self._regs[address] = (value & ~OPMODE_MODE_MASK & 0xFC) | (self._mode << 2)
+                self._regs[address] = opmode_with_mode(value & ~OPMODE_UNUSED_MASK, self._mode)
         elif address == REG_IRQFLAGS1:
             # Rssi and SyncAddressMatch clear on writing 1; the rest is the chip's.
             if value & IRQ1_RSSI:
@@ -436,7 +435,7 @@ class EmulatedRFM69:
                 self._fifo_overrun = False
                 self._clear_fifo(now_s)
         elif address == REG_RSSICONFIG:
-            if value & 0x01 and self._mode == MODE_RX:
+            if value & RSSICONFIG_START and self._mode == MODE_RX:
                 self._regs[REG_RSSIVALUE] = self._rssi_register(self._rssi_now(now_s))
                 self._rssi_done = True
         elif address == REG_PACKETCONFIG2:
@@ -444,9 +443,11 @@ class EmulatedRFM69:
             if value & PACKET2_RESTART_RX:
                 self._restart_rx(now_s)
         elif address == REG_OSC1:
-            self._regs[address] = (value & 0x7F) | 0x40  # RcCalStart: calibration done at once
+            # RcCalStart: the calibration is done at once.
+            self._regs[address] = (value & ~OSC1_RCCAL_START & 0xFF) | OSC1_RCCAL_DONE
         elif address == REG_TEMP1:
-            self._regs[address] = 0x01  # TempMeasStart finishes at once; not running
+            # TempMeasStart finishes at once: not running, as after reset.
+            self._regs[address] = RESET_VALUES[REG_TEMP1]
         else:
             self._regs[address] = value
         return old
@@ -495,7 +496,9 @@ class EmulatedRFM69:
         if had_packet:
             self._sync_match = False
             if self._mode == MODE_RX and self._regs[REG_PACKETCONFIG2] & PACKET2_AUTO_RX_RESTART:
-                delay_bits = 2 ** (self._regs[REG_PACKETCONFIG2] >> 4)
+                delay_bits = 2 ** (
+                    self._regs[REG_PACKETCONFIG2] >> PACKET2_INTER_PACKET_RX_DELAY_SHIFT
+                )
                 self._listen_from = max(now_s, self._mode_ready_at) + delay_bits / self._bitrate()
 
     # --- air settings from the registers ------------------------------------------------------
@@ -510,26 +513,30 @@ class EmulatedRFM69:
         return bool(self._regs[REG_PACKETCONFIG2] & PACKET2_AES_ON)
 
     def _variable_length(self) -> bool:
-        return bool(self._regs[REG_PACKETCONFIG1] & 0x80)
+        return bool(self._regs[REG_PACKETCONFIG1] & PACKET1_VARIABLE_LENGTH)
 
     def _crc_on(self) -> bool:
-        return bool(self._regs[REG_PACKETCONFIG1] & 0x10)
+        return bool(self._regs[REG_PACKETCONFIG1] & PACKET1_CRC_ON)
 
     def _address_filtering(self) -> int:
-        return (self._regs[REG_PACKETCONFIG1] >> 1) & 0x03
+        return (
+            self._regs[REG_PACKETCONFIG1] & PACKET1_ADDRESS_FILTERING_MASK
+        ) >> PACKET1_ADDRESS_FILTERING_SHIFT
 
     def _sync_bytes(self) -> bytes:
         config = self._regs[REG_SYNCCONFIG]
-        if not config & 0x80:
+        if not config & SYNCCONFIG_SYNC_ON:
             return b""
-        size = ((config >> 3) & 0x07) + 1
+        size = ((config & SYNCCONFIG_SIZE_MASK) >> SYNCCONFIG_SIZE_SHIFT) + 1
         return bytes(self._regs[REG_SYNCVALUE1 : REG_SYNCVALUE1 + size])
 
     def signature(self) -> AirSignature:
         frf = (
             (self._regs[REG_FRFMSB] << 16) | (self._regs[REG_FRFMID] << 8) | self._regs[REG_FRFLSB]
         )
-        key = bytes(self._regs[REG_AESKEY1 : REG_AESKEY1 + 16]) if self._aes_on() else None
+        key = (
+            bytes(self._regs[REG_AESKEY1 : REG_AESKEY1 + AES_KEY_BYTES]) if self._aes_on() else None
+        )
         return AirSignature(
             frf=frf,
             bitrate_raw=self._bitrate_raw(),
@@ -542,11 +549,14 @@ class EmulatedRFM69:
     def tx_power_dbm(self) -> float:
         """Output power from RegPaLevel (and the +20 dBm test registers of the RFM69HW)."""
         pa = self._regs[REG_PALEVEL]
-        level = pa & 0x1F
-        if pa & 0x40 and pa & 0x20:  # PA1 + PA2 on PA_BOOST
-            boost = self._regs[REG_TESTPA1] == 0x5D and self._regs[REG_TESTPA2] == 0x7C
+        level = pa & PALEVEL_OUTPUT_POWER_MASK
+        if pa & PALEVEL_PA1_ON and pa & PALEVEL_PA2_ON:  # PA1 + PA2 on PA_BOOST
+            boost = (
+                self._regs[REG_TESTPA1] == TESTPA1_BOOST
+                and self._regs[REG_TESTPA2] == TESTPA2_BOOST
+            )
             return -11.0 + level if boost else -14.0 + level
-        if pa & 0xE0:  # PA0 alone or PA1 alone
+        if pa & (PALEVEL_PA0_ON | PALEVEL_PA1_ON | PALEVEL_PA2_ON):  # PA0 alone or PA1 alone
             return -18.0 + level
         return -60.0  # no amplifier enabled: practically nothing leaves the antenna
 
@@ -582,9 +592,9 @@ class EmulatedRFM69:
     # --- transmission -------------------------------------------------------------------------
 
     def _tx_start_condition(self) -> bool:
-        if self._regs[REG_FIFOTHRESH] & 0x80:
+        if self._regs[REG_FIFOTHRESH] & FIFOTHRESH_TX_START_NOT_EMPTY:
             return bool(self._fifo)
-        return len(self._fifo) > (self._regs[REG_FIFOTHRESH] & 0x7F)
+        return len(self._fifo) > (self._regs[REG_FIFOTHRESH] & FIFOTHRESH_LEVEL_MASK)
 
     def _maybe_start_tx(self, now_s: float) -> None:
         if self._mode != MODE_TX or self._tx_state != "idle" or not self._tx_start_condition():
@@ -688,14 +698,18 @@ class EmulatedRFM69:
             offset = 1 if mine.variable_length else 0
             destination = data[offset] if len(data) > offset else -1
             accepted = {self._regs[REG_NODEADRS]}
-            if filtering == 0x02:
+            if filtering == ADDRESS_FILTERING_NODE_OR_BROADCAST:
                 accepted.add(self._regs[REG_BROADCASTADRS])
             if destination not in accepted:
                 self.frames_dropped += 1
                 self._listen_from = restart_at
                 return
         self._sync_match = True
-        if crc_failed and mine.crc_on and not self._regs[REG_PACKETCONFIG1] & 0x08:
+        if (
+            crc_failed
+            and mine.crc_on
+            and not self._regs[REG_PACKETCONFIG1] & PACKET1_CRC_AUTO_CLEAR_OFF
+        ):
             # CrcAutoClearOff = 0: the FIFO is cleared and the packet never shows up.
             self.frames_dropped += 1
             self._sync_match = False

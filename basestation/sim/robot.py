@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any, Final
 
 from basestation.protocol import BROADCAST_NODE, TelemetryStatus
+from basestation.radio.registers import FIFO_SIZE
 from basestation.sim.channel import (
     AirFrame,
     AirPort,
@@ -51,7 +52,6 @@ TICK_MS: Final = 1  # the Arduino's loop runs at least this often
 IDLE_SKIP_MS: Final = 5000
 BATTERY_PERIOD_MS: Final = 20
 WHEEL_PERIOD_MS: Final = 100
-RFM69_FIFO: Final = 66
 #: docs/protocol.md §1 carrier and bit rate registers.
 FRF_433_MHZ: Final = 0x6C4000
 BITRATE_55K5: Final = 0x0240
@@ -186,7 +186,7 @@ class FrameRadio:
             and not reception.truncated
             and frame.signature.crc_on
             and frame.signature.variable_length
-            and 2 <= len(data) <= RFM69_FIFO
+            and 2 <= len(data) <= FIFO_SIZE
             and data[0] == len(data) - 1
             and data[1] in (self.config.node, BROADCAST_NODE)
         )
