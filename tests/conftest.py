@@ -7,6 +7,7 @@ import os
 import pytest
 from rest_framework.test import APIClient
 
+from portal.celery import app as celery_app
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 
 # The real-process stack (agent, web, worker, beat) for integration and browser tests.
@@ -78,3 +79,14 @@ def api(owner) -> APIClient:
 @pytest.fixture
 def client_for():
     return _client
+
+
+@pytest.fixture
+def eager_tasks():
+    """Run queued tasks in-process, so a unit test sees their effects and e-mails (the
+    integration tests exercise the real worker)."""
+    celery_app.conf.task_always_eager = True
+    celery_app.conf.task_eager_propagates = True
+    yield
+    celery_app.conf.task_always_eager = False
+    celery_app.conf.task_eager_propagates = False

@@ -15,7 +15,6 @@ from bookings.reminders import reservations_due_for_reminder
 from bookings.services import blackout_create
 from bookings.tasks import reservations_remind
 from portal.audit.models import AuditEvent
-from portal.celery import app as celery_app
 from portal.errors import Conflict, InvalidInput, NotAllowed
 from portal.runs.services.booking import (
     booking_cancel,
@@ -27,17 +26,6 @@ from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
 
 pytestmark = pytest.mark.django_db
-
-
-@pytest.fixture
-def eager_tasks():
-    """Run queued tasks in-process, so a unit test sees their e-mails (the integration test
-    exercises the real worker)."""
-    celery_app.conf.task_always_eager = True
-    celery_app.conf.task_eager_propagates = True
-    yield
-    celery_app.conf.task_always_eager = False
-    celery_app.conf.task_eager_propagates = False
 
 
 def _slot(hours_ahead: float = 24, length_h: float = 1):

@@ -85,7 +85,8 @@ def wait_http(url: str, timeout_s: float, procs: list[Proc]) -> None:
         try:
             requests.get(url, timeout=1)
             return
-        except requests.ConnectionError:
+        except requests.RequestException:
+            # Refused while the server starts, or too slow to answer under load: try again.
             time.sleep(0.2)
     raise AssertionError(f"{url} did not answer\n" + "\n".join(p.output() for p in procs))
 
