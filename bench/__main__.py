@@ -80,7 +80,7 @@ def main() -> None:
     parser.add_argument(
         "benchmarks",
         nargs="*",
-        help="which to run: telemetry, bookings, agent, timing (default: all)",
+        help="which to run: telemetry, bookings, scheduler, agent, timing (default: all)",
     )
     parser.add_argument("--samples", type=int, default=72_000, help="samples of the long run")
     parser.add_argument(
@@ -88,7 +88,7 @@ def main() -> None:
     )
     parser.add_argument("--no-report", action="store_true", help="print only")
     args = parser.parse_args()
-    known = ["telemetry", "bookings", "agent", "timing"]
+    known = ["telemetry", "bookings", "scheduler", "agent", "timing"]
     # Checked here: argparse rejects an empty list against ``choices`` with nargs="*".
     unknown = sorted(set(args.benchmarks) - set(known))
     if unknown:
@@ -98,6 +98,8 @@ def main() -> None:
         _telemetry(args.samples, report=not args.no_report)
     if "bookings" in which:
         _bookings(report=not args.no_report)
+    if "scheduler" in which:
+        _scheduler(report=not args.no_report)
     if "agent" in which:
         _agent(args.agent_seconds, report=not args.no_report)
     if "timing" in which:
@@ -148,6 +150,15 @@ def _bookings(*, report: bool) -> None:
         return bookings.run()
 
     _on_scratch_database("bookings", run, report=report)
+
+
+def _scheduler(*, report: bool) -> None:
+    def run() -> str:
+        from bench import scheduler
+
+        return scheduler.run()
+
+    _on_scratch_database("scheduler", run, report=report)
 
 
 def _agent(seconds: float, *, report: bool) -> None:

@@ -1,4 +1,5 @@
 from django.contrib import admin
+from django.http import HttpRequest
 
 from bookings.models import (
     Blackout,
@@ -7,6 +8,8 @@ from bookings.models import (
     ReservationItem,
     Resource,
     ResourceGroup,
+    SchedulerLease,
+    SchedulerLink,
 )
 
 
@@ -60,3 +63,28 @@ class QuotaPolicyAdmin(admin.ModelAdmin):
         "active",
     ]
     list_filter = ["active", "period"]
+
+
+class ReadOnlyAdmin(admin.ModelAdmin):
+    """What the scheduler sweep keeps: shown, never edited by hand."""
+
+    def has_add_permission(self, request: HttpRequest) -> bool:
+        return False
+
+    def has_change_permission(self, request: HttpRequest, obj: object = None) -> bool:
+        return False
+
+    def has_delete_permission(self, request: HttpRequest, obj: object = None) -> bool:
+        return False
+
+
+@admin.register(SchedulerLease)
+class SchedulerLeaseAdmin(ReadOnlyAdmin):
+    list_display = ["name", "account_name", "status", "holds", "start_at", "end_at", "reservation"]
+    list_filter = ["holds", "status"]
+    search_fields = ["name", "uuid", "account_name"]
+
+
+@admin.register(SchedulerLink)
+class SchedulerLinkAdmin(ReadOnlyAdmin):
+    list_display = ["last_success_at", "last_error_at", "leases_seen", "orphans_cancelled"]

@@ -16,7 +16,7 @@ from bookings import services
 from bookings.choices import QuotaPeriod
 from bookings.models import Blackout, QuotaPolicy, Resource, ResourceGroup
 from bookings.quotas import quota_summary
-from bookings.selectors import items_overlapping, resource_free_intervals
+from bookings.selectors import external_leases, items_overlapping, resource_free_intervals
 from portal.accounts.models import User
 from portal.api import request_user, valid_input
 from portal.audit.services import client_ip
@@ -114,7 +114,19 @@ class BusyApi(APIView):
                 },
             )
             entry["resources"].append(item.resource.name)
-        return Response(BusyOutput(list(busy.values()), many=True).data)
+        rows = list(busy.values())
+        # Leases made on the testbed scheduler hold their fixed nodes just the same.
+        rows += [
+            {
+                "resources": [r.name for r in lease.resources.all()],
+                "start_at": lease.start_at,
+                "end_at": lease.end_at,
+                "state": "leased",
+            }
+            for lease in external_leases(query["start"], query["end"])
+        ]
+        rows.sort(key=lambda row: row["start_at"])
+        return Response(BusyOutput(rows, many=True).data)
 
 
 class QuotaApi(APIView):

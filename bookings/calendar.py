@@ -16,13 +16,14 @@ from icalendar import Calendar, Event
 
 from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState
 from bookings.models import Blackout, CalendarFeed, Reservation, Resource
+from bookings.selectors import external_leases
 from portal.accounts.models import User
 
 
 @dataclass(frozen=True)
 class Entry:
     uid: str
-    kind: str  # "own", "busy", "blackout"
+    kind: str  # "own", "other", "busy", "blackout", "lease"
     title: str
     start_at: datetime
     end_at: datetime
@@ -102,6 +103,24 @@ def calendar_entries(
                     resources=names,
                 )
             )
+        entries += _lease_entries(start_at, end_at, resource)
+    return entries
+
+
+def _lease_entries(start_at: datetime, end_at: datetime, resource: Resource | None) -> list[Entry]:
+    entries = []
+    for lease in external_leases(start_at, end_at, resource):
+        names = tuple(r.name for r in lease.resources.all()) or tuple(lease.components)
+        entries.append(
+            Entry(
+                uid=f"lease-{lease.uuid}",
+                kind="lease",
+                title=f"Leased on the testbed scheduler: {lease.name} [{', '.join(names)}]",
+                start_at=lease.start_at,
+                end_at=lease.end_at,
+                resources=names,
+            )
+        )
     return entries
 
 

@@ -28,3 +28,8 @@ class QuotaPeriod(models.TextChoices):
     DAY = "day", "day"
     WEEK = "week", "week (Monday to Sunday)"
     MONTH = "month", "calendar month"
+
+
+class BookedVia(models.TextChoices):
+    PORTAL = "portal", "the portal (pages or API)"
+    SCHEDULER = "scheduler", "the testbed scheduler's lease API"

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import uuid
 from datetime import datetime
 from typing import TypeVar
 from urllib.parse import urlsplit
@@ -9,7 +10,7 @@ from django.contrib.auth.models import Group
 from django.core.exceptions import ValidationError
 from django.db import models
 
-from bookings.choices import QuotaPeriod, ReservationState, ResourceKind
+from bookings.choices import BookedVia, QuotaPeriod, ReservationState, ResourceKind
 
 _Timed = TypeVar("_Timed", bound=models.Model)
 
@@ -128,8 +129,18 @@ class Reservation(models.Model):
         related_name="+",
     )
     cancel_reason = models.TextField(blank=True)
-    # A maintenance window declared after the booking overlaps it: shown to owner and admins.
+    # A maintenance window declared after the booking overlaps it, or a lease on the testbed's
+    # scheduler appeared over it, or its own lease vanished there: shown to owner and admins.
     conflict = models.TextField(blank=True)
+    # The reservation's own id outside the portal: the lease on the testbed's scheduler that
+    # holds its scheduler-owned nodes is named after it (before the reservation is committed),
+    # and the inbound lease API answers it as the lease's uuid.
+    public_id = models.UUIDField(default=uuid.uuid4, unique=True, editable=False)
+    # That lease's uuid on the scheduler; empty when the booking holds no scheduler-owned node.
+    lease_uuid = models.CharField(max_length=64, blank=True)
+    booked_via = models.CharField(
+        max_length=16, choices=BookedVia.choices, default=BookedVia.PORTAL, editable=False
+    )
     reminder_sent_at = models.DateTimeField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
@@ -146,6 +157,13 @@ class Reservation(models.Model):
             models.CheckConstraint(
                 condition=models.Q(end_at__gt=models.F("start_at")),
                 name="reservation_end_after_start",
+            ),
+        ]
+        permissions = [
+            (
+                "lease_inbound",
+                "May book the mobile nodes for testbed users through the lease API "
+                "(the testbed scheduler's service account)",
             ),
         ]
 
@@ -277,3 +295,57 @@ class CalendarFeed(models.Model):
 
     def __str__(self) -> str:
         return f"feed of {self.user}"
+
+
+class SchedulerLease(models.Model):
+    """A lease on the testbed's scheduler, as the portal last saw it (the mirror).
+
+    Leases the portal made for its bookings are linked to their reservation; the others were
+    made elsewhere and block portal bookings of their nodes while they hold them.
+    """
+
+    uuid = models.CharField(max_length=64, unique=True)
+    name = models.CharField(max_length=200)
+    start_at = models.DateTimeField()
+    end_at = models.DateTimeField()
+    status = models.CharField(max_length=16)
+    account_name = models.CharField(max_length=150, blank=True)
+    # Every node the lease holds, as the scheduler names them; ``resources`` are those of them
+    # that are resources here.
+    components = models.JSONField(default=list)
+    resources = models.ManyToManyField(Resource, blank=True, related_name="scheduler_leases")
+    reservation = models.ForeignKey(
+        Reservation, null=True, blank=True, on_delete=models.SET_NULL, related_name="leases"
+    )
+    # Accepted or active with nodes: it keeps them from everyone else.
+    holds = models.BooleanField(default=False)
+    first_seen_at = models.DateTimeField(auto_now_add=True)
+    seen_at = models.DateTimeField()
+    # No longer listed by the scheduler (cancelled, deleted or long past).
+    gone_at = models.DateTimeField(null=True, blank=True)
+
+    objects = PeriodQuerySet["SchedulerLease"].as_manager()
+
+    class Meta:
+        ordering = ["start_at"]
+        indexes = [models.Index(fields=["holds", "start_at", "end_at"])]
+
+    def __str__(self) -> str:
+        return f"lease {self.name} ({self.status})"
+
+
+class SchedulerLink(models.Model):
+    """How the portal's link to the testbed's scheduler is doing (one row)."""
+
+    last_attempt_at = models.DateTimeField(null=True, blank=True)
+    last_success_at = models.DateTimeField(null=True, blank=True)
+    last_error = models.TextField(blank=True)
+    last_error_at = models.DateTimeField(null=True, blank=True)
+    # How long the last successful sweep took, and what it found.
+    last_sweep_s = models.FloatField(null=True, blank=True)
+    leases_seen = models.PositiveIntegerField(default=0)
+    orphans_cancelled = models.PositiveIntegerField(default=0)
+    bookings_flagged = models.PositiveIntegerField(default=0)
+
+    def __str__(self) -> str:
+        return "link to the testbed scheduler"

@@ -21,7 +21,11 @@ SUBJECTS = {
     "cancelled_by_admin": "Your booking was cancelled by an admin: {what}",
     "blackout_conflict": "Maintenance overlaps a booking: {what}",
     "reminder": "Reminder: {what} starts soon",
+    "lease_conflict": "A lease on the testbed scheduler overlaps a booking: {what}",
+    "lease_vanished": "A booking lost its lease on the testbed scheduler: {what}",
 }
+# Kinds the admins are told of too: pending requests and bookings something went wrong with.
+ADMINS_TOO = ("blackout_conflict", "requested", "lease_conflict", "lease_vanished")
 
 
 def _describe(reservation: Reservation) -> str:
@@ -51,6 +55,11 @@ def reservation_message(
             f"a maintenance window, “{blackout.reason}”, overlaps your booking of {what}. "
             "An admin will contact you; you may also move or cancel the booking."
         )
+    elif kind in ("lease_conflict", "lease_vanished"):
+        lines.append(
+            f"there is a problem with your booking of {what}: {reservation.conflict} "
+            "An admin will contact you; you may also move or cancel the booking."
+        )
     elif kind == "reminder":
         lines.append(f"your booking of {what} starts soon.")
     if reservation.title:
@@ -65,7 +74,7 @@ def reservation_notify(kind: str, reservation_id: int, *, blackout_id: int | Non
     blackout = Blackout.objects.filter(pk=blackout_id).first() if blackout_id else None
     subject, body = reservation_message(kind, reservation, blackout=blackout)
     recipients = [reservation.owner.email] if reservation.owner.email else []
-    if kind in ("blackout_conflict", "requested"):
+    if kind in ADMINS_TOO:
         # Admins learn of pending requests and of bookings a maintenance window hits.
         recipients += list(
             User.objects.filter(is_staff=True, is_active=True)

@@ -23,7 +23,7 @@ from django.db.models import F, Q, Value
 from django.utils import timezone
 
 from bookings.choices import ResourceKind
-from bookings.models import Blackout, ReservationItem, Resource
+from bookings.models import Blackout, ReservationItem, Resource, SchedulerLease
 from bookings.quotas import quota_violations
 from portal.accounts.models import User
 from portal.errors import Conflict, DomainError, InvalidInput
@@ -33,7 +33,7 @@ class QuotaExceeded(Conflict):
     code = "quota_exceeded"
 
 
-ProblemCode = Literal["window", "out_of_service", "program", "blackout", "booked", "quota"]
+ProblemCode = Literal["window", "out_of_service", "program", "blackout", "booked", "lease", "quota"]
 
 
 class Program(Protocol):
@@ -60,7 +60,7 @@ class Problem:
     def as_error(self) -> DomainError:
         if self.code == "quota":
             return QuotaExceeded(self.message, fields={"quota": list(self.messages)})
-        if self.code in ("blackout", "booked"):
+        if self.code in ("blackout", "booked", "lease"):
             return Conflict.on_field(self.field, self.message)
         return InvalidInput.on_field(self.field, self.message)
 
@@ -110,7 +110,7 @@ def _window_problems(start_at: datetime, end_at: datetime, now: datetime) -> lis
 
 
 def _program_problems(
-    resources: Sequence[Resource], program: Program | None, length_s: float
+    resources: Sequence[Resource], program: Program | None, length_s: float, *, required: bool
 ) -> list[Problem]:
     mobiles = [r for r in resources if r.kind == ResourceKind.MOBILE]
     if len(mobiles) > 1:
@@ -121,6 +121,8 @@ def _program_problems(
         return []
     mobile = mobiles[0]
     if program is None:
+        if not required:
+            return []  # the robot is held, and stands still (a lease from the scheduler)
         return [Problem("program", "experiment", "Choose the experiment the robot will run.")]
     problems = []
     for index, velocity_mps in enumerate(program.velocities_mps, start=1):
@@ -191,6 +193,41 @@ def _conflicts(
     return problems
 
 
+def _lease_problems(
+    resources: Sequence[Resource], start_at: datetime, end_at: datetime, *, first_only: bool
+) -> list[Problem]:
+    """Leases made on the testbed's scheduler (not for a portal booking) holding a node.
+
+    Only scheduler-owned nodes have leases; portal bookings' own leases are their items.
+    """
+    leases = (
+        SchedulerLease.objects.overlapping(start_at, end_at)
+        .filter(
+            holds=True,
+            gone_at__isnull=True,
+            reservation__isnull=True,
+            resources__in=[r.pk for r in resources],
+        )
+        .prefetch_related("resources")
+        .distinct()
+        .order_by("start_at")
+    )
+    problems = []
+    wanted = {r.pk for r in resources}
+    for lease in leases[:1] if first_only else leases:
+        nodes = ", ".join(sorted(r.name for r in lease.resources.all() if r.pk in wanted))
+        account = f" by {lease.account_name}" if lease.account_name else ""
+        problems.append(
+            Problem(
+                "lease",
+                "start_at",
+                f"{nodes} is leased on the testbed scheduler{account} from "
+                f"{_period(lease.start_at)} to {_period(lease.end_at)} (lease “{lease.name}”).",
+            )
+        )
+    return problems
+
+
 def booking_problems(
     *,
     owner: User,
@@ -201,14 +238,19 @@ def booking_problems(
     now: datetime,
     exclude_reservation_id: int | None = None,
     first_only: bool = False,
+    program_required: bool = True,
+    scheduler_owned: Sequence[Resource] = (),
 ) -> list[Problem]:
     """Everything that forbids ``owner`` booking ``resources`` for ``[start_at, end_at)``.
 
     In the order a person fixes them: the window, resources out of service, the program,
-    maintenance, other bookings, quotas (one :class:`Problem` listing every quota rule
-    broken; an admin may override it). ``first_only`` stops at the first problem found, for
-    the booking path that raises it. The resources' ``enabled`` is read from the instances
-    given: under the booking lock they are the rows just locked.
+    maintenance, other bookings, leases on the testbed scheduler (of the ``scheduler_owned``
+    resources, from the mirror), quotas (one :class:`Problem` listing every quota rule
+    broken; an admin may override it). ``program_required=False`` lets a mobile node be held
+    without a program (a lease asked for through the scheduler's vocabulary). ``first_only``
+    stops at the first problem found, for the booking path that raises it. The resources'
+    ``enabled`` is read from the instances given: under the booking lock they are the rows
+    just locked.
     """
     problems = _window_problems(start_at, end_at, now)
     if problems and first_only:
@@ -220,7 +262,9 @@ def booking_problems(
         for r in sorted(resources, key=lambda r: r.name)
         if not r.enabled
     ]
-    problems += _program_problems(resources, program, (end_at - start_at).total_seconds())
+    problems += _program_problems(
+        resources, program, (end_at - start_at).total_seconds(), required=program_required
+    )
     if problems and first_only:
         return problems[:1]
     problems += _conflicts(
@@ -228,6 +272,10 @@ def booking_problems(
     )
     if problems and first_only:
         return problems[:1]
+    if scheduler_owned:
+        problems += _lease_problems(scheduler_owned, start_at, end_at, first_only=first_only)
+        if problems and first_only:
+            return problems[:1]
     quota = quota_violations(
         user=owner,
         resources=resources,

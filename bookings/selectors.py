@@ -6,7 +6,7 @@ from datetime import datetime
 from django.db.models import Q, QuerySet
 
 from bookings.choices import ResourceKind
-from bookings.models import Blackout, Reservation, ReservationItem, Resource
+from bookings.models import Blackout, Reservation, ReservationItem, Resource, SchedulerLease
 from portal.accounts.models import User
 
 
@@ -73,6 +73,10 @@ def resource_free_intervals(
         (max(b.start_at, start_at), min(b.end_at, end_at))
         for b in blackouts_overlapping(resources=[resource], start_at=start_at, end_at=end_at)
     ]
+    busy += [
+        (max(lease.start_at, start_at), min(lease.end_at, end_at))
+        for lease in external_leases(start_at, end_at, resource)
+    ]
     if not resource.enabled:
         busy = [(start_at, end_at)]
     free: list[tuple[datetime, datetime]] = []
@@ -84,3 +88,15 @@ def resource_free_intervals(
     if cursor < end_at:
         free.append((cursor, end_at))
     return free
+
+
+def external_leases(
+    start_at: datetime, end_at: datetime, resource: Resource | None = None
+) -> list[SchedulerLease]:
+    """Leases made on the testbed scheduler (not for portal bookings) that hold nodes now."""
+    leases = SchedulerLease.objects.overlapping(start_at, end_at).filter(
+        holds=True, gone_at__isnull=True, reservation__isnull=True
+    )
+    if resource is not None:
+        leases = leases.filter(resources=resource)
+    return list(leases.prefetch_related("resources").distinct().order_by("start_at"))

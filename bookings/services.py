@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+import uuid
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -19,19 +20,47 @@ from django.core.exceptions import ValidationError
 from django.db import IntegrityError, transaction
 from django.utils import timezone
 
-from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState, ResourceKind
+from bookings.choices import (
+    RESERVATION_ACTIVE_STATES,
+    BookedVia,
+    ReservationState,
+    ResourceKind,
+)
+from bookings.leases import (
+    booking_guard,
+    lease_move,
+    lease_record,
+    lease_release,
+    lease_take,
+    leases_refresh,
+    scheduler_client,
+    scheduler_enabled,
+    scheduler_owned,
+)
 from bookings.models import Blackout, QuotaPolicy, Reservation, ReservationItem, Resource
 from bookings.rules import Program, aware_utc, booking_problems
-from bookings.tasks import reservation_notify
+from bookings.scheduler import Lease, SchedulerError
+from bookings.tasks import lease_cancel, reservation_notify
 from portal.accounts.models import User
 from portal.audit.services import audit_record
-from portal.errors import Conflict, InvalidInput, NotAllowed
+from portal.errors import Conflict, DomainError, InvalidInput, NotAllowed
 
 logger = logging.getLogger(__name__)
 
 
 def _notify(kind: str, reservation_id: int, **extra: Any) -> None:
     transaction.on_commit(partial(reservation_notify.delay, kind, reservation_id, **extra))
+
+
+def _release_lease_after_commit(reservation: Reservation) -> None:
+    """A booking that ended early gives its lease back once that is committed (retried; the
+    scheduler sweep cancels it too, as an orphan, if every try fails)."""
+    if reservation.lease_uuid:
+        transaction.on_commit(partial(lease_cancel.delay, reservation.lease_uuid))
+
+
+def _may_book_for_others(by: User) -> bool:
+    return by.is_testbed_admin or by.has_perm("bookings.lease_inbound")
 
 
 def _lock(owner: User, resources: Sequence[Resource]) -> list[Resource]:
@@ -56,6 +85,7 @@ def _check(
     now: datetime,
     exclude_id: int | None,
     override_reason: str,
+    program_required: bool = True,
 ) -> list[str]:
     """Raise the first problem with this booking; returns the quota rules overridden."""
     problems = booking_problems(
@@ -67,6 +97,8 @@ def _check(
         now=now,
         exclude_reservation_id=exclude_id,
         first_only=True,
+        program_required=program_required,
+        scheduler_owned=scheduler_owned(resources),
     )
     if not problems:
         return []
@@ -89,6 +121,8 @@ def reservation_create(
     override_reason: str = "",
     ip: str | None = None,
     now: datetime | None = None,
+    program_required: bool = True,
+    booked_via: BookedVia = BookedVia.PORTAL,
 ) -> Reservation:
     """Book ``resources`` for ``[start_at, end_at)``.
 
@@ -98,6 +132,11 @@ def reservation_create(
     for ``owner``; defaults to ``owner``). Only an admin may pass ``override_reason``, which
     lets the booking past quota rules (never past another booking or a maintenance window)
     and is recorded in the audit log.
+
+    Resources the testbed's scheduler owns are held by one lease there, taken under the
+    booking's locks before the reservation is written and named after its public id; any
+    failure after that cancels the lease again (``bookings/leases.py``). A scheduler that
+    does not answer is a 503 and nothing is booked.
     """
     now = now or timezone.now()
     by = by or owner
@@ -106,7 +145,7 @@ def reservation_create(
         raise InvalidInput.on_field("resources", "Choose at least one resource.")
     if len({r.pk for r in resources}) != len(resources):
         raise InvalidInput.on_field("resources", "A resource is listed twice.")
-    if by.pk != owner.pk and not by.is_testbed_admin:
+    if by.pk != owner.pk and not _may_book_for_others(by):
         raise NotAllowed("Only admins book for someone else.")
     override_reason = override_reason.strip()
     if override_reason and not by.is_testbed_admin:
@@ -115,6 +154,13 @@ def reservation_create(
     end_at = aware_utc(end_at, "end_at")
     needs_approval = any(r.requires_approval for r in resources) and not by.is_testbed_admin
     state = ReservationState.REQUESTED if needs_approval else ReservationState.CONFIRMED
+    owned = scheduler_owned(resources)
+    if owned and start_at < end_at:
+        # The leases made elsewhere a moment ago refuse this booking by name, not by a 409
+        # from the scheduler (which names no lease).
+        leases_refresh(start_at=start_at, end_at=end_at)
+    public_id = uuid.uuid4()
+    lease: Lease | None = None
 
     try:
         with transaction.atomic():
@@ -128,7 +174,13 @@ def reservation_create(
                 now=now,
                 exclude_id=None,
                 override_reason=override_reason,
+                program_required=program_required,
             )
+            if owned:
+                booking_guard(public_id)
+                lease = lease_take(
+                    public_id=public_id, start_at=start_at, end_at=end_at, resources=owned
+                )
             reservation = Reservation(
                 owner=owner,
                 start_at=start_at,
@@ -136,6 +188,9 @@ def reservation_create(
                 state=state,
                 title=title,
                 override_reason=override_reason if overridden else "",
+                public_id=public_id,
+                lease_uuid=lease.uuid if lease is not None else "",
+                booked_via=booked_via,
             )
             # The window was checked above and the database enforces the constraint again;
             # re-running it here would only cost three more round trips under the lock.
@@ -147,6 +202,8 @@ def reservation_create(
                 )
                 for r in resources
             )
+            if lease is not None:
+                lease_record(lease=lease, reservation=reservation, resources=owned)
             audit_record(
                 actor=by,
                 action="reservation.create",
@@ -157,6 +214,7 @@ def reservation_create(
                 start_at=start_at.isoformat(),
                 end_at=end_at.isoformat(),
                 state=state,
+                lease=lease.uuid if lease is not None else None,
             )
             if overridden:
                 audit_record(
@@ -169,9 +227,15 @@ def reservation_create(
                 )
             _notify("requested" if needs_approval else "confirmed", reservation.pk)
     except IntegrityError as exc:
+        if lease is not None:
+            lease_release(lease_uuid=lease.uuid)
         # The exclusion constraint caught an overlap the locked check could not see
         # (only possible if something wrote around the services).
         raise Conflict.on_field("start_at", "That slot was just taken.") from exc
+    except BaseException:
+        if lease is not None:
+            lease_release(lease_uuid=lease.uuid)
+        raise
     logger.info("reservation %s (%s) created by %s", reservation.pk, state, by.get_username())
     return reservation
 
@@ -198,38 +262,59 @@ def reservation_reschedule(
     ``program`` is what its mobile node will run, if it holds one (see reservation_create).
     """
     now = now or timezone.now()
-    if reservation.owner_id != by.pk and not by.is_testbed_admin:
+    if reservation.owner_id != by.pk and not _may_book_for_others(by):
         raise NotAllowed("Only the owner or an admin can change this reservation.")
     start_at = aware_utc(start_at, "start_at")
     end_at = aware_utc(end_at, "end_at")
-    with transaction.atomic():
-        locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
-        if locked.state not in RESERVATION_ACTIVE_STATES or locked.start_at <= now:
-            raise Conflict("Only upcoming reservations can be moved.")
-        resources = _lock(locked.owner, list(locked.resources.all()))
-        _check(
-            owner=locked.owner,
-            resources=resources,
-            start_at=start_at,
-            end_at=end_at,
-            program=program,
-            now=now,
-            exclude_id=locked.pk,
-            override_reason=locked.override_reason,
-        )
-        before = (locked.start_at.isoformat(), locked.end_at.isoformat())
-        locked.start_at, locked.end_at = start_at, end_at
-        locked.full_clean()
-        locked.save(update_fields=["start_at", "end_at", "updated_at"])
-        locked.items.update(start_at=start_at, end_at=end_at)
-        audit_record(
-            actor=by,
-            action="reservation.reschedule",
-            target=locked,
-            ip=ip,
-            before=before,
-            after=(start_at.isoformat(), end_at.isoformat()),
-        )
+    if reservation.lease_uuid and start_at < end_at:
+        leases_refresh(start_at=start_at, end_at=end_at)
+    moved_lease: tuple[datetime, datetime] | None = None
+    try:
+        with transaction.atomic():
+            locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
+            if locked.state not in RESERVATION_ACTIVE_STATES or locked.start_at <= now:
+                raise Conflict("Only upcoming reservations can be moved.")
+            resources = _lock(locked.owner, list(locked.resources.all()))
+            _check(
+                owner=locked.owner,
+                resources=resources,
+                start_at=start_at,
+                end_at=end_at,
+                program=program,
+                now=now,
+                exclude_id=locked.pk,
+                override_reason=locked.override_reason,
+                program_required=locked.booked_via == BookedVia.PORTAL,
+            )
+            before = (locked.start_at, locked.end_at)
+            if locked.lease_uuid:
+                lease_move(lease_uuid=locked.lease_uuid, start_at=start_at, end_at=end_at)
+                moved_lease = before
+            locked.start_at, locked.end_at = start_at, end_at
+            locked.full_clean()
+            locked.save(update_fields=["start_at", "end_at", "updated_at"])
+            locked.items.update(start_at=start_at, end_at=end_at)
+            audit_record(
+                actor=by,
+                action="reservation.reschedule",
+                target=locked,
+                ip=ip,
+                before=(before[0].isoformat(), before[1].isoformat()),
+                after=(start_at.isoformat(), end_at.isoformat()),
+            )
+    except BaseException:
+        if moved_lease is not None:
+            # Put the lease back where the booking still is; if that fails too, the sweep
+            # flags the booking when its lease no longer covers it.
+            try:
+                lease_move(
+                    lease_uuid=reservation.lease_uuid,
+                    start_at=moved_lease[0],
+                    end_at=moved_lease[1],
+                )
+            except DomainError as exc:
+                logger.error("lease %s not moved back: %s", reservation.lease_uuid, exc.message)
+        raise
     return locked
 
 
@@ -240,7 +325,7 @@ def reservation_cancel(
 
     A run booked with it is withdrawn by the runs layer, which calls this in its transaction.
     """
-    if reservation.owner_id != by.pk and not by.is_testbed_admin:
+    if reservation.owner_id != by.pk and not _may_book_for_others(by):
         raise NotAllowed("Only the owner or an admin can cancel this reservation.")
     with transaction.atomic():
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
@@ -254,6 +339,7 @@ def reservation_cancel(
         locked.cancel_reason = reason
         locked.save(update_fields=["state", "cancelled_by", "cancel_reason", "updated_at"])
         locked.items.update(active=False)
+        _release_lease_after_commit(locked)
         audit_record(actor=by, action="reservation.cancel", target=locked, ip=ip, reason=reason)
         if by_admin:
             _notify("cancelled_by_admin", locked.pk)
@@ -292,6 +378,7 @@ def reservation_decide(
         )
         if not approve:
             locked.items.update(active=False)
+            _release_lease_after_commit(locked)
         audit_record(
             actor=by,
             action="reservation.approve" if approve else "reservation.reject",
@@ -458,6 +545,24 @@ class TestbedSpec:
     fixed_nodes: int = 24
     max_velocity_mps: float = 2.0
     max_accel_mps2: float = 1.0
+    # The fixed nodes by name, as the testbed's scheduler lists them; ``node-01`` … otherwise.
+    fixed_node_names: tuple[str, ...] = ()
+
+    def fixed_names(self) -> tuple[str, ...]:
+        if self.fixed_node_names:
+            return self.fixed_node_names
+        return tuple(f"node-{i:02d}" for i in range(1, self.fixed_nodes + 1))
+
+
+def fixed_node_names_from_scheduler() -> tuple[str, ...]:
+    """The nodes the testbed's scheduler leases (empty when none is configured)."""
+    if not scheduler_enabled():
+        return ()
+    try:
+        with scheduler_client() as scheduler:
+            return tuple(node.name for node in scheduler.list_nodes())
+    except SchedulerError as exc:
+        raise InvalidInput(f"The testbed scheduler did not list its nodes: {exc.message}") from exc
 
 
 def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
@@ -466,7 +571,7 @@ def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
     Existing ones are left untouched (an admin may have changed them since). Everything is
     checked before anything is written.
     """
-    if not 1 <= spec.fixed_nodes <= 200:
+    if not 1 <= len(spec.fixed_names()) <= 200:
         raise InvalidInput.on_field("fixed_nodes", "Give between 1 and 200 fixed nodes.")
     for field_name, value in (
         ("max_velocity_mps", spec.max_velocity_mps),
@@ -484,8 +589,12 @@ def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
             max_accel_mps2=spec.max_accel_mps2,
         ),
         *(
-            Resource(name=f"node-{i:02d}", kind=ResourceKind.FIXED, description=f"Fixed node {i}")
-            for i in range(1, spec.fixed_nodes + 1)
+            Resource(
+                name=name,
+                kind=ResourceKind.FIXED,
+                description="Fixed node on the roof of IT building 1",
+            )
+            for name in spec.fixed_names()
         ),
     ]
     for resource in wanted:

@@ -68,6 +68,11 @@ def _environment(var_dir: Path) -> dict[str, str]:
             token_file.chmod(0o600)
         env["AGENT_TOKEN_FILE"] = str(token_file)
     env.setdefault("DJANGO_ALLOWED_HOSTS", "127.0.0.1,localhost")
+    if "SCHEDULER_URL" not in env:
+        # No testbed scheduler given: the stand-in plays it, and owns the fixed nodes.
+        standin_port = int(env.setdefault("STANDIN_PORT", "8710"))
+        env["SCHEDULER_URL"] = f"http://127.0.0.1:{standin_port}"
+        env["_STANDIN"] = "1"
     env["_PORTAL_PORT"] = str(portal_port)
     return env
 
@@ -112,22 +117,43 @@ def _stop(children: list[Child]) -> None:
             child.pump.join(timeout=2)
 
 
+def _start(child: Child, env: dict[str, str]) -> None:
+    child.process = subprocess.Popen(
+        child.argv,
+        cwd=BASE_DIR,
+        env={**env, **child.env},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        start_new_session=True,  # own process group: stopped as a whole
+    )
+    child.pump = threading.Thread(target=_pump, args=(child,), daemon=True)
+    child.pump.start()
+    _say("launch", f"started {child.name} (pid {child.process.pid})")
+
+
 def main() -> int:
     var_dir = Path(os.environ.get("AMAZING_VAR_DIR", BASE_DIR / "var")).resolve()
     var_dir.mkdir(parents=True, exist_ok=True)
     env = _environment(var_dir)
     portal_port = int(env["PORTAL_PORT"])
     agent_port = int(env["AGENT_PORT"])
-    for name, port in (("portal", portal_port), ("agent", agent_port)):
+    standin_port = int(env["STANDIN_PORT"]) if env.get("_STANDIN") else None
+    ports = [("portal", portal_port), ("agent", agent_port)]
+    if standin_port is not None:
+        ports.append(("standin", standin_port))
+    for name, port in ports:
         if not _port_free(port):
             _say("launch", f"port {port} for the {name} is taken; set {name.upper()}_PORT")
             return 2
 
     _say("launch", f"database: {env.get('DATABASE_URL', 'SQLite in ' + str(var_dir))}")
     _say("launch", f"task broker: {env.get('CELERY_BROKER_URL', 'filesystem (no server)')}")
-    _manage(env, "migrate", "--no-input", "-v", "0")
-    _manage(env, "demo_setup")
-
+    _say(
+        "launch",
+        f"testbed scheduler: {env['SCHEDULER_URL']}"
+        + (" (the stand-in)" if standin_port is not None else ""),
+    )
     children = [
         Child(spec.name, list(spec.argv), dict(spec.env))
         for spec in system_processes(
@@ -136,6 +162,7 @@ def main() -> int:
             agent_port=agent_port,
             var_dir=var_dir,
             access_log=False,  # a line per request would drown everything else
+            standin_port=standin_port,
         )
     ]
 
@@ -149,19 +176,18 @@ def main() -> int:
 
     exit_code = 0
     try:
+        set_up = False
         for child in children:
-            child.process = subprocess.Popen(
-                child.argv,
-                cwd=BASE_DIR,
-                env={**env, **child.env},
-                stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL,
-                start_new_session=True,  # own process group: stopped as a whole
-            )
-            child.pump = threading.Thread(target=_pump, args=(child,), daemon=True)
-            child.pump.start()
-            _say("launch", f"started {child.name} (pid {child.process.pid})")
+            if child.name != "broker" and not set_up:
+                # The stand-in, if any, is up first: it lists the fixed nodes demo_setup makes.
+                _manage(env, "migrate", "--no-input", "-v", "0")
+                _manage(env, "demo_setup")
+                set_up = True
+            _start(child, env)
+            stand_in = child.name == "broker" and standin_port is not None
+            if stand_in and not _wait_for_port(standin_port or 0, 30):
+                _say("launch", "the stand-in scheduler did not start; stopping")
+                return 1
         if _wait_for_port(portal_port, 60):
             _say(
                 "launch",

@@ -88,6 +88,19 @@ def beat_process(*, python: str, schedule_file: Path, log_level: str = "INFO") -
     )
 
 
+def standin_process(
+    *, python: str, port: int, db_path: Path, host: str = DEFAULT_HOST, test_control: bool = False
+) -> ProcessSpec:
+    """The stand-in for the testbed's scheduler (``bookings/scheduler/standin.py``): the
+    embedded default of ``make run``, which then owns the 24 fixed nodes, and the broker of the
+    integration tests (with its test-only control endpoints)."""
+    argv = [python, "-m", "bookings.scheduler.standin", "--host", host, "--port", str(port)]
+    argv += ["--db", str(db_path)]
+    if test_control:
+        argv.append("--test-control")
+    return ProcessSpec("broker", tuple(argv))
+
+
 def system_processes(
     *,
     python: str,
@@ -98,14 +111,31 @@ def system_processes(
     access_log: bool = True,
     worker_concurrency: int = 4,
     log_level: str = "INFO",
+    standin_port: int | None = None,
+    standin_test_control: bool = False,
 ) -> list[ProcessSpec]:
     """The agent, the web server, a Celery worker and beat, in the order to start them.
 
     ``python`` runs every process; ``host`` is the address the agent and the web server listen
     on; ``var_dir`` holds local state (beat's schedule); ``access_log`` turns the web server's
-    line per request on or off.
+    line per request on or off. ``standin_port`` adds the stand-in scheduler first (the
+    portal's ``SCHEDULER_URL`` must then point at it), its leases kept in ``var_dir``.
     """
+    standin = (
+        []
+        if standin_port is None
+        else [
+            standin_process(
+                python=python,
+                port=standin_port,
+                db_path=var_dir / "scheduler-standin.sqlite3",
+                host=host,
+                test_control=standin_test_control,
+            )
+        ]
+    )
     return [
+        *standin,
         agent_process(python=python, port=agent_port, host=host),
         web_process(python=python, port=portal_port, host=host, access_log=access_log),
         worker_process(python=python, concurrency=worker_concurrency, log_level=log_level),

@@ -229,7 +229,15 @@ CELERY_TIMEZONE = "UTC"
 RUN_SWEEP_INTERVAL_S = env.float("RUN_SWEEP_INTERVAL_S", default=2.0)
 RUN_STAGE_LEAD_S = env.float("RUN_STAGE_LEAD_S", default=300.0)
 RESERVATION_REMINDER_LEAD_S = env.float("RESERVATION_REMINDER_LEAD_S", default=3600.0)
+# How often the testbed scheduler's leases are mirrored and orphans cancelled, and (SQLite
+# only, which cannot tell a booking in progress) how old an orphan lease must be to go.
+SCHEDULER_SYNC_INTERVAL_S = env.float("SCHEDULER_SYNC_INTERVAL_S", default=30.0)
+SCHEDULER_ORPHAN_GRACE_S = env.float("SCHEDULER_ORPHAN_GRACE_S", default=120.0)
 CELERY_BEAT_SCHEDULE = {
+    "scheduler-sweep": {
+        "task": "bookings.tasks.scheduler_sweep",
+        "schedule": SCHEDULER_SYNC_INTERVAL_S,
+    },
     "runs-sweep": {"task": "portal.runs.tasks.runs_sweep", "schedule": RUN_SWEEP_INTERVAL_S},
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
     "idempotency-keys-delete-expired": {

@@ -13,5 +13,6 @@ urlpatterns = [
     path("api/v1/", include("portal.experiments.urls")),
     path("api/v1/", include("portal.runs.urls")),
     path("api/v1/", include("bookings.urls")),
+    path("scheduler/", include("bookings.urls_inbound")),
     path("", include("portal.web.urls")),
 ]

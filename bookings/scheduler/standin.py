@@ -282,6 +282,9 @@ class Faults:
 
     delay_s: float = 0.0
     unavailable: bool = False
+    # Sleep after a change (create, move, cancel), before the answer: the lease exists while
+    # the caller still waits (a caller killed then leaves an orphan behind).
+    answer_delay_s: float = 0.0
 
 
 @dataclass
@@ -631,6 +634,9 @@ def create_app(config: StandinConfig, *, clock: Callable[[], float] = time.time)
 
     @app.after_request
     def _log(response: Response) -> Response:
+        changes = request.method in ("POST", "PUT", "DELETE")
+        if broker.faults.answer_delay_s and changes and request.path.startswith("/resources"):
+            time.sleep(broker.faults.answer_delay_s)
         took_ms = (time.monotonic() - g.get("started_s", time.monotonic())) * 1000
         query = unquote(request.query_string.decode("latin-1"))
         logger.info(
@@ -715,16 +721,31 @@ def _register_test_control(app: Flask, broker: Broker) -> None:
             descr = _object(_body())
             delay_s = broker.faults.delay_s
             unavailable = broker.faults.unavailable
+            answer_delay_s = broker.faults.answer_delay_s
             if "delay_s" in descr:
                 delay_s = _number("delay_s", descr["delay_s"], limit=MAX_DELAY_S)
                 if delay_s < 0:
                     raise BrokerError(400, "delay_s must not be negative.")
+            if "answer_delay_s" in descr:
+                answer_delay_s = _number(
+                    "answer_delay_s", descr["answer_delay_s"], limit=MAX_DELAY_S
+                )
+                if answer_delay_s < 0:
+                    raise BrokerError(400, "answer_delay_s must not be negative.")
             if "unavailable" in descr:
                 if not isinstance(descr["unavailable"], bool):
                     raise BrokerError(400, "unavailable must be true or false.")
                 unavailable = descr["unavailable"]
-            broker.faults = Faults(delay_s=delay_s, unavailable=unavailable)
-        return _plain({"delay_s": broker.faults.delay_s, "unavailable": broker.faults.unavailable})
+            broker.faults = Faults(
+                delay_s=delay_s, unavailable=unavailable, answer_delay_s=answer_delay_s
+            )
+        return _plain(
+            {
+                "delay_s": broker.faults.delay_s,
+                "unavailable": broker.faults.unavailable,
+                "answer_delay_s": broker.faults.answer_delay_s,
+            }
+        )
 
     @app.post("/_standin/leases")
     def seed() -> Response:

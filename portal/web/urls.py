@@ -20,4 +20,5 @@ urlpatterns = [
     path("approvals/", views.approvals, name="approvals"),
     path("robot/<slug:name>/", views.robot_console, name="robot"),
     path("usage/", views.usage_report, name="usage"),
+    path("scheduler-link/", views.scheduler_link, name="scheduler-link"),
 ]

@@ -26,6 +26,7 @@ from bookings.calendar import (
     ical_document,
 )
 from bookings.choices import ReservationState
+from bookings.leases import scheduler_link_status, scheduler_overview
 from bookings.models import CalendarFeed, Reservation, Resource
 from bookings.quotas import quota_summary
 from bookings.reports import GROUPINGS, usage_hours
@@ -53,6 +54,9 @@ from portal.web.forms import BookingForm, ExperimentForm, PassForm
 def healthz(request: HttpRequest) -> JsonResponse:
     """Liveness for supervisors and monitoring: no login, no internals (``portal/health.py``)."""
     ok, body = health()
+    if body["database"] == "ok":
+        # Reported, not judged: the portal works (without fixed nodes) while it is down.
+        body["testbed_scheduler"] = scheduler_link_status()
     return JsonResponse(body, status=200 if ok else 503)
 
 
@@ -275,7 +279,13 @@ def calendar_events(request: HttpRequest) -> JsonResponse:
     resource = None
     if request.GET.get("resource"):
         resource = get_object_or_404(Resource, name=request.GET["resource"])
-    colours = {"own": "#1e6fb8", "other": "#7a5195", "busy": "#8a8f98", "blackout": "#c62828"}
+    colours = {
+        "own": "#1e6fb8",
+        "other": "#7a5195",
+        "busy": "#8a8f98",
+        "blackout": "#c62828",
+        "lease": "#b26a00",
+    }
     entries = calendar_entries(
         viewer=_user(request), start_at=start, end_at=end, resource=resource, now=timezone.now()
     )
@@ -393,6 +403,12 @@ def approvals(request: HttpRequest) -> HttpResponse:
         .order_by("start_at")
     )
     return render(request, "web/approvals.html", {"pending": pending})
+
+
+@admin_required
+def scheduler_link(request: HttpRequest) -> HttpResponse:
+    """The link to the testbed's scheduler: health, the portal's leases, the others'."""
+    return render(request, "web/scheduler.html", scheduler_overview(now=timezone.now()))
 
 
 @admin_required

@@ -27,19 +27,27 @@ def _csrf(session: requests.Session, url: str) -> str:
 
 def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
     var_dir = tmp_path / "var"
-    portal_port, agent_port = free_port(), free_port()
+    portal_port, agent_port, standin_port = free_port(), free_port(), free_port()
     env = {
         k: v
         for k, v in os.environ.items()
         # The embedded defaults: no external database or broker.
         if k
-        not in {"DATABASE_URL", "CELERY_BROKER_URL", "REDIS_URL", "AGENT_TOKEN", "AGENT_TOKEN_FILE"}
+        not in {
+            "DATABASE_URL",
+            "CELERY_BROKER_URL",
+            "REDIS_URL",
+            "AGENT_TOKEN",
+            "AGENT_TOKEN_FILE",
+            "SCHEDULER_URL",
+        }
     }
     env.update(
         {
             "AMAZING_VAR_DIR": str(var_dir),
             "PORTAL_PORT": str(portal_port),
             "AGENT_PORT": str(agent_port),
+            "STANDIN_PORT": str(standin_port),
             "RUN_SWEEP_INTERVAL_S": "0.5",
         }
     )
@@ -50,6 +58,7 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         launcher.wait_for_line(lambda s: "ready: log in at" in s, 90)
         assert any("SQLite" in s for s in launcher.lines)
         assert any("filesystem (no server)" in s for s in launcher.lines)
+        assert any(f"127.0.0.1:{standin_port} (the stand-in)" in s for s in launcher.lines)
 
         web = f"http://127.0.0.1:{portal_port}"
         session = requests.Session()
@@ -112,6 +121,26 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         health = requests.get(f"{web}/healthz", timeout=10).json()
         assert health["status"] == "ok", health
         assert health["scheduler"]["ok"], health
+        assert health["testbed_scheduler"]["configured"], health
+
+        # A fixed node is the stand-in scheduler's: booking it holds a lease there.
+        token = _csrf(session, f"{web}/book/")
+        later = start + timedelta(days=1)
+        fixed = session.post(
+            f"{web}/book/",
+            data={
+                "csrfmiddlewaretoken": token,
+                "resource": "node-01",
+                "start_at": later.strftime("%Y-%m-%dT%H:%M:%S"),
+                "end_at": (later + timedelta(hours=1)).strftime("%Y-%m-%dT%H:%M:%S"),
+            },
+            timeout=20,
+        )
+        assert "Booked node-01" in fixed.text, fixed.text[:3000]
+        leases = requests.get(
+            f"http://127.0.0.1:{standin_port}/resources/leases", timeout=10
+        ).json()["resource_response"]["resources"]
+        assert [[c["name"] for c in lease["components"]] for lease in leases] == [["node-01"]]
 
         assert processes_matching_env("AMAZING_VAR_DIR", str(var_dir)), "children should be running"
         launcher.popen.send_signal(signal.SIGINT)

@@ -10,7 +10,12 @@ from django.db.migrations.executor import MigrationExecutor
 
 from portal.runs.models import Run, RunEvent, Sample
 
-BEFORE = [("experiments", "0003_run_rail_length"), ("runs", None)]
+# The whole schema as it was before the move (bookings too: its later columns are not null).
+BEFORE = [
+    ("experiments", "0003_run_rail_length"),
+    ("runs", None),
+    ("bookings", "0004_agent_url_bare_host_names"),
+]
 
 
 def _migrate(targets):

@@ -13,7 +13,11 @@ from django.conf import settings
 from django.core.management.base import BaseCommand
 from django.db import transaction
 
-from bookings.services import TestbedSpec, testbed_resources_ensure
+from bookings.services import (
+    TestbedSpec,
+    fixed_node_names_from_scheduler,
+    testbed_resources_ensure,
+)
 from portal.accounts.models import User
 
 
@@ -23,7 +27,12 @@ class Command(BaseCommand):
     def handle(self, *args: Any, **options: Any) -> None:
         with transaction.atomic():
             # The demo's resources are the real testbed's, on the local agent.
-            testbed_resources_ensure(TestbedSpec(agent_url=settings.AGENT_URL))
+            testbed_resources_ensure(
+                TestbedSpec(
+                    agent_url=settings.AGENT_URL,
+                    fixed_node_names=fixed_node_names_from_scheduler(),
+                )
+            )
             created = []
             for username, staff in (("admin", True), ("experimenter", False)):
                 if User.objects.filter(username=username).exists():

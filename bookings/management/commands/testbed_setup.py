@@ -6,11 +6,16 @@ Existing resources are left as they are: change them in the admin.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from django.core.management.base import BaseCommand, CommandError, CommandParser
 
-from bookings.services import TestbedSpec, testbed_resources_ensure
+from bookings.services import (
+    TestbedSpec,
+    fixed_node_names_from_scheduler,
+    testbed_resources_ensure,
+)
 from portal.errors import DomainError
 
 
@@ -35,6 +40,8 @@ class Command(BaseCommand):
             max_accel_mps2=options["max_accel_mps2"],
         )
         try:
+            # With a scheduler, the fixed nodes are the ones it leases.
+            spec = replace(spec, fixed_node_names=fixed_node_names_from_scheduler())
             created = testbed_resources_ensure(spec)
         except DomainError as exc:
             raise CommandError(exc.message) from exc

@@ -16,6 +16,7 @@ from functools import partial
 from django.db import transaction
 from django.utils import timezone
 
+from bookings.leases import lease_release, scheduler_owned
 from bookings.models import Reservation, Resource
 from bookings.rules import Problem, aware_utc, booking_problems
 from bookings.services import (
@@ -57,25 +58,33 @@ def booking_create(
 ) -> Reservation:
     """Book resources; on a mobile node, also schedule the run of ``experiment`` there."""
     _own_experiment(experiment, owner)
-    with transaction.atomic():
-        reservation = reservation_create(
-            owner=owner,
-            resources=resources,
-            resource=resource,
-            start_at=start_at,
-            end_at=end_at,
-            program=experiment,
-            title=title or (experiment.title if experiment is not None else ""),
-            by=by,
-            override_reason=override_reason,
-            ip=ip,
-            now=now,
-        )
-        mobile = reservation_mobile(reservation)
-        if mobile is not None and experiment is not None:
-            run_create(
-                reservation=reservation, resource=mobile, experiment=experiment, by=by or owner
+    reservation: Reservation | None = None
+    try:
+        with transaction.atomic():
+            reservation = reservation_create(
+                owner=owner,
+                resources=resources,
+                resource=resource,
+                start_at=start_at,
+                end_at=end_at,
+                program=experiment,
+                title=title or (experiment.title if experiment is not None else ""),
+                by=by,
+                override_reason=override_reason,
+                ip=ip,
+                now=now,
             )
+            mobile = reservation_mobile(reservation)
+            if mobile is not None and experiment is not None:
+                run_create(
+                    reservation=reservation, resource=mobile, experiment=experiment, by=by or owner
+                )
+    except BaseException:
+        # The reservation was rolled back with its run: give its lease back at once (the
+        # scheduler sweep would cancel it as an orphan otherwise).
+        if reservation is not None and reservation.lease_uuid:
+            lease_release(lease_uuid=reservation.lease_uuid)
+        raise
     return reservation
 
 
@@ -182,4 +191,5 @@ def booking_check(
         program=experiment,
         now=now or timezone.now(),
         exclude_reservation_id=exclude_reservation_id,
+        scheduler_owned=scheduler_owned(resources),
     )

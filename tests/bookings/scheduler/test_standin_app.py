@@ -155,10 +155,15 @@ def test_test_control_refuses_bad_values(client: FlaskClient) -> None:
     assert_envelope(client.post("/_standin/faults", json={"delay_s": -1}), 400)
     assert_envelope(client.post("/_standin/faults", json={"delay_s": 1e9}), 400)
     assert_envelope(client.post("/_standin/faults", json={"unavailable": "yes"}), 400)
+    assert_envelope(client.post("/_standin/faults", json={"answer_delay_s": -2}), 400)
     assert_envelope(client.post("/_standin/clock", json={"offset_s": True}), 400)
     assert_envelope(client.post("/_standin/clock", json={}), 400)
     assert_envelope(client.post("/_standin/leases", json=lease_body(status="active")), 400)
-    assert client.get("/_standin/faults").get_json() == {"delay_s": 0.0, "unavailable": False}
+    assert client.get("/_standin/faults").get_json() == {
+        "delay_s": 0.0,
+        "unavailable": False,
+        "answer_delay_s": 0.0,
+    }
 
 
 def test_a_lease_file_survives_a_restart(tmp_path: Path) -> None:

@@ -1,0 +1,432 @@
+"""The fixed nodes' leases on the testbed's scheduler, seen from the portal.
+
+The scheduler (``settings.SCHEDULER``; ``bookings/scheduler/`` speaks to it) owns the fixed
+nodes. A booking that holds any of them holds one lease with all of them, made inside the
+booking (``reservation_create``): the lease first, named after the reservation's public id,
+then the portal's commit; on a failure in between the lease is cancelled at once, and if the
+process died in between, :func:`scheduler_sweep` finds the orphan and cancels it.
+
+The sweep also mirrors the leases made elsewhere (they block portal bookings of their nodes,
+``bookings.rules``), flags portal bookings that a lease appeared over or whose own lease
+vanished, and records the link's health (:class:`SchedulerLink`).
+
+While a booking holds its lease but has not committed, a PostgreSQL advisory lock named after
+its public id is held by its transaction; the sweep cancels a lease without a booking only
+when it can take that lock (so never one still being booked). On SQLite, which has no such
+locks, it waits for ``SCHEDULER_ORPHAN_GRACE_S`` instead.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+
+from django.conf import settings
+from django.db import connection, transaction
+from django.utils import timezone
+
+from bookings.choices import RESERVATION_ACTIVE_STATES, ResourceKind
+from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
+from bookings.scheduler import (
+    ALL_STATUSES,
+    Lease,
+    Scheduler,
+    SchedulerConflict,
+    SchedulerError,
+    SchedulerUnavailable,
+    build_scheduler,
+)
+from portal.errors import Conflict, DomainError
+
+logger = logging.getLogger(__name__)
+
+LEASE_NAME_PREFIX = "amazing-reservation-"
+# How far back and ahead the sweep mirrors leases: the calendar's reach.
+MIRROR_PAST = timedelta(days=1)
+MIRROR_AHEAD = timedelta(days=62)
+
+
+class SchedulerDown(DomainError):
+    """The scheduler did not answer (or not in time): nothing was booked or changed."""
+
+    http_status = 503
+    code = "scheduler_unavailable"
+
+
+class SchedulerRefused(DomainError):
+    """The scheduler answered, but not with a lease (credentials, configuration, protocol)."""
+
+    http_status = 502
+    code = "scheduler_refused"
+
+
+def scheduler_enabled() -> bool:
+    return settings.SCHEDULER is not None
+
+
+def scheduler_client() -> Scheduler:
+    assert settings.SCHEDULER is not None
+    return build_scheduler(settings.SCHEDULER)
+
+
+def scheduler_owned(resources: Sequence[Resource]) -> list[Resource]:
+    """The resources the scheduler books, not the portal (by default every fixed node)."""
+    config = settings.SCHEDULER
+    if config is None:
+        return []
+    return [
+        r
+        for r in resources
+        if config.owns(resource_name=r.name, is_fixed_node=r.kind == ResourceKind.FIXED)
+    ]
+
+
+def lease_name_for(public_id: uuid.UUID) -> str:
+    return f"{LEASE_NAME_PREFIX}{public_id}"
+
+
+def public_id_of(lease_name: str) -> uuid.UUID | None:
+    """The reservation a lease was made for, if the portal made it."""
+    if not lease_name.startswith(LEASE_NAME_PREFIX):
+        return None
+    try:
+        return uuid.UUID(lease_name.removeprefix(LEASE_NAME_PREFIX))
+    except ValueError:
+        return None
+
+
+def _domain_error(exc: SchedulerError, what: str) -> DomainError:
+    if isinstance(exc, SchedulerConflict):
+        nodes = ", ".join(exc.node_names) or "a node"
+        detail = f" ({exc.reason})" if exc.reason else ""
+        return Conflict.on_field(
+            "resources", f"The testbed scheduler refused the lease: {nodes} is taken{detail}."
+        )
+    if isinstance(exc, SchedulerUnavailable):
+        return SchedulerDown(
+            f"The testbed scheduler did not answer, so nothing was {what}. Try again in a "
+            f"moment. ({exc.message})"
+        )
+    return SchedulerRefused(f"The testbed scheduler refused to {what}: {exc.message}")
+
+
+# --- Leases for portal bookings --------------------------------------------------------------
+
+
+def booking_guard(public_id: uuid.UUID) -> None:
+    """Mark ``public_id`` as being booked until the current transaction ends (PostgreSQL)."""
+    if connection.vendor == "postgresql":
+        with connection.cursor() as cursor:
+            cursor.execute("SELECT pg_advisory_xact_lock(%s)", [_lock_key(public_id)])
+
+
+def _lock_key(public_id: uuid.UUID) -> int:
+    return int.from_bytes(public_id.bytes[:8], "big", signed=True)
+
+
+def _not_being_booked(public_id: uuid.UUID) -> bool:
+    """True when no transaction is booking ``public_id`` right now (PostgreSQL only)."""
+    with transaction.atomic(), connection.cursor() as cursor:
+        cursor.execute("SELECT pg_try_advisory_xact_lock(%s)", [_lock_key(public_id)])
+        return bool(cursor.fetchone()[0])
+
+
+def leases_refresh(*, start_at: datetime, end_at: datetime) -> None:
+    """Mirror the scheduler's leases over ``[start_at, end_at)`` now (before a booking),
+    so that a lease made elsewhere a moment ago refuses the booking with its name."""
+    listed_at = timezone.now()
+    try:
+        with scheduler_client() as scheduler:
+            leases = scheduler.list_leases(window_start=start_at, window_end=end_at)
+    except SchedulerError as exc:
+        raise _domain_error(exc, "booked") from exc
+    _mirror(leases, now=listed_at, window=(start_at, end_at))
+
+
+def lease_take(
+    *, public_id: uuid.UUID, start_at: datetime, end_at: datetime, resources: Sequence[Resource]
+) -> Lease:
+    """One lease holding every one of ``resources`` for the booking, or a domain error."""
+    config = settings.SCHEDULER
+    assert config is not None
+    try:
+        with scheduler_client() as scheduler:
+            lease = scheduler.create_lease(
+                name=lease_name_for(public_id),
+                valid_from=start_at,
+                valid_until=end_at,
+                component_names=[r.name for r in resources],
+            )
+    except SchedulerError as exc:
+        raise _domain_error(exc, "booked") from exc
+    logger.info("lease %s taken for reservation %s", lease.uuid, public_id)
+    return lease
+
+
+def lease_record(*, lease: Lease, reservation: Reservation, resources: Sequence[Resource]) -> None:
+    """Keep the booking's own lease in the mirror, linked to it."""
+    now = timezone.now()
+    row, _ = SchedulerLease.objects.update_or_create(
+        uuid=lease.uuid,
+        defaults={
+            "name": lease.name,
+            "start_at": lease.valid_from,
+            "end_at": lease.valid_until,
+            "status": lease.status.value,
+            "account_name": lease.account_name,
+            "components": list(lease.component_names),
+            "reservation": reservation,
+            "holds": lease.holds_nodes,
+            "seen_at": now,
+            "gone_at": None,
+        },
+    )
+    row.resources.set(resources)
+
+
+def lease_release(*, lease_uuid: str) -> None:
+    """Cancel a lease the portal no longer needs; failures are left to the sweep."""
+    try:
+        with scheduler_client() as scheduler:
+            scheduler.cancel_lease(uuid=lease_uuid)
+    except SchedulerError as exc:
+        logger.warning("lease %s not cancelled (the sweep retries): %s", lease_uuid, exc)
+        return
+    SchedulerLease.objects.filter(uuid=lease_uuid).update(holds=False, status="cancelled")
+    logger.info("lease %s cancelled", lease_uuid)
+
+
+def lease_move(*, lease_uuid: str, start_at: datetime, end_at: datetime) -> Lease:
+    try:
+        with scheduler_client() as scheduler:
+            lease = scheduler.move_lease(uuid=lease_uuid, valid_from=start_at, valid_until=end_at)
+    except SchedulerError as exc:
+        raise _domain_error(exc, "moved") from exc
+    SchedulerLease.objects.filter(uuid=lease_uuid).update(
+        start_at=lease.valid_from, end_at=lease.valid_until, status=lease.status.value
+    )
+    return lease
+
+
+# --- The sweep: mirror, reconcile, health ----------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    leases_seen: int
+    orphans_cancelled: int
+    # (notification kind, reservation id) for each booking flagged by this sweep.
+    notices: tuple[tuple[str, int], ...]
+
+
+def _mirror(leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, datetime]) -> None:
+    """Upsert what the scheduler listed at ``now``; what it no longer lists in the window is
+    gone — unless a newer look (another process's) saw it after ``now``."""
+    by_name = {r.name: r for r in Resource.objects.all()}
+    own = {
+        str(public_id): pk
+        for public_id, pk in Reservation.objects.exclude(lease_uuid="").values_list(
+            "public_id", "pk"
+        )
+    }
+    seen = []
+    for lease in leases:
+        public_id = public_id_of(lease.name)
+        row, _ = SchedulerLease.objects.update_or_create(
+            uuid=lease.uuid,
+            defaults={
+                "name": lease.name,
+                "start_at": lease.valid_from,
+                "end_at": lease.valid_until,
+                "status": lease.status.value,
+                "account_name": lease.account_name,
+                "components": list(lease.component_names),
+                "holds": lease.holds_nodes,
+                "seen_at": now,
+                "gone_at": None,
+            },
+        )
+        # A booking committed after this look began is linked already: never unlink it.
+        reservation_id = own.get(str(public_id)) if public_id else None
+        if reservation_id is not None and row.reservation_id != reservation_id:
+            SchedulerLease.objects.filter(pk=row.pk).update(reservation_id=reservation_id)
+        row.resources.set([by_name[n] for n in lease.component_names if n in by_name])
+        seen.append(lease.uuid)
+    SchedulerLease.objects.overlapping(*window).filter(
+        gone_at__isnull=True, seen_at__lt=now
+    ).exclude(uuid__in=seen).update(gone_at=now, holds=False)
+
+
+def _orphan(lease: Lease, *, now: datetime) -> bool:
+    """A lease the portal made whose booking is not (or no longer) holding it."""
+    public_id = public_id_of(lease.name)
+    config = settings.SCHEDULER
+    if public_id is None or config is None or lease.account_name != config.account_name:
+        return False
+    if not lease.status.holds_nodes and lease.status.value != "pending":
+        return False
+    active = Reservation.objects.filter(
+        public_id=public_id, lease_uuid=lease.uuid, state__in=RESERVATION_ACTIVE_STATES
+    ).exists()
+    if active:
+        return False
+    if connection.vendor == "postgresql":
+        return _not_being_booked(public_id)
+    first_seen = (
+        SchedulerLease.objects.filter(uuid=lease.uuid)
+        .values_list("first_seen_at", flat=True)
+        .first()
+    )
+    grace = timedelta(seconds=settings.SCHEDULER_ORPHAN_GRACE_S)
+    return first_seen is not None and now - first_seen >= grace
+
+
+def _flag(reservation: Reservation, note: str, kind: str) -> list[tuple[str, int]]:
+    """Flag a booking once per cause; the owner and the admins are to be told."""
+    if reservation.conflict == note:
+        return []
+    Reservation.objects.filter(pk=reservation.pk).update(conflict=note)
+    logger.warning("reservation %s flagged: %s", reservation.pk, note)
+    return [(kind, reservation.pk)]
+
+
+def _flag_late_conflicts(leases: Sequence[Lease], *, now: datetime) -> list[tuple[str, int]]:
+    """Portal bookings that a lease made elsewhere now overlaps on one of their nodes."""
+    flagged: list[tuple[str, int]] = []
+    local = timezone.localtime
+    for lease in leases:
+        if not lease.holds_nodes or public_id_of(lease.name) is not None:
+            continue
+        clashing = (
+            Reservation.objects.overlapping(lease.valid_from, lease.valid_until)
+            .filter(
+                state__in=RESERVATION_ACTIVE_STATES,
+                end_at__gt=now,
+                items__resource__name__in=lease.component_names,
+            )
+            .distinct()
+        )
+        for reservation in clashing:
+            note = (
+                f"A lease on the testbed scheduler, “{lease.name}” ({lease.account_name}), "
+                f"holds {', '.join(lease.component_names)} from "
+                f"{local(lease.valid_from):%Y-%m-%d %H:%M} to "
+                f"{local(lease.valid_until):%Y-%m-%d %H:%M}, over this booking."
+            )
+            flagged += _flag(reservation, note, "lease_conflict")
+    return flagged
+
+
+def _flag_vanished(
+    leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, datetime]
+) -> list[tuple[str, int]]:
+    """Upcoming portal bookings whose own lease the scheduler no longer holds."""
+    holding = {lease.uuid for lease in leases if lease.holds_nodes}
+    flagged: list[tuple[str, int]] = []
+    for reservation in (
+        Reservation.objects.overlapping(*window)
+        .filter(state__in=RESERVATION_ACTIVE_STATES, end_at__gt=now)
+        .exclude(lease_uuid="")
+    ):
+        if reservation.lease_uuid in holding:
+            continue
+        note = (
+            "Its lease on the testbed scheduler is gone: the fixed nodes may be booked by "
+            "someone else. Book them again or cancel."
+        )
+        flagged += _flag(reservation, note, "lease_vanished")
+    return flagged
+
+
+def scheduler_sweep(*, now: datetime | None = None) -> SweepResult | None:
+    """Mirror, reconcile and record the link's health; None when no scheduler is set up."""
+    if not scheduler_enabled():
+        return None
+    now = now or timezone.now()
+    started_s = time.monotonic()
+    link, _ = SchedulerLink.objects.get_or_create(pk=1)
+    link.last_attempt_at = now
+    window = (now - MIRROR_PAST, now + MIRROR_AHEAD)
+    try:
+        with scheduler_client() as scheduler:
+            leases = scheduler.list_leases(
+                window_start=window[0], window_end=window[1], statuses=ALL_STATUSES
+            )
+            with transaction.atomic():
+                _mirror(leases, now=now, window=window)
+            orphans = [lease for lease in leases if _orphan(lease, now=now)]
+            for lease in orphans:
+                scheduler.cancel_lease(uuid=lease.uuid)
+                SchedulerLease.objects.filter(uuid=lease.uuid).update(
+                    holds=False, status="cancelled"
+                )
+                logger.warning("orphan lease %s (%s) cancelled", lease.uuid, lease.name)
+    except SchedulerError as exc:
+        link.last_error = exc.message
+        link.last_error_at = now
+        link.save()
+        logger.warning("scheduler sweep failed: %s", exc)
+        return None
+    with transaction.atomic():
+        live = [lease for lease in leases if lease.uuid not in {o.uuid for o in orphans}]
+        notices = _flag_late_conflicts(live, now=now) + _flag_vanished(live, now=now, window=window)
+    link.last_success_at = now
+    link.last_sweep_s = time.monotonic() - started_s
+    link.leases_seen = len(leases)
+    link.orphans_cancelled += len(orphans)
+    link.bookings_flagged += len(notices)
+    link.save()
+    return SweepResult(len(leases), len(orphans), tuple(notices))
+
+
+def scheduler_link_status(*, now: datetime | None = None) -> dict[str, object]:
+    """For /healthz and the admins' page: is the link to the testbed scheduler working?"""
+    if not scheduler_enabled():
+        return {"configured": False}
+    now = now or timezone.now()
+    link = SchedulerLink.objects.filter(pk=1).first()
+    last_success = link.last_success_at if link else None
+    lag_s = None if last_success is None else (now - last_success).total_seconds()
+    stale_after_s = max(60.0, 3 * settings.SCHEDULER_SYNC_INTERVAL_S)
+    return {
+        "configured": True,
+        "ok": lag_s is not None and lag_s <= stale_after_s,
+        "last_sync_age_s": None if lag_s is None else round(lag_s, 1),
+        "last_error": link.last_error if link else "",
+        "last_error_at": link.last_error_at.isoformat() if link and link.last_error_at else None,
+    }
+
+
+def scheduler_overview(*, now: datetime) -> dict[str, object]:
+    """The admins' page: the link, the portal's leases (in step with their bookings or not),
+    and the leases made elsewhere that hold nodes."""
+    own = []
+    for reservation in (
+        Reservation.objects.filter(state__in=RESERVATION_ACTIVE_STATES, end_at__gt=now)
+        .exclude(lease_uuid="")
+        .select_related("owner")
+        .order_by("start_at")[:200]
+    ):
+        lease = SchedulerLease.objects.filter(uuid=reservation.lease_uuid).first()
+        in_sync = (
+            lease is not None
+            and lease.holds
+            and lease.gone_at is None
+            and lease.start_at <= reservation.start_at
+            and lease.end_at >= reservation.end_at
+        )
+        own.append({"reservation": reservation, "lease": lease, "in_sync": in_sync})
+    return {
+        "status": scheduler_link_status(now=now),
+        "link": SchedulerLink.objects.filter(pk=1).first(),
+        "own": own,
+        "external": SchedulerLease.objects.filter(
+            holds=True, gone_at__isnull=True, reservation__isnull=True, end_at__gt=now
+        )
+        .prefetch_related("resources")
+        .order_by("start_at")[:200],
+    }

@@ -1,0 +1,368 @@
+"""Bookings with scheduler-owned nodes: one lease, all or nothing, mirrored and reconciled.
+
+The stand-in broker runs as a separate process (``conftest.py``); the portal's services run
+here against the test database.
+"""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from dataclasses import replace
+from datetime import datetime, timedelta
+
+import pytest
+from django.core import mail
+from django.db import connection, transaction
+from django.utils import timezone
+
+from bookings import leases
+from bookings.calendar import calendar_entries
+from bookings.choices import ReservationState
+from bookings.models import Reservation, Resource, SchedulerLease
+from bookings.scheduler import LeaseStatus
+from bookings.selectors import resource_free_intervals
+from bookings.services import fixed_node_names_from_scheduler, reservation_create
+from bookings.tasks import scheduler_sweep
+from portal.errors import Conflict, NotAllowed
+from portal.runs.models import Run
+from portal.runs.services.booking import (
+    booking_cancel,
+    booking_check,
+    booking_create,
+    booking_decide,
+    booking_reschedule,
+)
+from tests.bookings.scheduler.conftest import Standin
+from tests.factories import ExperimentFactory, FixedResourceFactory
+
+pytestmark = pytest.mark.django_db
+
+
+@pytest.fixture
+def linked(settings, standin: Standin, mobile) -> Standin:
+    """The portal with the stand-in as its scheduler and six fixed nodes it owns."""
+    settings.SCHEDULER = replace(standin.config, read_timeout_s=2.0, connect_timeout_s=1.0)
+    for i in range(1, 7):
+        FixedResourceFactory(name=f"node-{i:02d}")
+    return standin
+
+
+@pytest.fixture
+def slot() -> tuple[datetime, datetime]:
+    start = timezone.now().replace(microsecond=0) + timedelta(days=1)
+    return start, start + timedelta(minutes=30)
+
+
+def _nodes(*numbers: int):
+    return [Resource.objects.get(name=f"node-{n:02d}") for n in numbers]
+
+
+def _broker_leases(standin: Standin):
+    with standin.scheduler() as scheduler:
+        return scheduler.list_leases(statuses=tuple(LeaseStatus))
+
+
+def _live(standin: Standin):
+    return [lease for lease in _broker_leases(standin) if lease.holds_nodes]
+
+
+def test_a_booking_of_the_robot_and_four_nodes_holds_one_lease_of_the_four(
+    linked, owner, mobile, slot
+):
+    experiment = ExperimentFactory(owner=owner)
+    reservation = booking_create(
+        owner=owner,
+        resources=[mobile, *_nodes(1, 2, 3, 4)],
+        start_at=slot[0],
+        end_at=slot[1],
+        experiment=experiment,
+    )
+    [lease] = _live(linked)
+    assert sorted(lease.component_names) == ["node-01", "node-02", "node-03", "node-04"]
+    assert lease.name == f"amazing-reservation-{reservation.public_id}"
+    assert (lease.valid_from, lease.valid_until) == slot
+    assert reservation.lease_uuid == lease.uuid
+    assert SchedulerLease.objects.get(uuid=lease.uuid).reservation == reservation
+    assert Run.objects.filter(reservation=reservation).exists()
+
+
+def test_a_booking_without_scheduler_owned_nodes_asks_the_scheduler_nothing(
+    linked, owner, mobile, slot
+):
+    linked.faults(unavailable=True)  # would fail any booking that asked it
+    reservation = booking_create(
+        owner=owner,
+        resource=mobile,
+        start_at=slot[0],
+        end_at=slot[1],
+        experiment=ExperimentFactory(owner=owner),
+    )
+    assert reservation.lease_uuid == ""
+
+
+def test_a_lease_made_elsewhere_refuses_the_booking_naming_it(linked, owner, slot):
+    linked.seed(
+        name="r2lab-campaign",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-02"}],
+        account_attributes={"name": "someone"},
+    )
+    with pytest.raises(
+        Conflict, match="node-02 is leased on the testbed scheduler by someone"
+    ) as e:
+        reservation_create(owner=owner, resources=_nodes(1, 2), start_at=slot[0], end_at=slot[1])
+    assert "r2lab-campaign" in e.value.message
+    assert not Reservation.objects.exists()
+    assert len(_live(linked)) == 1  # only theirs
+
+
+def test_a_refusal_by_the_scheduler_leaves_nothing_behind_and_names_the_node(
+    linked, owner, slot, monkeypatch, client_for
+):
+    linked.seed(
+        name="made-a-moment-ago",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-03"}],
+        account_attributes={"name": "someone"},
+    )
+    # The lease came after the portal's look at the scheduler: the scheduler itself refuses.
+    monkeypatch.setattr("bookings.services.leases_refresh", lambda **kwargs: None)
+    response = client_for(owner).post(
+        "/api/v1/reservations/",
+        {
+            "resources": ["node-01", "node-03"],
+            "start_at": slot[0].isoformat(),
+            "end_at": slot[1].isoformat(),
+        },
+        format="json",
+    )
+    assert response.status_code == 409, response.content
+    assert "node-03" in response.json()["detail"]
+    assert not Reservation.objects.exists()
+    assert [lease.name for lease in _live(linked)] == ["made-a-moment-ago"]
+
+
+@pytest.mark.parametrize("fault", [{"unavailable": True}, {"delay_s": 3.0}])
+def test_a_scheduler_down_or_too_slow_is_a_503_and_nothing_is_made(
+    linked, owner, slot, client_for, fault
+):
+    linked.faults(**fault)
+    response = client_for(owner).post(
+        "/api/v1/reservations/",
+        {"resources": ["node-01"], "start_at": slot[0].isoformat(), "end_at": slot[1].isoformat()},
+        format="json",
+    )
+    assert response.status_code == 503, response.content
+    assert response.json()["error"] == "scheduler_unavailable"
+    assert "nothing was booked" in response.json()["detail"]
+    linked.faults(unavailable=False, delay_s=0)
+    assert not Reservation.objects.exists()
+    assert _live(linked) == []
+
+
+def test_a_failure_after_the_lease_cancels_it_at_once(linked, owner, slot, monkeypatch):
+    def broken(**kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr("bookings.services.lease_record", broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        reservation_create(owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1])
+    assert not Reservation.objects.exists()
+    [lease] = _broker_leases(linked)
+    assert lease.status == LeaseStatus.CANCELLED
+
+
+def test_a_failure_of_the_run_after_the_booking_gives_the_lease_back(
+    linked, owner, mobile, slot, monkeypatch
+):
+    def broken(**kwargs):
+        raise RuntimeError("no run")
+
+    monkeypatch.setattr("portal.runs.services.booking.run_create", broken)
+    with pytest.raises(RuntimeError, match="no run"):
+        booking_create(
+            owner=owner,
+            resources=[mobile, *_nodes(1)],
+            start_at=slot[0],
+            end_at=slot[1],
+            experiment=ExperimentFactory(owner=owner),
+        )
+    assert not Reservation.objects.exists()
+    assert _live(linked) == []
+
+
+def test_the_sweep_cancels_an_orphan_but_never_a_lease_still_being_booked(linked, slot):
+    public_ids = [uuid.uuid4(), uuid.uuid4()]
+    with linked.scheduler() as scheduler:
+        for public_id in public_ids:
+            scheduler.create_lease(
+                name=leases.lease_name_for(public_id),
+                valid_from=slot[0],
+                valid_until=slot[1],
+                component_names=["node-05"] if public_id == public_ids[0] else ["node-06"],
+            )
+    booking = threading.Event()
+    release = threading.Event()
+
+    def book_slowly() -> None:
+        # Another connection is in the middle of booking the second one.
+        with transaction.atomic():
+            leases.booking_guard(public_ids[1])
+            booking.set()
+            release.wait(10)
+        connection.close()
+
+    thread = threading.Thread(target=book_slowly)
+    thread.start()
+    try:
+        assert booking.wait(10)
+        result = leases.scheduler_sweep()
+    finally:
+        release.set()
+        thread.join()
+    assert result is not None
+    assert result.orphans_cancelled == 1
+    live = {lease.name for lease in _live(linked)}
+    assert live == {leases.lease_name_for(public_ids[1])}
+    # Once that booking is over (here: it never committed), the next sweep cancels it too.
+    assert leases.scheduler_sweep().orphans_cancelled == 1
+    assert _live(linked) == []
+
+
+def test_leases_made_elsewhere_show_as_busy_and_block_the_live_check(linked, owner, slot):
+    linked.seed(
+        name="fit-session",
+        valid_from=slot[0].isoformat(),
+        valid_until=(slot[0] + timedelta(minutes=10)).isoformat(),
+        components=[{"name": "node-04"}],
+        account_attributes={"name": "fit"},
+    )
+    assert leases.scheduler_sweep().leases_seen == 1
+    [node] = _nodes(4)
+    entries = calendar_entries(
+        viewer=owner, start_at=slot[0] - timedelta(hours=1), end_at=slot[1], now=timezone.now()
+    )
+    assert [e.title for e in entries if e.kind == "lease"] == [
+        "Leased on the testbed scheduler: fit-session [node-04]"
+    ]
+    free = resource_free_intervals(resource=node, start_at=slot[0], end_at=slot[1])
+    assert free == [(slot[0] + timedelta(minutes=10), slot[1])]
+    problems = booking_check(
+        owner=owner, resources=[node], start_at=slot[0], end_at=slot[1], experiment=None
+    )
+    assert [p.code for p in problems] == ["lease"]
+
+
+def test_a_late_lease_over_a_booking_is_flagged_and_its_owner_and_the_admins_told(
+    linked, owner, admin_user, slot, eager_tasks
+):
+    reservation = reservation_create(
+        owner=owner, resources=_nodes(3), start_at=slot[0], end_at=slot[1]
+    )
+    mail.outbox.clear()
+    # Someone wrote into the scheduler around its own rules.
+    linked.seed(
+        name="sneaky",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-03"}],
+        account_attributes={"name": "elsewhere"},
+    )
+    scheduler_sweep.delay()
+    reservation.refresh_from_db()
+    assert "“sneaky” (elsewhere), holds node-03" in reservation.conflict
+    [message] = mail.outbox
+    assert message.subject.startswith("A lease on the testbed scheduler overlaps a booking")
+    assert set(message.to) == {owner.email, admin_user.email}
+    scheduler_sweep.delay()  # told once, not at every sweep
+    assert len(mail.outbox) == 1
+
+
+def test_a_booking_whose_lease_vanished_is_flagged(linked, owner, slot, eager_tasks):
+    reservation = reservation_create(
+        owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
+    )
+    with linked.scheduler() as scheduler:
+        scheduler.cancel_lease(uuid=reservation.lease_uuid)
+    scheduler_sweep.delay()
+    reservation.refresh_from_db()
+    assert reservation.conflict.startswith("Its lease on the testbed scheduler is gone")
+    assert mail.outbox[-1].subject.startswith("A booking lost its lease")
+
+
+def test_moving_a_booking_moves_its_lease_or_changes_neither(linked, owner, other, slot):
+    reservation = reservation_create(
+        owner=owner, resources=_nodes(1, 2), start_at=slot[0], end_at=slot[1]
+    )
+    later = (slot[0] + timedelta(hours=2), slot[1] + timedelta(hours=2))
+    booking_reschedule(reservation=reservation, by=owner, start_at=later[0], end_at=later[1])
+    [lease] = _live(linked)
+    assert (lease.valid_from, lease.valid_until) == later
+    reservation_create(owner=other, resources=_nodes(2), start_at=slot[0], end_at=slot[1])
+    with pytest.raises(Conflict):
+        booking_reschedule(reservation=reservation, by=owner, start_at=slot[0], end_at=slot[1])
+    reservation.refresh_from_db()
+    assert (reservation.start_at, reservation.end_at) == later
+    ours = next(lease for lease in _live(linked) if lease.uuid == reservation.lease_uuid)
+    assert (ours.valid_from, ours.valid_until) == later
+
+
+def test_cancelling_a_booking_cancels_its_lease(
+    linked, owner, slot, eager_tasks, django_capture_on_commit_callbacks
+):
+    reservation = reservation_create(
+        owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
+    )
+    with django_capture_on_commit_callbacks(execute=True):
+        booking_cancel(reservation=reservation, by=owner)
+    assert _live(linked) == []
+
+
+def test_a_booking_awaiting_approval_holds_its_lease_until_rejected(
+    linked, owner, admin_user, slot, eager_tasks, django_capture_on_commit_callbacks
+):
+    [node] = _nodes(6)
+    node.requires_approval = True
+    node.save()
+    reservation = reservation_create(
+        owner=owner, resources=[node], start_at=slot[0], end_at=slot[1]
+    )
+    assert reservation.state == ReservationState.REQUESTED
+    assert len(_live(linked)) == 1  # the slot is held while an admin decides
+    with django_capture_on_commit_callbacks(execute=True):
+        booking_decide(reservation=reservation, by=admin_user, approve=False, reason="roof closed")
+    assert _live(linked) == []
+
+
+def test_the_link_status_and_the_admins_page(linked, admin_user, client, slot):
+    assert leases.scheduler_link_status()["ok"] is False  # never synced yet
+    leases.scheduler_sweep()
+    status = leases.scheduler_link_status()
+    assert status["ok"] is True
+    assert status["last_sync_age_s"] is not None
+    health = client.get("/healthz").json()
+    assert health["testbed_scheduler"]["ok"] is True
+    linked.faults(unavailable=True)
+    leases.scheduler_sweep()
+    linked.faults(unavailable=False)
+    client.force_login(admin_user)
+    page = client.get("/scheduler-link/")
+    assert page.status_code == 200
+    assert "The broker is unavailable" in page.content.decode() or "503" in page.content.decode()
+
+
+def test_the_fixed_nodes_come_from_the_scheduler(linked):
+    names = fixed_node_names_from_scheduler()
+    assert names[:2] == ("node-01", "node-02")
+    assert len(names) == 24
+
+
+def test_only_admins_and_the_scheduler_account_book_for_others(linked, owner, other, slot):
+    with pytest.raises(NotAllowed):
+        reservation_create(
+            owner=owner, by=other, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
+        )
+    assert _live(linked) == []

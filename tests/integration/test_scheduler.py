@@ -1,0 +1,236 @@
+"""The scheduler integration with real processes: web, worker, beat, agent, stand-in broker."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Callable
+from datetime import timedelta
+from typing import Any
+
+import pytest
+import requests
+from django.utils import timezone
+from rest_framework.authtoken.models import Token
+
+from bookings.models import Reservation
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+
+pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
+
+
+def _until(what: str, check: Callable[[], Any], timeout_s: float, stack: dict) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = check()
+        if value:
+            return value
+        time.sleep(0.2)
+    logs = "\n".join(p.output() for p in stack["procs"])
+    raise AssertionError(f"{what} did not happen in {timeout_s:g} s\n{logs}")
+
+
+def _broker_leases(stack: dict) -> list[dict]:
+    answer = requests.get(
+        f"{stack['standin']}/resources/leases",
+        params={"status": "pending,accepted,active,past,cancelled"},
+        timeout=10,
+    )
+    body = answer.json()
+    if answer.status_code == 404:
+        return []
+    return body["resource_response"]["resources"]
+
+
+def _live(stack: dict) -> list[dict]:
+    return [x for x in _broker_leases(stack) if x["status"] in ("accepted", "active")]
+
+
+@pytest.fixture
+def world(stack_with_scheduler):
+    stack = stack_with_scheduler
+    MobileResourceFactory(agent_url=stack["agent_url"])
+    for i in range(1, 7):
+        FixedResourceFactory(name=f"node-{i:02d}")
+    user = UserFactory(username="erin")
+    headers = {"Authorization": f"Token {Token.objects.create(user=user).key}"}
+    return stack, user, headers
+
+
+def test_a_booking_of_the_robot_and_four_nodes_holds_one_lease_and_its_run_completes(world):
+    stack, _, headers = world
+    web = stack["web"]
+    segments = [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 3.0}]
+    experiment = requests.post(
+        f"{web}/api/v1/experiments/",
+        json={"title": "with the nodes", "segments": segments},
+        headers=headers,
+        timeout=10,
+    ).json()
+    start = timezone.now() + timedelta(seconds=4)
+    booking = requests.post(
+        f"{web}/api/v1/reservations/",
+        json={
+            "resources": ["mobile-1", "node-01", "node-02", "node-03", "node-04"],
+            "experiment": experiment["id"],
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(seconds=8)).isoformat(),
+        },
+        headers=headers,
+        timeout=20,
+    )
+    assert booking.status_code == 201, booking.text
+    [lease] = _live(stack)
+    assert sorted(c["name"] for c in lease["components"]) == [
+        "node-01",
+        "node-02",
+        "node-03",
+        "node-04",
+    ]
+    reservation = Reservation.objects.get(pk=booking.json()["id"])
+    assert lease["uuid"] == reservation.lease_uuid
+    run_id = booking.json()["run"]["id"]
+    run = _until(
+        "the run's end",
+        lambda: (
+            (r := requests.get(f"{web}/api/v1/runs/{run_id}/", headers=headers, timeout=10).json())[
+                "state"
+            ]
+            in ("completed", "failed", "interrupted")
+            and r
+        ),
+        60,
+        stack,
+    )
+    assert run["state"] == "completed", run
+    assert run["sample_count"] == stack["agent"].get_run(f"run-{run_id}")["sample_count"] > 0
+
+
+def test_the_web_killed_between_lease_and_commit_leaves_an_orphan_the_sweep_cancels(world):
+    stack, _, headers = world
+    # The broker makes the lease, then holds its answer: the portal waits, uncommitted.
+    requests.post(f"{stack['standin']}/_standin/faults", json={"answer_delay_s": 8}, timeout=5)
+    start = timezone.now() + timedelta(hours=3)
+    outcome: dict[str, Any] = {}
+
+    def book() -> None:
+        try:
+            outcome["response"] = requests.post(
+                f"{stack['web']}/api/v1/reservations/",
+                json={
+                    "resources": ["node-05"],
+                    "start_at": start.isoformat(),
+                    "end_at": (start + timedelta(hours=1)).isoformat(),
+                },
+                headers=headers,
+                timeout=30,
+            )
+        except requests.RequestException as exc:
+            outcome["error"] = exc
+
+    booking = threading.Thread(target=book)
+    booking.start()
+    [orphan] = _until("the lease on the broker", lambda: _live(stack), 20, stack)
+    stack["by_name"]["web"].stop(signal.SIGKILL)
+    booking.join(timeout=30)
+    assert "error" in outcome  # the client never got an answer
+    requests.post(f"{stack['standin']}/_standin/faults", json={"answer_delay_s": 0}, timeout=5)
+    assert not Reservation.objects.exists(), (
+        list(Reservation.objects.values()),
+        outcome,
+        "\n".join(p.output() for p in stack["procs"]),
+    )
+    # Beat sweeps every second; the killed process's transaction (and its lock) is gone.
+    _until("the orphan's cancellation", lambda: not _live(stack), 15, stack)
+    [cancelled] = [x for x in _broker_leases(stack) if x["uuid"] == orphan["uuid"]]
+    assert cancelled["status"] == "cancelled"
+
+
+def test_a_lease_made_on_the_broker_blocks_the_node_shows_busy_and_a_late_one_is_flagged(world):
+    stack, user, headers = world
+    web = stack["web"]
+    start = (timezone.now() + timedelta(hours=5)).replace(microsecond=0)
+    end = start + timedelta(hours=1)
+    theirs = requests.post(
+        f"{stack['standin']}/resources/leases",
+        json={
+            "name": "fit-campaign",
+            "valid_from": start.isoformat(),
+            "valid_until": end.isoformat(),
+            "account_attributes": {"name": "fit"},
+            "components": [{"name": "node-06"}],
+        },
+        timeout=10,
+    )
+    assert theirs.status_code == 200, theirs.text
+    refused = requests.post(
+        f"{web}/api/v1/reservations/",
+        json={"resources": ["node-06"], "start_at": start.isoformat(), "end_at": end.isoformat()},
+        headers=headers,
+        timeout=20,
+    )
+    assert refused.status_code == 409, refused.text
+    assert "fit-campaign" in refused.json()["detail"]
+    session = requests.Session()
+    session.get(f"{web}/accounts/login/", timeout=10)
+    user.set_password("pw-for-the-calendar")
+    user.save()
+    session.post(
+        f"{web}/accounts/login/",
+        data={
+            "login": "erin",
+            "password": "pw-for-the-calendar",
+            "csrfmiddlewaretoken": session.cookies["csrftoken"],
+        },
+        headers={"Referer": f"{web}/accounts/login/"},
+        timeout=10,
+    )
+    events = session.get(
+        f"{web}/calendar/events.json",
+        params={"start": (start - timedelta(hours=1)).isoformat(), "end": end.isoformat()},
+        timeout=10,
+    ).json()
+    from bookings.models import SchedulerLease
+
+    assert [e["title"] for e in events if e["extendedProps"]["kind"] == "lease"] == [
+        "Leased on the testbed scheduler: fit-campaign [node-06]"
+    ], (events, list(SchedulerLease.objects.values()))
+
+    # A booking first, then a lease written into the scheduler around its rules.
+    later = end + timedelta(hours=1)
+    mine = requests.post(
+        f"{web}/api/v1/reservations/",
+        json={
+            "resources": ["node-01"],
+            "start_at": later.isoformat(),
+            "end_at": (later + timedelta(hours=1)).isoformat(),
+        },
+        headers=headers,
+        timeout=20,
+    )
+    assert mine.status_code == 201, mine.text
+    requests.post(
+        f"{stack['standin']}/_standin/leases",
+        json={
+            "name": "sneaky",
+            "valid_from": later.isoformat(),
+            "valid_until": (later + timedelta(minutes=30)).isoformat(),
+            "account_attributes": {"name": "elsewhere"},
+            "components": [{"name": "node-01"}],
+        },
+        timeout=10,
+    )
+    flagged = _until(
+        "the booking's flag",
+        lambda: Reservation.objects.get(pk=mine.json()["id"]).conflict,
+        15,
+        stack,
+    )
+    assert "“sneaky”" in flagged
+    # The owner is told: the worker sends the e-mail (the console backend prints it; its
+    # subject is MIME-encoded, its body is not).
+    stack["by_name"]["worker"].wait_for_line(
+        lambda line: "there is a problem with your booking of node-01" in line, 15
+    )
+    stack["by_name"]["worker"].wait_for_line(lambda line: "To: erin@example.org" in line, 5)
