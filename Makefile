@@ -32,7 +32,7 @@ $(STAMPS):
 $(STAMPS)/venv: pyproject.toml | $(STAMPS)
 	@test -x $(PY) || $(PYTHON_BOOT) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[portal,basestation,dev,cad]'
+	$(PY) -m pip install --quiet -e '.[portal,basestation,cli,dev,cad]'
 	@touch $@
 
 # Front-end packages from npm, copied to where Django's staticfiles finds them.

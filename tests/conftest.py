@@ -38,6 +38,13 @@ def pytest_configure(config: pytest.Config) -> None:
             raise pytest.UsageError(f"tests must use Redis, got {settings.CELERY_BROKER_URL}")
 
 
+@pytest.fixture(autouse=True)
+def _api_throttles_off(settings):
+    """The throttles count in the shared cache across tests; their own tests turn them on."""
+    settings.API_THROTTLE_ANON = None
+    settings.API_THROTTLE_USER = None
+
+
 @pytest.fixture
 def owner():
     return UserFactory(username="alice")
