@@ -15,6 +15,7 @@ urlpatterns = [
     path("api/v1/", include("portal.runs.urls")),
     path("api/v1/", include("bookings.urls")),
     path("api/v1/", include("portal.audit.urls")),
+    path("api/v1/", include("portal.accounts.urls")),
     # Last of the API: any other path under /api/ answers a JSON 404, not a page.
     re_path(r"^api/(?P<path>.*)$", api_not_found),
     path("", include("portal.web.urls")),

@@ -10,7 +10,7 @@ from rest_framework.test import APIClient
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 
 # The real-process stack (agent, web, worker, beat) for integration and browser tests.
-pytest_plugins = ["tests.integration.stack"]
+pytest_plugins = ["tests.integration.stack", "tests.integration.live"]
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:

@@ -29,7 +29,7 @@ from django.utils import timezone
 from rest_framework.authtoken.models import Token
 
 from portal.runs.services.booking import booking_create
-from tests.api.conftest import live_portal
+from tests.integration.live import live_portal
 from tests.api.contract_hooks import DATA_DEPENDENT_FIELDS
 from tests.factories import (
     ExperimentFactory,
@@ -146,7 +146,8 @@ def test_schemathesis_finds_nothing_against_a_live_portal(role, tmp_path):
                 "--suppress-health-check",
                 "all",
             ],
-            cwd=REPO,
+            # Its cache and reports stay out of the checkout.
+            cwd=tmp_path,
             capture_output=True,
             text=True,
             timeout=600,

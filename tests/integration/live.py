@@ -1,4 +1,5 @@
-"""A live portal (the real ASGI server on the test database) for tests of the public API."""
+"""A live portal (the real ASGI server on the test database) for tests of the public API and
+the command-line client, lighter than the whole stack (no worker or beat)."""
 
 from __future__ import annotations
 
