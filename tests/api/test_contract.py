@@ -29,7 +29,6 @@ from django.utils import timezone
 from rest_framework.authtoken.models import Token
 
 from portal.runs.services.booking import booking_create
-from tests.integration.live import live_portal
 from tests.api.contract_hooks import DATA_DEPENDENT_FIELDS
 from tests.factories import (
     ExperimentFactory,
@@ -37,6 +36,7 @@ from tests.factories import (
     MobileResourceFactory,
     UserFactory,
 )
+from tests.integration.live import live_portal
 from tests.integration.processes import REPO, free_port
 from tests.runs.driving import completed_run
 

@@ -9,6 +9,7 @@ base-station agent. Every request the script made is one the API's schema descri
 from __future__ import annotations
 
 import csv
+import itertools
 import os
 import re
 import subprocess
@@ -83,7 +84,7 @@ def test_the_worked_campaign_of_the_cli_manual_runs_as_written(stack, tmp_path):
         "steps",
     ]
     # Back to back: each booking starts when the one before ends.
-    for before, after in zip(by_start, by_start[1:], strict=False):
+    for before, after in itertools.pairwise(by_start):
         assert after["start_at"] == before["end_at"]
     for run in by_start:
         assert run["state"] == "completed", run
