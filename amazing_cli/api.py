@@ -63,7 +63,7 @@ def _message(response: requests.Response) -> str:
     if isinstance(fields, dict):
         for name, messages in fields.items():
             for message in messages if isinstance(messages, list) else [messages]:
-                if str(message) != detail:
+                if str(message) not in detail:
                     parts.append(f"{name}: {message}")
     return " ".join(p.rstrip() for p in parts).replace("\n", " ")
 

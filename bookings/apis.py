@@ -282,7 +282,10 @@ class QuotaPolicyDetailApi(APIView):
 
 class ServiceInput(serializers.Serializer):
     enabled = serializers.BooleanField()
-    reason = serializers.CharField(help_text="Why (shown to the people whose bookings it affects).")
+    reason = serializers.CharField(
+        help_text="Why (audited).",
+        error_messages={"required": "Say why.", "blank": "Say why."},
+    )
 
 
 class ResourceServiceApi(APIView):

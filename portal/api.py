@@ -68,6 +68,16 @@ def flatten_field_errors(errors: Any, prefix: str = "") -> dict[str, list[str]]:
     return {prefix or api_settings.NON_FIELD_ERRORS_KEY: [str(errors)]}
 
 
+def _first_problem(fields: Mapping[str, list[str]]) -> str:
+    """The detail of an invalid request: its first problem, so one line says what to fix."""
+    for name, messages in fields.items():
+        if messages:
+            if name == api_settings.NON_FIELD_ERRORS_KEY:
+                return messages[0]
+            return f"{name}: {messages[0]}"
+    return INVALID_DETAIL
+
+
 def _error_code(exc: exceptions.APIException) -> str:
     codes = exc.get_codes()
     return codes if isinstance(codes, str) else exc.default_code
@@ -108,7 +118,8 @@ def exception_handler(exc: Exception, context: dict[str, Any]) -> Response | Non
     if response is None:
         return None
     if isinstance(exc, exceptions.ValidationError):
-        response.data = error_body("invalid", INVALID_DETAIL, flatten_field_errors(exc.detail))
+        fields = flatten_field_errors(exc.detail)
+        response.data = error_body("invalid", _first_problem(fields), fields)
     elif isinstance(exc, exceptions.APIException):
         response.data = error_body(_error_code(exc), str(exc.detail))
         if isinstance(exc, exceptions.Throttled):

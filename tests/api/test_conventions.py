@@ -297,3 +297,17 @@ def test_the_schema_states_the_shapes_that_the_server_answers(schema):
     assert segment["additionalProperties"] is False
     assert set(segment["required"]) == {"velocity_mps", "direction", "duration_s"}
     assert segment["properties"]["duration_s"]["exclusiveMinimum"] is True
+
+
+def test_a_download_honours_accept_and_its_errors_stay_json(api, owner, mobile):
+    from tests.runs.driving import completed_run
+
+    run = completed_run(owner, mobile, [(0.5, "cw", 1.0)])
+    csv_answer = api.get(f"/api/v1/runs/{run.pk}/samples.csv", HTTP_ACCEPT="text/csv")
+    assert csv_answer.status_code == 200
+    assert csv_answer["Content-Type"].startswith("text/csv")
+    assert len(b"".join(csv_answer.streaming_content).splitlines()) == 21
+    missing = api.get("/api/v1/runs/999999/samples.csv", HTTP_ACCEPT="text/csv")
+    assert missing.status_code == 404
+    assert missing["Content-Type"] == "application/json"
+    _is_envelope(missing.json(), "not_found")

@@ -64,6 +64,10 @@ def test_bad_manual_commands_are_refused_before_reaching_the_robot(
     )
     assert response.status_code == 400
     assert field in response.json()["fields"]
+    # The first problem is the detail: the console shows it as it is.
+    assert response.json()["detail"].startswith(
+        {"reason": "reason: Say why", "velocity_mps": "Velocity", "ttl_s": "ttl_s: "}[field]
+    )
     assert not AuditEvent.objects.filter(action="robot.control").exists()
 
 

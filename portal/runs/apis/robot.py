@@ -40,7 +40,13 @@ class RobotDriveInput(serializers.Serializer):
         help_text="How long the command holds; the robot stops after it (dead-man).",
     )
     force = serializers.BooleanField(default=False, help_text="Take over from a running run.")
-    reason = serializers.CharField(help_text="Why you drive by hand (audited).")
+    reason = serializers.CharField(
+        help_text="Why you drive by hand (audited).",
+        error_messages={
+            "required": "Say why you drive the robot by hand.",
+            "blank": "Say why you drive the robot by hand.",
+        },
+    )
 
 
 class StopInput(serializers.Serializer):
@@ -48,7 +54,13 @@ class StopInput(serializers.Serializer):
 
 
 class ReleaseInput(serializers.Serializer):
-    reason = serializers.CharField(help_text="Why it is safe to release the stop (audited).")
+    reason = serializers.CharField(
+        help_text="Why it is safe to release the stop (audited).",
+        error_messages={
+            "required": "Say why it is safe to release the stop.",
+            "blank": "Say why it is safe to release the stop.",
+        },
+    )
 
 
 class RobotStatusOutput(serializers.Serializer):
