@@ -124,9 +124,9 @@ def root(
 @reports_errors
 def login(
     ctx: typer.Context,
-    url: Annotated[str | None, typer.Option(help="The portal's address.")] = None,
+    url: Annotated[str | None, typer.Option(metavar="URL", help="The portal's address.")] = None,
     token: Annotated[
-        str | None, typer.Option(help="Your API token (asked for when not given).")
+        str | None, typer.Option(metavar="TOKEN", help="Your API token (asked for when not given).")
     ] = None,
     as_json: JsonOption = False,
 ) -> None:
@@ -193,11 +193,16 @@ def _free(api: Api, name: str, start: datetime, end: datetime) -> list[tuple[dat
 @reports_errors
 def availability(
     ctx: typer.Context,
-    resource: Annotated[str, typer.Argument(help="A resource's name, e.g. mobile-1.")],
+    resource: Annotated[
+        str, typer.Argument(metavar="RESOURCE", help="A resource's name, e.g. mobile-1.")
+    ],
     start: Annotated[
-        str, typer.Option("--from", help="From when (RFC 3339, or +2h); default now.")
+        str,
+        typer.Option("--from", metavar="WHEN", help="From when (RFC 3339, or +2h); default now."),
     ] = "+0s",
-    days: Annotated[float, typer.Option(min=0.01, max=62, help="For how many days.")] = 7,
+    days: Annotated[
+        float, typer.Option(metavar="DAYS", min=0.01, max=62, help="For how many days.")
+    ] = 7,
     as_json: JsonOption = False,
 ) -> None:
     """When a resource is free."""
@@ -264,7 +269,9 @@ def quota(ctx: typer.Context, as_json: JsonOption = False) -> None:
 @reports_errors
 def experiment_create(
     ctx: typer.Context,
-    file: Annotated[Path, typer.Argument(help="A YAML or JSON file: title and segments.")],
+    file: Annotated[
+        Path, typer.Argument(metavar="FILE", help="A YAML or JSON file: title and segments.")
+    ],
     as_json: JsonOption = False,
     quiet: QuietOption = False,
 ) -> None:
@@ -288,7 +295,9 @@ def experiment_create(
 @reports_errors
 def experiment_list(
     ctx: typer.Context,
-    limit: Annotated[int, typer.Option(min=1, help="At most this many, newest first.")] = 50,
+    limit: Annotated[
+        int, typer.Option(metavar="N", min=1, help="At most this many, newest first.")
+    ] = 50,
     as_json: JsonOption = False,
 ) -> None:
     """Your experiments."""
@@ -356,33 +365,46 @@ def _first_slot(
 def book(
     ctx: typer.Context,
     experiment: Annotated[
-        int, typer.Option("--experiment", "-e", help="The experiment the robot runs.")
+        int, typer.Option("--experiment", "-e", metavar="ID", help="The experiment the robot runs.")
     ],
     resource: Annotated[
-        str | None, typer.Argument(help="The robot to book; default: the only one.")
+        str | None,
+        typer.Argument(metavar="ROBOT", help="The robot to book; default: the only one."),
     ] = None,
     start: Annotated[
         str,
         typer.Option(
+            metavar="WHEN",
             help="When: `asap` (the first free slot), RFC 3339 (2026-05-01T10:00+01:00) or "
-            "relative (+30m)."
+            "relative (+30m).",
         ),
     ] = "asap",
     duration: Annotated[
         float | None,
-        typer.Option(min=1, help="Seconds to book; default: the experiment's length and a margin."),
+        typer.Option(
+            metavar="SECONDS",
+            min=1,
+            help="Seconds to book; default: the experiment's length and a margin.",
+        ),
     ] = None,
     node: Annotated[
         list[str] | None,
-        typer.Option(help="A fixed node to book with it (repeat for more)."),
+        typer.Option(metavar="NODE", help="A fixed node to book with it (repeat for more)."),
     ] = None,
-    title: Annotated[str | None, typer.Option(help="Default: the experiment's title.")] = None,
+    title: Annotated[
+        str | None, typer.Option(metavar="TITLE", help="Default: the experiment's title.")
+    ] = None,
     after: Annotated[
         int | None,
-        typer.Option(help="Start when this run's booking ends: back to back with it."),
+        typer.Option(
+            metavar="RUN", help="Start when this run's booking ends: back to back with it."
+        ),
     ] = None,
     lead: Annotated[
-        float, typer.Option(min=0, help="With `asap`: start no sooner than this many seconds.")
+        float,
+        typer.Option(
+            metavar="SECONDS", min=0, help="With `asap`: start no sooner than this many seconds."
+        ),
     ] = 15,
     as_json: JsonOption = False,
     quiet: QuietOption = False,
@@ -432,11 +454,16 @@ def book(
 @reports_errors
 def cancel(
     ctx: typer.Context,
-    run: Annotated[int | None, typer.Argument(help="The run whose booking to cancel.")] = None,
-    reservation: Annotated[
-        int | None, typer.Option(help="Or the reservation itself (e.g. fixed nodes only).")
+    run: Annotated[
+        int | None, typer.Argument(metavar="RUN", help="The run whose booking to cancel.")
     ] = None,
-    reason: Annotated[str, typer.Option(help="Why (needed when an admin cancels).")] = "",
+    reservation: Annotated[
+        int | None,
+        typer.Option(metavar="ID", help="Or the reservation itself (e.g. fixed nodes only)."),
+    ] = None,
+    reason: Annotated[
+        str, typer.Option(metavar="TEXT", help="Why (needed when an admin cancels).")
+    ] = "",
     as_json: JsonOption = False,
 ) -> None:
     """Cancel a booking and its run."""
@@ -463,8 +490,12 @@ def cancel(
 @reports_errors
 def runs(
     ctx: typer.Context,
-    state: Annotated[str | None, typer.Option(help="Only runs in this state.")] = None,
-    limit: Annotated[int, typer.Option(min=1, help="At most this many, latest first.")] = 50,
+    state: Annotated[
+        str | None, typer.Option(metavar="STATE", help="Only runs in this state.")
+    ] = None,
+    limit: Annotated[
+        int, typer.Option(metavar="N", min=1, help="At most this many, latest first.")
+    ] = 50,
     as_json: JsonOption = False,
     quiet: QuietOption = False,
 ) -> None:
@@ -515,8 +546,10 @@ def _progress_of(run: dict[str, Any]) -> tuple[float, str]:
 @reports_errors
 def watch(
     ctx: typer.Context,
-    run: Annotated[int, typer.Argument(help="The run to follow.")],
-    interval: Annotated[float, typer.Option(min=0.2, help="Seconds between looks.")] = 1.0,
+    run: Annotated[int, typer.Argument(metavar="RUN", help="The run to follow.")],
+    interval: Annotated[
+        float, typer.Option(metavar="SECONDS", min=0.2, help="Seconds between looks.")
+    ] = 1.0,
     as_json: JsonOption = False,
 ) -> None:
     """Follow a run's state with a progress bar until it ends (exit 1 unless completed)."""
@@ -559,13 +592,16 @@ def watch(
 @reports_errors
 def download(
     ctx: typer.Context,
-    run: Annotated[int, typer.Argument(help="The run whose samples to download.")],
-    format: Annotated[str, typer.Option("--format", "-f", help="csv or json.")] = "csv",
+    run: Annotated[int, typer.Argument(metavar="RUN", help="The run whose samples to download.")],
+    format: Annotated[
+        str, typer.Option("--format", "-f", metavar="FORMAT", help="csv or json.")
+    ] = "csv",
     output: Annotated[
         Path | None,
         typer.Option(
             "--output",
             "-o",
+            metavar="FILE",
             help="File to write; `-` for stdout. Default: amazing-run-RUN.csv (or .json) here.",
         ),
     ] = None,
