@@ -38,7 +38,7 @@ and CSRF token; that is not meant for other clients.
 paths, list items by index: `segments.0.velocity_mps`). Codes include `invalid`,
 `parse_error`, `not_authenticated`, `authentication_failed`, `permission_denied`,
 `forbidden`, `not_found`, `method_not_allowed`, `conflict`, `quota_exceeded`,
-`idempotency_key_reused`, `throttled`, `agent_unavailable` and `scheduler_unavailable`.
+`idempotency_key_reused`, `throttled` and `agent_unavailable`.
 Unknown paths under `/api/` answer 404 in the same envelope.
 
 **Throttling.** Authenticated clients are limited per user and anonymous ones per address

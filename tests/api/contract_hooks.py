@@ -19,17 +19,20 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     # end after start, at most 62 days later
     ("GET", "/api/v1/resources/{name}/availability/"): frozenset({"end"}),
     ("GET", "/api/v1/reservations/busy/"): frozenset({"end"}),
-    # resource and user names, the experiment's program against the robot, the slot (in the
-    # future, not too long, robot in service, no maintenance, quotas), admins-only fields
+    # resource and user names, the experiment against the robot (its velocities, its length
+    # against the slot's), the slot (in the future, not too long, robot in service), the
+    # fields only admins may give
     ("POST", "/api/v1/reservations/"): frozenset(
-        {"resources", "resource", "owner", "start_at", "end_at", "segments", "override_reason"}
+        {"resources", "resource", "owner", "start_at", "end_at", "experiment", "override_reason"}
     ),
-    ("PATCH", "/api/v1/reservations/{id}/"): frozenset({"start_at", "end_at", "segments"}),
+    ("PATCH", "/api/v1/reservations/{id}/"): frozenset(
+        {"resources", "start_at", "end_at", "experiment"}
+    ),
     # an admin cancelling someone else's booking says why
     ("DELETE", "/api/v1/reservations/{id}/"): frozenset({"reason"}),
     # a rejection says why
     ("POST", "/api/v1/reservations/{id}/decision/"): frozenset({"reason"}),
-    ("POST", "/api/v1/quota/check/"): frozenset({"resources", "start_at", "end_at"}),
+    ("POST", "/api/v1/quota/check/"): frozenset({"resources"}),
     # resource names; the window's end after its start; some resources, or all of them
     ("POST", "/api/v1/blackouts/"): frozenset({"resources", "end_at"}),
     # users, groups and resources by name; a limit in hours or count needs a period
