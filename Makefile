@@ -32,7 +32,7 @@ $(STAMPS):
 $(STAMPS)/venv: pyproject.toml | $(STAMPS)
 	@test -x $(PY) || $(PYTHON_BOOT) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[portal,basestation,dev,cad]'
+	$(PY) -m pip install --quiet -e '.[portal,basestation,cli,dev,cad]'
 	@touch $@
 
 # Front-end packages from npm, copied to where Django's staticfiles finds them.
@@ -82,7 +82,7 @@ test: setup system-deps services
 lint: setup system-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation cad bench
+	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation amazing_cli cad bench
 	$(VENV)/bin/lint-imports --no-cache
 	docker-compose -f docker-compose.yml config --quiet
 	DJANGO_DEBUG=1 $(PY) manage.py makemigrations --check --dry-run

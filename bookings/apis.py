@@ -1,11 +1,11 @@
 from __future__ import annotations
 
-from datetime import datetime, timedelta
+from datetime import timedelta
 from typing import Any
 
 from django.shortcuts import get_object_or_404
 from django.utils import timezone
-from drf_spectacular.utils import OpenApiParameter, extend_schema
+from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
 from rest_framework.permissions import IsAdminUser
 from rest_framework.request import Request
@@ -18,7 +18,15 @@ from bookings.models import Blackout, QuotaPolicy, Resource, ResourceGroup
 from bookings.quotas import quota_summary
 from bookings.selectors import external_leases, items_overlapping, resource_free_intervals
 from portal.accounts.models import User
-from portal.api import request_user, valid_input
+from portal.api import (
+    DateTimeInput,
+    GreaterThan,
+    Pagination,
+    paginated_response,
+    request_user,
+    valid_input,
+    valid_query,
+)
 from portal.audit.services import client_ip
 
 MAX_RANGE = timedelta(days=62)
@@ -45,6 +53,8 @@ class ResourceOutput(serializers.ModelSerializer):
 
 
 class ResourceListApi(APIView):
+    """Every resource, the mobile node(s) and the fixed nodes (a short list: not paginated)."""
+
     @extend_schema(responses=ResourceOutput(many=True))
     def get(self, request: Request) -> Response:
         qs = Resource.objects.prefetch_related("groups")
@@ -52,8 +62,8 @@ class ResourceListApi(APIView):
 
 
 class RangeQuery(serializers.Serializer):
-    start = serializers.DateTimeField()
-    end = serializers.DateTimeField()
+    start = DateTimeInput()
+    end = DateTimeInput(help_text="After start, and at most 62 days after it.")
 
     def validate(self, attrs: dict[str, Any]) -> dict[str, Any]:
         if attrs["end"] <= attrs["start"]:
@@ -63,14 +73,23 @@ class RangeQuery(serializers.Serializer):
         return attrs
 
 
+class IntervalOutput(serializers.Serializer):
+    start = serializers.DateTimeField()
+    end = serializers.DateTimeField()
+
+
+class AvailabilityOutput(serializers.Serializer):
+    resource = serializers.CharField()
+    start = serializers.DateTimeField()
+    end = serializers.DateTimeField()
+    free = IntervalOutput(many=True, help_text="The free intervals within [start, end).")
+
+
 class AvailabilityApi(APIView):
-    @extend_schema(
-        parameters=[OpenApiParameter("start", datetime), OpenApiParameter("end", datetime)],
-        responses={200: dict},
-    )
+    @extend_schema(parameters=[RangeQuery], responses=AvailabilityOutput)
     def get(self, request: Request, name: str) -> Response:
         resource = get_object_or_404(Resource, name=name)
-        query = valid_input(RangeQuery, request.query_params)
+        query = valid_query(RangeQuery, request.query_params)
         free = resource_free_intervals(
             resource=resource, start_at=query["start"], end_at=query["end"]
         )
@@ -98,7 +117,7 @@ class BusyApi(APIView):
 
     @extend_schema(parameters=[RangeQuery], responses=BusyOutput(many=True))
     def get(self, request: Request) -> Response:
-        query = valid_input(RangeQuery, request.query_params)
+        query = valid_query(RangeQuery, request.query_params)
         items = items_overlapping(
             resources=Resource.objects.all(), start_at=query["start"], end_at=query["end"]
         ).order_by("start_at")
@@ -129,8 +148,32 @@ class BusyApi(APIView):
         return Response(BusyOutput(rows, many=True).data)
 
 
+class QuotaUseOutput(serializers.Serializer):
+    """A quota policy that applies to the user, with the use of its current period."""
+
+    policy = serializers.CharField()
+    scope = serializers.CharField()
+    period = serializers.ChoiceField(choices=QuotaPeriod.choices, allow_null=True)
+    max_hours = serializers.FloatField(allow_null=True)
+    max_count = serializers.IntegerField(allow_null=True)
+    max_length_s = serializers.IntegerField(allow_null=True)
+    min_notice_s = serializers.IntegerField(allow_null=True)
+    max_advance_s = serializers.IntegerField(allow_null=True)
+    max_future = serializers.IntegerField(allow_null=True)
+    period_start = serializers.DateTimeField(required=False, help_text="Only with a period.")
+    period_end = serializers.DateTimeField(required=False, help_text="Only with a period.")
+    used_hours = serializers.FloatField(required=False)
+    used_count = serializers.IntegerField(required=False)
+    remaining_hours = serializers.FloatField(required=False, allow_null=True)
+    remaining_count = serializers.IntegerField(required=False, allow_null=True)
+
+
+class QuotaOutput(serializers.Serializer):
+    policies = QuotaUseOutput(many=True)
+
+
 class QuotaApi(APIView):
-    @extend_schema(responses={200: dict})
+    @extend_schema(responses=QuotaOutput)
     def get(self, request: Request) -> Response:
         return Response({"policies": quota_summary(user=request_user(request), now=timezone.now())})
 
@@ -150,21 +193,40 @@ class BlackoutInput(serializers.Serializer):
         many=True, slug_field="name", queryset=Resource.objects.all(), required=False
     )
     all_resources = serializers.BooleanField(default=False)
-    start_at = serializers.DateTimeField()
-    end_at = serializers.DateTimeField()
+    start_at = DateTimeInput()
+    end_at = DateTimeInput(help_text="After start_at.")
     reason = serializers.CharField(max_length=200)
 
 
-class BlackoutListApi(APIView):
-    @extend_schema(parameters=[RangeQuery], responses=BlackoutOutput(many=True))
-    def get(self, request: Request) -> Response:
-        qs = Blackout.objects.prefetch_related("resources")
-        if "start" in request.query_params:
-            query = valid_input(RangeQuery, request.query_params)
-            qs = qs.filter(start_at__lt=query["end"], end_at__gt=query["start"])
-        return Response(BlackoutOutput(qs[:500], many=True).data)
+class BlackoutFilter(serializers.Serializer):
+    start = DateTimeInput(required=False, help_text="Only windows that end after this.")
+    end = DateTimeInput(required=False, help_text="Only windows that begin before this.")
 
-    @extend_schema(request=BlackoutInput, responses={201: dict})
+
+class BlackoutCreateOutput(serializers.Serializer):
+    blackout = BlackoutOutput()
+    conflicting_reservations = serializers.ListField(
+        child=serializers.IntegerField(),
+        help_text="Reservations in the window, for the admin to move or cancel.",
+    )
+
+
+class BlackoutListApi(APIView):
+    pagination_class = Pagination
+
+    @extend_schema(parameters=[BlackoutFilter], responses=BlackoutOutput(many=True))
+    def get(self, request: Request) -> Response:
+        query = valid_query(BlackoutFilter, request.query_params)
+        qs = Blackout.objects.prefetch_related("resources").order_by("start_at", "pk")
+        if "start" in query:
+            qs = qs.filter(end_at__gt=query["start"])
+        if "end" in query:
+            qs = qs.filter(start_at__lt=query["end"])
+        return paginated_response(
+            request=request, view=self, queryset=qs, serializer_class=BlackoutOutput
+        )
+
+    @extend_schema(request=BlackoutInput, responses={201: BlackoutCreateOutput})
     def post(self, request: Request) -> Response:
         data = valid_input(BlackoutInput, request.data)
         blackout, conflicts = services.blackout_create(
@@ -190,6 +252,7 @@ class QuotaPolicySerializer(serializers.ModelSerializer):
         slug_field="name", queryset=ResourceGroup.objects.all(), required=False, allow_null=True
     )
     period = serializers.ChoiceField(choices=QuotaPeriod.choices, required=False, allow_blank=True)
+    max_hours = serializers.FloatField(required=False, allow_null=True, validators=[GreaterThan(0)])
 
     class Meta:
         model = QuotaPolicy
@@ -198,10 +261,16 @@ class QuotaPolicySerializer(serializers.ModelSerializer):
 
 class QuotaPolicyListApi(APIView):
     permission_classes = [IsAdminUser]
+    pagination_class = Pagination
 
     @extend_schema(responses=QuotaPolicySerializer(many=True))
     def get(self, request: Request) -> Response:
-        return Response(QuotaPolicySerializer(QuotaPolicy.objects.all(), many=True).data)
+        return paginated_response(
+            request=request,
+            view=self,
+            queryset=QuotaPolicy.objects.order_by("name", "pk"),
+            serializer_class=QuotaPolicySerializer,
+        )
 
     @extend_schema(request=QuotaPolicySerializer, responses={201: QuotaPolicySerializer})
     def post(self, request: Request) -> Response:
@@ -216,20 +285,19 @@ class QuotaPolicyDetailApi(APIView):
     @extend_schema(request=QuotaPolicySerializer, responses=QuotaPolicySerializer)
     def patch(self, request: Request, pk: int) -> Response:
         policy = get_object_or_404(QuotaPolicy, pk=pk)
-        serializer = QuotaPolicySerializer(policy, data=request.data, partial=True)
-        serializer.is_valid(raise_exception=True)
+        data = valid_input(QuotaPolicySerializer, request.data, instance=policy, partial=True)
         policy = services.quota_policy_save(
-            by=request_user(request),
-            policy=policy,
-            ip=client_ip(request),
-            **serializer.validated_data,
+            by=request_user(request), policy=policy, ip=client_ip(request), **data
         )
         return Response(QuotaPolicySerializer(policy).data)
 
 
 class ServiceInput(serializers.Serializer):
     enabled = serializers.BooleanField()
-    reason = serializers.CharField(allow_blank=True, default="")
+    reason = serializers.CharField(
+        help_text="Why (audited).",
+        error_messages={"required": "Say why.", "blank": "Say why."},
+    )
 
 
 class ResourceServiceApi(APIView):

@@ -247,23 +247,59 @@ CELERY_BEAT_SCHEDULE = {
 }
 CELERY_BEAT_SCHEDULE_FILENAME = str(VAR_DIR / "celerybeat-schedule")
 
+
+def _throttle_rate(name: str, default: str) -> str | None:
+    """A DRF rate such as ``50/second`` or ``1000/hour``; ``off`` turns the throttle off."""
+    rate = env.str(name, default=default).strip()
+    if rate.lower() in ("", "off", "none"):
+        return None
+    count, _, period = rate.partition("/")
+    if not count.isdigit() or not period or period[0] not in "smhd":
+        raise ImproperlyConfigured(f"{name}={rate!r}: give N/second, N/minute, N/hour or N/day")
+    return rate
+
+
+# API throttles (portal/api.py): anonymous clients per address, authenticated ones per user.
+API_THROTTLE_ANON = _throttle_rate("API_THROTTLE_ANON", "60/minute")
+API_THROTTLE_USER = _throttle_rate("API_THROTTLE_USER", "50/second")
+
 REST_FRAMEWORK = {
+    # The token first: a request without credentials is told how to authenticate (401 with
+    # WWW-Authenticate: Token). The pages' own calls use the session (with its CSRF token).
     "DEFAULT_AUTHENTICATION_CLASSES": [
-        "rest_framework.authentication.SessionAuthentication",
         "rest_framework.authentication.TokenAuthentication",
+        "rest_framework.authentication.SessionAuthentication",
     ],
     "DEFAULT_PERMISSION_CLASSES": ["rest_framework.permissions.IsAuthenticated"],
-    "DEFAULT_SCHEMA_CLASS": "drf_spectacular.openapi.AutoSchema",
-    "DEFAULT_PAGINATION_CLASS": "rest_framework.pagination.LimitOffsetPagination",
-    "PAGE_SIZE": 100,
+    "DEFAULT_THROTTLE_CLASSES": ["portal.api.AnonymousThrottle", "portal.api.UserThrottle"],
+    "DEFAULT_PARSER_CLASSES": ["rest_framework.parsers.JSONParser"],
+    "DEFAULT_RENDERER_CLASSES": [
+        "rest_framework.renderers.JSONRenderer",
+        "rest_framework.renderers.BrowsableAPIRenderer",
+    ],
+    # The media type comes from Accept only, never from a ?format= that the schema would list.
+    "URL_FORMAT_OVERRIDE": None,
+    "DEFAULT_SCHEMA_CLASS": "portal.openapi.AutoSchema",
+    "DEFAULT_PAGINATION_CLASS": "portal.api.Pagination",
     "EXCEPTION_HANDLER": "portal.api.exception_handler",
 }
 SPECTACULAR_SETTINGS = {
     "TITLE": "AMazING mobile-node manager API",
-    "DESCRIPTION": "Experiments, reservations, runs and their measurements.",
+    "DESCRIPTION": "",  # portal.openapi.DESCRIPTION, set by its hook
     "VERSION": "1",
     "SERVE_INCLUDE_SCHEMA": False,
     "COMPONENT_SPLIT_REQUEST": True,
+    # Only the token is for clients; the session cookie serves the portal's own pages.
+    "AUTHENTICATION_WHITELIST": ["rest_framework.authentication.TokenAuthentication"],
+    "ENUM_NAME_OVERRIDES": {
+        "RunStateEnum": "portal.runs.states.RunState",
+        "ReservationStateEnum": "bookings.choices.ReservationState",
+        "DirectionEnum": "basestation.contract.DIRECTIONS",
+    },
+    "POSTPROCESSING_HOOKS": [
+        "drf_spectacular.hooks.postprocess_schema_enums",
+        "portal.openapi.postprocess_schema",
+    ],
     # Swagger UI from the npm package the build installs, never from a CDN.
     "SWAGGER_UI_DIST": "/static/vendor/swagger-ui-dist",
     "SWAGGER_UI_FAVICON_HREF": "/static/vendor/swagger-ui-dist/favicon-32x32.png",

@@ -11,7 +11,7 @@ from portal.celery import app as celery_app
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 
 # The real-process stack (agent, web, worker, beat) for integration and browser tests.
-pytest_plugins = ["tests.integration.stack"]
+pytest_plugins = ["tests.integration.stack", "tests.integration.live"]
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:
@@ -37,6 +37,13 @@ def pytest_configure(config: pytest.Config) -> None:
             raise pytest.UsageError(f"tests must run on PostgreSQL, got {engine}")
         if not settings.CELERY_BROKER_URL.startswith("redis://"):
             raise pytest.UsageError(f"tests must use Redis, got {settings.CELERY_BROKER_URL}")
+
+
+@pytest.fixture(autouse=True)
+def _api_throttles_off(settings):
+    """The throttles count in the shared cache across tests; their own tests turn them on."""
+    settings.API_THROTTLE_ANON = None
+    settings.API_THROTTLE_USER = None
 
 
 @pytest.fixture

@@ -44,6 +44,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import re
 from collections.abc import Callable
 from datetime import datetime, timedelta
 from functools import wraps
@@ -62,6 +63,8 @@ logger = logging.getLogger(__name__)
 
 HEADER = "X-Idempotency-Key"
 MAX_KEY_LENGTH = 128
+# Printable ASCII, as the OpenAPI description states it (HTTP headers carry no more safely).
+KEY_PATTERN = re.compile(r"[ -~]+")
 # A row without an answer was written by the previous release, which committed the key before
 # the work. During a rolling upgrade its request may still be running: such a row answers 409
 # for this long after it was written and is then taken over. No request runs this long.
@@ -126,11 +129,11 @@ def idempotent(method: ViewMethod) -> ViewMethod:
         key = request.headers.get(HEADER)
         if not key:
             return method(view, request, *args, **kwargs)
-        if len(key) > MAX_KEY_LENGTH or not key.isprintable():
+        if len(key) > MAX_KEY_LENGTH or not KEY_PATTERN.fullmatch(key):
             return Response(
                 {
                     "error": "invalid",
-                    "detail": f"{HEADER} must be printable, ≤ {MAX_KEY_LENGTH} characters.",
+                    "detail": f"{HEADER} must be printable ASCII, ≤ {MAX_KEY_LENGTH} characters.",
                 },
                 status=400,
             )
@@ -163,6 +166,8 @@ def idempotent(method: ViewMethod) -> ViewMethod:
                 )
         return response
 
+    # Read by the OpenAPI description (portal.openapi): the header, 409 and 422 apply here.
+    wrapper.idempotency_key = True  # type: ignore[attr-defined]
     return wrapper
 
 

@@ -43,10 +43,13 @@ def _urls(booked):
 @pytest.mark.parametrize("who", ["anonymous", "owner", "other", "admin"])
 def test_read_endpoints_by_role(who, booked, owner, other, admin_user, client_for):
     user = {"anonymous": None, "owner": owner, "other": other, "admin": admin_user}[who]
-    expected = {"anonymous": 403, "owner": 200, "other": 404, "admin": 200}[who]
+    expected = {"anonymous": 401, "owner": 200, "other": 404, "admin": 200}[who]
     client = client_for(user)
     for url in _urls(booked):
-        assert client.get(url).status_code == expected, url
+        response = client.get(url)
+        assert response.status_code == expected, url
+        if user is None:
+            assert response["WWW-Authenticate"] == "Token", url
 
 
 @pytest.mark.parametrize("who", ["anonymous", "owner", "other", "admin"])
@@ -58,12 +61,13 @@ def test_list_endpoints_show_only_what_the_user_may_see(
     for url in ("/api/v1/experiments/", "/api/v1/reservations/", "/api/v1/runs/"):
         response = client.get(url)
         if user is None:
-            assert response.status_code == 403
+            assert response.status_code == 401
             continue
         assert response.status_code == 200
-        assert len(response.json()) == (0 if who == "other" else 1), url
+        page = response.json()
+        assert len(page["results"]) == page["count"] == (0 if who == "other" else 1), url
     resources = client.get("/api/v1/resources/")
-    assert resources.status_code == (403 if user is None else 200)
+    assert resources.status_code == (401 if user is None else 200)
 
 
 @pytest.mark.parametrize("who", ["anonymous", "other", "owner", "admin"])
@@ -72,7 +76,7 @@ def test_cancel_by_role(who, booked, owner, other, admin_user, client_for):
     response = client_for(user).delete(
         f"/api/v1/reservations/{booked.pk}/", {"reason": "roof inspection"}, format="json"
     )
-    assert response.status_code == {"anonymous": 403, "other": 404, "owner": 200, "admin": 200}[who]
+    assert response.status_code == {"anonymous": 401, "other": 404, "owner": 200, "admin": 200}[who]
     booked.refresh_from_db()
     assert booked.state == ("cancelled" if who in ("owner", "admin") else "confirmed")
 
@@ -154,52 +158,52 @@ def _requests(world):
     booked, pending, policy = world["booked"], world["pending"], world["policy"]
     return [
         # (name, method, url, body, expected status by role)
-        ("resources", "get", "/api/v1/resources/", None, (403, 200, 200, 200)),
+        ("resources", "get", "/api/v1/resources/", None, (401, 200, 200, 200)),
         (
             "availability",
             "get",
             "/api/v1/resources/node-05/availability/",
             window,
-            (403, 200, 200, 200),
+            (401, 200, 200, 200),
         ),
-        ("busy", "get", "/api/v1/reservations/busy/", window, (403, 200, 200, 200)),
-        ("quota", "get", "/api/v1/quota/", None, (403, 200, 200, 200)),
+        ("busy", "get", "/api/v1/reservations/busy/", window, (401, 200, 200, 200)),
+        ("quota", "get", "/api/v1/quota/", None, (401, 200, 200, 200)),
         (
             "quota check",
             "post",
             "/api/v1/quota/check/",
             {"resources": ["node-05"], **slot},
-            (403, 200, 200, 200),
+            (401, 200, 200, 200),
         ),
-        ("blackouts", "get", "/api/v1/blackouts/", None, (403, 200, 200, 200)),
+        ("blackouts", "get", "/api/v1/blackouts/", None, (401, 200, 200, 200)),
         (
             "blackout create",
             "post",
             "/api/v1/blackouts/",
             {"resources": ["node-05"], "reason": "service", **later_slot},
-            (403, 403, 403, 201),
+            (401, 403, 403, 201),
         ),
-        ("policies", "get", "/api/v1/quota-policies/", None, (403, 403, 403, 200)),
+        ("policies", "get", "/api/v1/quota-policies/", None, (401, 403, 403, 200)),
         (
             "policy create",
             "post",
             "/api/v1/quota-policies/",
             {"name": "q", "max_future": 3},
-            (403, 403, 403, 201),
+            (401, 403, 403, 201),
         ),
         (
             "policy change",
             "patch",
             f"/api/v1/quota-policies/{policy.pk}/",
             {"max_hours": 50},
-            (403, 403, 403, 200),
+            (401, 403, 403, 200),
         ),
         (
             "decision",
             "post",
             f"/api/v1/reservations/{pending.pk}/decision/",
             {"approve": True},
-            (403, 403, 403, 200),
+            (401, 403, 403, 200),
         ),
         (
             "reschedule",
@@ -209,14 +213,14 @@ def _requests(world):
                 "start_at": booked.start_at.isoformat(),
                 "end_at": (booked.end_at + timedelta(minutes=5)).isoformat(),
             },
-            (403, 200, 404, 200),
+            (401, 200, 404, 200),
         ),
         (
             "create",
             "post",
             "/api/v1/reservations/",
             {"resource": "node-05", **slot},
-            (403, 201, 201, 201),
+            (401, 201, 201, 201),
         ),
     ]
 

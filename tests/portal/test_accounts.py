@@ -54,7 +54,7 @@ def test_a_forgotten_password_is_reset_by_email(client, owner):
 
 def test_the_api_takes_a_token_or_a_session(client, owner):
     token = Token.objects.create(user=owner)
-    assert client.get("/api/v1/runs/").status_code == 403
+    assert client.get("/api/v1/runs/").status_code == 401
     assert client.get("/api/v1/runs/", HTTP_AUTHORIZATION=f"Token {token.key}").status_code == 200
     client.force_login(owner)
     assert client.get("/api/v1/runs/").status_code == 200

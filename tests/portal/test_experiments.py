@@ -78,5 +78,5 @@ def test_api_creates_and_lists_an_experiment(api, mobile):
     created = api.post("/api/v1/experiments/", body, format="json")
     assert created.status_code == 201
     assert created.json()["duration_s"] == 4.0
-    listed = api.get("/api/v1/experiments/").json()
+    listed = api.get("/api/v1/experiments/").json()["results"]
     assert [e["title"] for e in listed] == ["two laps"]

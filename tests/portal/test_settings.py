@@ -65,11 +65,14 @@ def test_an_unreadable_secret_file_is_a_clear_error(tmp_path):
 def test_the_readme_documents_every_setting():
     sources = [REPO / "portal" / "settings.py", REPO / "portal" / "launcher.py"]
     sources += sorted((REPO / "basestation").glob("*.py"))
+    sources += sorted((REPO / "amazing_cli").glob("*.py"))
     names: set[str] = set()
     for source in sources:
         text = source.read_text()
         names |= set(re.findall(r'env\.\w+\(\s*"([A-Z][A-Z0-9_]+)"', text))
         names |= set(re.findall(r'env_secret\(\s*"([A-Z][A-Z0-9_]+)"', text))
+        names |= set(re.findall(r'_throttle_rate\(\s*"([A-Z][A-Z0-9_]+)"', text))
+        names |= set(re.findall(r'environ\.get\(\s*"([A-Z][A-Z0-9_]+)"', text))
         names |= set(re.findall(r'env\.setdefault\(\s*"([A-Z][A-Z0-9_]+)"', text))
         # The agent's variables: AGENT_ + the name its config reader is given.
         names |= {"AGENT_" + n for n in re.findall(r"\{ENV_PREFIX\}([A-Z][A-Z0-9_]+)", text)}

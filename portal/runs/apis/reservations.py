@@ -10,7 +10,7 @@ from typing import Any
 
 from django.db.models import Prefetch, prefetch_related_objects
 from django.shortcuts import get_object_or_404
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.permissions import IsAdminUser
 from rest_framework.request import Request
@@ -20,13 +20,32 @@ from rest_framework.views import APIView
 from bookings.choices import ReservationState
 from bookings.models import Reservation, ReservationItem, Resource
 from portal.accounts.models import User
-from portal.api import request_user, valid_input
+from portal.api import (
+    DateTimeInput,
+    Pagination,
+    paginated_response,
+    request_user,
+    valid_input,
+    valid_query,
+)
 from portal.audit.idempotency import idempotent
 from portal.audit.services import client_ip
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
+from portal.openapi import errors
 from portal.runs.selectors import reservations_with_runs_visible
 from portal.runs.services import booking
+from portal.runs.states import RunState
+
+BOOKING_CONFLICT = (
+    "The slot is taken, in a maintenance window or over a quota (`quota_exceeded`), or the "
+    "reservation is past the state this needs."
+)
+SCHEDULER_DOWN = "The testbed's scheduler, which books the fixed nodes, did not answer."
+SCHEDULER_REFUSED = (
+    "The testbed's scheduler answered but would not lease (`scheduler_refused`: credentials, "
+    "configuration); nothing was booked."
+)
 
 
 def _experiment(request: Request, experiment_id: int | None) -> Experiment | None:
@@ -35,10 +54,17 @@ def _experiment(request: Request, experiment_id: int | None) -> Experiment | Non
     return get_object_or_404(experiments_visible(user=request_user(request)), pk=experiment_id)
 
 
+class RunRefOutput(serializers.Serializer):
+    id = serializers.IntegerField()
+    state = serializers.ChoiceField(choices=RunState.choices)
+
+
 class ReservationOutput(serializers.ModelSerializer):
     resources = serializers.SerializerMethodField()
     owner = serializers.CharField(source="owner.username")
-    run = serializers.SerializerMethodField()
+    run = serializers.SerializerMethodField(
+        help_text="The run of the experiment on a mobile node; null for fixed nodes only."
+    )
 
     class Meta:
         model = Reservation
@@ -61,6 +87,7 @@ class ReservationOutput(serializers.ModelSerializer):
     def get_resources(self, reservation: Reservation) -> list[str]:
         return [item.resource.name for item in reservation.items.all()]
 
+    @extend_schema_field(RunRefOutput(allow_null=True))
     def get_run(self, reservation: Reservation) -> dict[str, Any] | None:
         if not any(item.resource.is_mobile for item in reservation.items.all()):
             return None  # only a mobile node runs an experiment: no need to look
@@ -78,9 +105,13 @@ class ReservationInput(serializers.Serializer):
         required=False,
         help_text="Shorthand for a single resource.",
     )
-    start_at = serializers.DateTimeField()
-    end_at = serializers.DateTimeField()
-    experiment = serializers.IntegerField(required=False, allow_null=True)
+    start_at = DateTimeInput(help_text="In the future.")
+    end_at = DateTimeInput(help_text="After start_at, within the longest reservation.")
+    experiment = serializers.IntegerField(
+        required=False,
+        allow_null=True,
+        help_text="The experiment a mobile node runs (needed when booking one).",
+    )
     title = serializers.CharField(max_length=200, required=False, allow_blank=True)
     owner = serializers.SlugRelatedField(
         slug_field="username",
@@ -101,17 +132,19 @@ class ReservationInput(serializers.Serializer):
 
 
 class ReservationFilter(serializers.Serializer):
-    start = serializers.DateTimeField(required=False)
-    end = serializers.DateTimeField(required=False)
+    start = DateTimeInput(required=False, help_text="Only reservations that end after this.")
+    end = DateTimeInput(required=False, help_text="Only reservations that begin before this.")
     resource = serializers.CharField(required=False)
-    owner = serializers.CharField(required=False)
+    owner = serializers.CharField(required=False, help_text="Username (admins see everyone's).")
     state = serializers.ChoiceField(choices=ReservationState.choices, required=False)
 
 
 class ReservationListApi(APIView):
+    pagination_class = Pagination
+
     @extend_schema(parameters=[ReservationFilter], responses=ReservationOutput(many=True))
     def get(self, request: Request) -> Response:
-        query = valid_input(ReservationFilter, request.query_params)
+        query = valid_query(ReservationFilter, request.query_params)
         qs = reservations_with_runs_visible(user=request_user(request))
         if "start" in query:
             qs = qs.filter(end_at__gt=query["start"])
@@ -123,9 +156,29 @@ class ReservationListApi(APIView):
             qs = qs.filter(owner__username=query["owner"])
         if "state" in query:
             qs = qs.filter(state=query["state"])
-        return Response(ReservationOutput(qs.order_by("start_at")[:500], many=True).data)
+        return paginated_response(
+            request=request,
+            view=self,
+            queryset=qs.distinct().order_by("start_at", "pk"),
+            serializer_class=ReservationOutput,
+        )
 
-    @extend_schema(request=ReservationInput, responses={201: ReservationOutput})
+    @extend_schema(
+        request=ReservationInput,
+        responses={
+            201: ReservationOutput,
+            **errors(
+                404,
+                409,
+                502,
+                503,
+                e404="The experiment is not found.",
+                e409=BOOKING_CONFLICT,
+                e502=SCHEDULER_REFUSED,
+                e503=SCHEDULER_DOWN,
+            ),
+        },
+    )
     @idempotent
     def post(self, request: Request) -> Response:
         user = request_user(request)
@@ -142,12 +195,17 @@ class ReservationListApi(APIView):
 
 
 class RescheduleInput(serializers.Serializer):
-    start_at = serializers.DateTimeField()
-    end_at = serializers.DateTimeField()
+    start_at = DateTimeInput(help_text="In the future.")
+    end_at = DateTimeInput(help_text="After start_at, within the longest reservation.")
 
 
 class CancelInput(serializers.Serializer):
-    reason = serializers.CharField(required=False, allow_blank=True, default="")
+    reason = serializers.CharField(
+        required=False,
+        allow_blank=True,
+        default="",
+        help_text="Why; required when an admin cancels someone else's reservation.",
+    )
 
 
 class ReservationDetailApi(APIView):
@@ -158,14 +216,30 @@ class ReservationDetailApi(APIView):
     def get(self, request: Request, pk: int) -> Response:
         return Response(ReservationOutput(self._get(request, pk)).data)
 
-    @extend_schema(request=RescheduleInput, responses=ReservationOutput)
+    @extend_schema(
+        request=RescheduleInput,
+        responses={
+            200: ReservationOutput,
+            **errors(
+                409,
+                502,
+                503,
+                e409=BOOKING_CONFLICT,
+                e502=SCHEDULER_REFUSED,
+                e503=SCHEDULER_DOWN,
+            ),
+        },
+    )
     def patch(self, request: Request, pk: int) -> Response:
-        data = valid_input(RescheduleInput, request.data)
+        current = self._get(request, pk)
+        # A field left out keeps its value: moving only the end lengthens or shortens it.
+        data = valid_input(RescheduleInput, request.data, partial=True)
         reservation = booking.booking_reschedule(
-            reservation=self._get(request, pk),
+            reservation=current,
             by=request_user(request),
             ip=client_ip(request),
-            **data,
+            start_at=data.get("start_at", current.start_at),
+            end_at=data.get("end_at", current.end_at),
         )
         return Response(
             ReservationOutput(
@@ -173,9 +247,25 @@ class ReservationDetailApi(APIView):
             ).data
         )
 
-    @extend_schema(request=CancelInput, responses=ReservationOutput)
+    @extend_schema(
+        parameters=[CancelInput],
+        responses={
+            200: ReservationOutput,
+            **errors(
+                400,
+                409,
+                503,
+                e409="The reservation is already over or cancelled.",
+                e503=SCHEDULER_DOWN,
+            ),
+        },
+    )
     def delete(self, request: Request, pk: int) -> Response:
-        data = valid_input(CancelInput, request.data or {})
+        # The reason in the query; a JSON body with it (the pages' older calls) still works.
+        if request.data:
+            data = valid_input(CancelInput, request.data)
+        else:
+            data = valid_query(CancelInput, request.query_params)
         reservation = booking.booking_cancel(
             reservation=self._get(request, pk),
             by=request_user(request),
@@ -193,7 +283,13 @@ class DecisionInput(serializers.Serializer):
 class ReservationDecisionApi(APIView):
     permission_classes = [IsAdminUser]
 
-    @extend_schema(request=DecisionInput, responses=ReservationOutput)
+    @extend_schema(
+        request=DecisionInput,
+        responses={
+            200: ReservationOutput,
+            **errors(409, e409="The reservation is not awaiting a decision."),
+        },
+    )
     def post(self, request: Request, pk: int) -> Response:
         data = valid_input(DecisionInput, request.data)
         reservation = booking.booking_decide(
@@ -209,8 +305,8 @@ class BookingCheckInput(serializers.Serializer):
     resources = serializers.SlugRelatedField(
         many=True, slug_field="name", queryset=Resource.objects.all()
     )
-    start_at = serializers.DateTimeField()
-    end_at = serializers.DateTimeField()
+    start_at = DateTimeInput()
+    end_at = DateTimeInput()
     experiment = serializers.IntegerField(required=False, allow_null=True)
 
 
@@ -237,7 +333,10 @@ class BookingCheckApi(APIView):
     The rules are the ones booking applies (``bookings.rules.booking_problems``).
     """
 
-    @extend_schema(request=BookingCheckInput, responses=BookingCheckOutput)
+    @extend_schema(
+        request=BookingCheckInput,
+        responses={200: BookingCheckOutput, **errors(404, e404="The experiment is not found.")},
+    )
     def post(self, request: Request) -> Response:
         data = valid_input(BookingCheckInput, request.data)
         problems = booking.booking_check(

@@ -1,11 +1,16 @@
-"""The admins' robot console over the API: status, manual drive, e-stop, day log."""
+"""The admins' robot console over the API: status, manual drive, e-stop, day log.
+
+The answers carry the base station's own objects (``docs/agent-api.md``) under the keys named
+here; their inner fields are the agent's and are described there.
+"""
 
 from __future__ import annotations
 
+import re
 from datetime import date
 
 from django.shortcuts import get_object_or_404
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import OpenApiParameter, extend_schema
 from rest_framework import serializers
 from rest_framework.permissions import IsAdminUser
 from rest_framework.request import Request
@@ -14,21 +19,74 @@ from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
-from portal.api import request_user, valid_input
+from portal.api import GreaterThan, request_user, valid_input
 from portal.audit.services import client_ip
+from portal.openapi import errors
 from portal.runs.services import robot
+
+AGENT_OBJECT = "As the base station reports it (docs/agent-api.md)."
+NOT_MOBILE = "The resource is not a mobile node (field `resource`), or the input is invalid."
 
 
 class RobotDriveInput(serializers.Serializer):
-    velocity_mps = serializers.FloatField()
+    velocity_mps = serializers.FloatField(
+        min_value=0, help_text="At most the robot's max_velocity_mps."
+    )
     direction = serializers.ChoiceField(choices=DIRECTIONS)
-    ttl_s = serializers.FloatField(default=1.0)
-    force = serializers.BooleanField(default=False)
-    reason = serializers.CharField(allow_blank=True, default="")
+    ttl_s = serializers.FloatField(
+        default=1.0,
+        max_value=robot.MAX_MANUAL_TTL_S,
+        validators=[GreaterThan(0)],
+        help_text="How long the command holds; the robot stops after it (dead-man).",
+    )
+    force = serializers.BooleanField(default=False, help_text="Take over from a running run.")
+    reason = serializers.CharField(
+        help_text="Why you drive by hand (audited).",
+        error_messages={
+            "required": "Say why you drive the robot by hand.",
+            "blank": "Say why you drive the robot by hand.",
+        },
+    )
 
 
-class ReasonInput(serializers.Serializer):
-    reason = serializers.CharField(allow_blank=True, default="")
+class StopInput(serializers.Serializer):
+    reason = serializers.CharField(allow_blank=True, default="", help_text="Audited.")
+
+
+class ReleaseInput(serializers.Serializer):
+    reason = serializers.CharField(
+        help_text="Why it is safe to release the stop (audited).",
+        error_messages={
+            "required": "Say why it is safe to release the stop.",
+            "blank": "Say why it is safe to release the stop.",
+        },
+    )
+
+
+class RobotStatusOutput(serializers.Serializer):
+    status = serializers.DictField(help_text=AGENT_OBJECT)
+    battery = serializers.DictField(help_text=AGENT_OBJECT)
+
+
+class RobotDriveOutput(serializers.Serializer):
+    manual = serializers.DictField(allow_null=True, help_text=AGENT_OBJECT)
+    aborted_run = serializers.CharField(allow_null=True)
+
+
+class RobotStopOutput(serializers.Serializer):
+    estop = serializers.DictField(help_text=AGENT_OBJECT)
+    aborted_run = serializers.CharField(allow_null=True)
+
+
+class RobotReleaseOutput(serializers.Serializer):
+    estop = serializers.DictField(help_text=AGENT_OBJECT)
+    released = serializers.BooleanField()
+
+
+class RobotDayLogOutput(serializers.Serializer):
+    date = serializers.DateField()
+    timezone = serializers.CharField()
+    entries = serializers.ListField(child=serializers.DictField(), help_text=AGENT_OBJECT)
 
 
 def _mobile_named(name: str) -> Resource:
@@ -38,7 +96,7 @@ def _mobile_named(name: str) -> Resource:
 class RobotStatusApi(APIView):
     permission_classes = [IsAdminUser]
 
-    @extend_schema(responses={200: dict})
+    @extend_schema(responses={200: RobotStatusOutput, **errors(400, 503, e400=NOT_MOBILE)})
     def get(self, request: Request, name: str) -> Response:
         return Response(robot.robot_status(resource=_mobile_named(name)))
 
@@ -46,7 +104,20 @@ class RobotStatusApi(APIView):
 class RobotDriveApi(APIView):
     permission_classes = [IsAdminUser]
 
-    @extend_schema(request=RobotDriveInput, responses={200: dict})
+    @extend_schema(
+        request=RobotDriveInput,
+        responses={
+            200: RobotDriveOutput,
+            **errors(
+                400,
+                409,
+                503,
+                e400=NOT_MOBILE,
+                e409="The base station refused: a run holds the robot, or the "
+                "emergency stop is latched.",
+            ),
+        },
+    )
     def post(self, request: Request, name: str) -> Response:
         data = valid_input(RobotDriveInput, request.data)
         return Response(
@@ -62,9 +133,12 @@ class RobotDriveApi(APIView):
 class RobotStopApi(APIView):
     permission_classes = [IsAdminUser]
 
-    @extend_schema(request=ReasonInput, responses={200: dict})
+    @extend_schema(
+        request=StopInput,
+        responses={200: RobotStopOutput, **errors(400, 409, 503, e400=NOT_MOBILE)},
+    )
     def post(self, request: Request, name: str) -> Response:
-        data = valid_input(ReasonInput, request.data or {})
+        data = valid_input(StopInput, request.data)
         return Response(
             robot.robot_stop(
                 resource=_mobile_named(name),
@@ -78,9 +152,12 @@ class RobotStopApi(APIView):
 class RobotReleaseApi(APIView):
     permission_classes = [IsAdminUser]
 
-    @extend_schema(request=ReasonInput, responses={200: dict})
+    @extend_schema(
+        request=ReleaseInput,
+        responses={200: RobotReleaseOutput, **errors(400, 409, 503, e400=NOT_MOBILE)},
+    )
     def post(self, request: Request, name: str) -> Response:
-        data = valid_input(ReasonInput, request.data or {})
+        data = valid_input(ReleaseInput, request.data)
         return Response(
             robot.robot_release(
                 resource=_mobile_named(name),
@@ -94,12 +171,17 @@ class RobotReleaseApi(APIView):
 class RobotLogApi(APIView):
     permission_classes = [IsAdminUser]
 
-    @extend_schema(responses={200: dict})
+    @extend_schema(
+        parameters=[OpenApiParameter("day", date, OpenApiParameter.PATH, description="UTC day.")],
+        responses={200: RobotDayLogOutput, **errors(400, 503, e400=NOT_MOBILE)},
+    )
     def get(self, request: Request, name: str, day: str) -> Response:
         try:
+            if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", day):
+                raise ValueError(day)
             parsed = date.fromisoformat(day)
-        except ValueError:
-            return Response({"error": "invalid", "detail": "The day is YYYY-MM-DD."}, status=400)
+        except ValueError as exc:
+            raise serializers.ValidationError({"day": ["The day is YYYY-MM-DD."]}) from exc
         return Response(
             robot.robot_day_log(resource=_mobile_named(name), by=request_user(request), day=parsed)
         )

@@ -1,18 +1,25 @@
 from __future__ import annotations
 
+from typing import Any
+
 from django.http import StreamingHttpResponse
 from django.shortcuts import get_object_or_404
-from drf_spectacular.utils import OpenApiParameter, extend_schema
+from drf_spectacular.utils import OpenApiResponse, extend_schema
 from rest_framework import serializers
+from rest_framework.renderers import BaseRenderer
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from portal.api import request_user, valid_input
-from portal.experiments.apis import SegmentSerializer
+from basestation.contract import DIRECTIONS
+from portal.api import Pagination, paginated_response, request_user, valid_query
+from portal.experiments.apis import SegmentOutput
 from portal.runs.downloads import is_asgi, samples_csv_response, samples_json_response
 from portal.runs.models import Run
 from portal.runs.selectors import run_report, run_report_json, run_samples, runs_visible
+from portal.runs.states import RunState
+
+MAX_SAMPLES_PAGE = 10_000
 
 
 def _run(request: Request, pk: int) -> Run:
@@ -20,8 +27,8 @@ def _run(request: Request, pk: int) -> Run:
 
 
 class RunEventOutput(serializers.Serializer):
-    from_state = serializers.CharField()
-    to_state = serializers.CharField()
+    from_state = serializers.CharField(help_text="Empty for the first event (the booking).")
+    to_state = serializers.ChoiceField(choices=RunState.choices)
     at = serializers.DateTimeField()
     reason = serializers.CharField()
 
@@ -30,8 +37,8 @@ class RunOutput(serializers.ModelSerializer):
     reservation = serializers.IntegerField(source="reservation_id")
     resource = serializers.CharField(source="resource.name")
     owner = serializers.CharField(source="reservation.owner.username")
-    segments = SegmentSerializer(many=True)
-    sample_count = serializers.SerializerMethodField()
+    segments = SegmentOutput(many=True)
+    sample_count = serializers.SerializerMethodField(help_text="Samples stored in the portal.")
     events = RunEventOutput(many=True)
 
     class Meta:
@@ -59,14 +66,25 @@ class RunOutput(serializers.ModelSerializer):
         return run.samples.count()
 
 
+class RunFilter(serializers.Serializer):
+    state = serializers.ChoiceField(choices=RunState.choices, required=False)
+
+
 class RunListApi(APIView):
-    @extend_schema(responses=RunOutput(many=True))
+    pagination_class = Pagination
+
+    @extend_schema(parameters=[RunFilter], responses=RunOutput(many=True))
     def get(self, request: Request) -> Response:
+        query = valid_query(RunFilter, request.query_params)
         qs = runs_visible(user=request_user(request)).prefetch_related("events")
-        state = request.query_params.get("state")
-        if state:
-            qs = qs.filter(state=state)
-        return Response(RunOutput(qs[:200], many=True).data)
+        if "state" in query:
+            qs = qs.filter(state=query["state"])
+        return paginated_response(
+            request=request,
+            view=self,
+            queryset=qs.order_by("-start_at", "-pk"),
+            serializer_class=RunOutput,
+        )
 
 
 class RunDetailApi(APIView):
@@ -77,12 +95,12 @@ class RunDetailApi(APIView):
 
 
 class SampleOutput(serializers.Serializer):
-    seq = serializers.IntegerField()
+    seq = serializers.IntegerField(min_value=1)
     t = serializers.DateTimeField()
     segment = serializers.IntegerField(allow_null=True)
     commanded_velocity_mps = serializers.FloatField()
     velocity_mps = serializers.FloatField()
-    direction = serializers.CharField()
+    direction = serializers.ChoiceField(choices=DIRECTIONS)
     battery_v = serializers.FloatField()
     track_m = serializers.FloatField()
     fix_quality = serializers.IntegerField(allow_null=True)
@@ -93,23 +111,30 @@ class SampleOutput(serializers.Serializer):
 
 
 class SamplesQuery(serializers.Serializer):
-    after = serializers.IntegerField(min_value=0, default=0)
-    limit = serializers.IntegerField(min_value=1, max_value=10000, default=1000)
+    after = serializers.IntegerField(
+        min_value=0, default=0, help_text="Return samples with seq greater than this."
+    )
+    limit = serializers.IntegerField(
+        min_value=1, max_value=MAX_SAMPLES_PAGE, default=1000, help_text="At most this many."
+    )
+
+
+class SamplesPageOutput(serializers.Serializer):
+    run = serializers.IntegerField()
+    state = serializers.ChoiceField(choices=RunState.choices)
+    samples = SampleOutput(many=True, help_text="In seq order.")
+    last_seq = serializers.IntegerField(
+        min_value=0, help_text="The last seq in this page (`after` if empty): the next `after`."
+    )
 
 
 class RunSamplesApi(APIView):
-    @extend_schema(
-        parameters=[
-            OpenApiParameter(
-                "after", int, description="Return samples with seq greater than this."
-            ),
-            OpenApiParameter("limit", int, description="At most this many (≤ 10 000)."),
-        ],
-        responses=SampleOutput(many=True),
-    )
+    """One page of a run's samples, by sequence number (poll with `after=last_seq`)."""
+
+    @extend_schema(parameters=[SamplesQuery], responses=SamplesPageOutput)
     def get(self, request: Request, pk: int) -> Response:
         run = _run(request, pk)
-        query = valid_input(SamplesQuery, request.query_params)
+        query = valid_query(SamplesQuery, request.query_params)
         rows = list(run_samples(run=run, after_seq=query["after"], limit=query["limit"]))
         return Response(
             {
@@ -121,15 +146,58 @@ class RunSamplesApi(APIView):
         )
 
 
-class RunSamplesCsvApi(APIView):
-    @extend_schema(responses={(200, "text/csv"): str})
+class SamplesDocumentOutput(serializers.Serializer):
+    """The JSON download: the run's program and every sample."""
+
+    run = serializers.IntegerField()
+    title = serializers.CharField()
+    resource = serializers.CharField()
+    state = serializers.ChoiceField(choices=RunState.choices)
+    segments = SegmentOutput(many=True)
+    rail_length_m = serializers.FloatField(allow_null=True)
+    samples = SampleOutput(many=True)
+
+
+class CsvRenderer(BaseRenderer):
+    """Names text/csv for content negotiation; the CSV itself is streamed by the view."""
+
+    media_type = "text/csv"
+    format = "csv"
+
+    def render(
+        self, data: Any, accepted_media_type: str | None = None, renderer_context: Any = None
+    ) -> bytes:
+        raise NotImplementedError  # never reached: errors are rendered as JSON
+
+
+class DownloadApi(APIView):
+    """A streamed download. Its errors are JSON whatever the client accepts."""
+
+    def perform_content_negotiation(self, request: Request, force: bool = False) -> Any:
+        renderer, media_type = super().perform_content_negotiation(request, force=True)
+        if isinstance(renderer, CsvRenderer):
+            json_renderer = self.get_renderers()[0]
+            return json_renderer, json_renderer.media_type
+        return renderer, media_type
+
+
+class RunSamplesCsvApi(DownloadApi):
+    renderer_classes = [*APIView.renderer_classes, CsvRenderer]
+
+    @extend_schema(
+        responses={
+            (200, "text/csv"): OpenApiResponse(
+                str, description="Header line, then one line per sample in seq order."
+            )
+        }
+    )
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
         return samples_csv_response(run, asynchronous=is_asgi(request))
 
 
-class RunSamplesJsonApi(APIView):
-    @extend_schema(responses={(200, "application/json"): dict})
+class RunSamplesJsonApi(DownloadApi):
+    @extend_schema(responses={(200, "application/json"): SamplesDocumentOutput})
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
         return samples_json_response(run, asynchronous=is_asgi(request))
@@ -137,17 +205,81 @@ class RunSamplesJsonApi(APIView):
 
 class AnalysisQuery(serializers.Serializer):
     pass_at_m = serializers.FloatField(
-        required=False, help_text="Where along the rail (m from its origin) to list passes."
+        required=False,
+        min_value=0,
+        help_text="Where along the rail (m from its origin) to list passes; below the run's "
+        "rail_length_m.",
     )
+
+
+class GapOutput(serializers.Serializer):
+    first_seq = serializers.IntegerField()
+    last_seq = serializers.IntegerField()
+
+
+class SegmentStatsOutput(serializers.Serializer):
+    index = serializers.IntegerField(min_value=0)
+    commanded_mps = serializers.FloatField(help_text="Signed: cw positive.")
+    samples = serializers.IntegerField(min_value=0)
+    start_s = serializers.FloatField()
+    duration_s = serializers.FloatField()
+    distance_m = serializers.FloatField()
+    mean_mps = serializers.FloatField()
+    min_mps = serializers.FloatField()
+    max_mps = serializers.FloatField()
+    std_mps = serializers.FloatField()
+    mean_abs_error_mps = serializers.FloatField()
+    battery_start_v = serializers.FloatField(allow_null=True)
+    battery_end_v = serializers.FloatField(allow_null=True)
+    battery_min_v = serializers.FloatField(allow_null=True)
+    rtk_fixed_share = serializers.FloatField(min_value=0, max_value=1)
+
+
+class LapOutput(serializers.Serializer):
+    index = serializers.IntegerField()
+    start_s = serializers.FloatField()
+    end_s = serializers.FloatField()
+    end_at = serializers.DateTimeField(allow_null=True)
+    duration_s = serializers.FloatField()
+    mean_speed_mps = serializers.FloatField()
+
+
+class PassOutput(serializers.Serializer):
+    index = serializers.IntegerField()
+    t_s = serializers.FloatField()
+    at = serializers.DateTimeField(allow_null=True)
+    direction = serializers.ChoiceField(choices=DIRECTIONS)
+    velocity_mps = serializers.FloatField()
+
+
+class AnalysisOutput(serializers.Serializer):
+    """Times as seconds since the first sample (``*_s``) and as UTC instants (``*_at``)."""
+
+    run = serializers.IntegerField()
+    state = serializers.ChoiceField(choices=RunState.choices)
+    samples = serializers.IntegerField(min_value=0)
+    missing = serializers.IntegerField(min_value=0)
+    gaps = GapOutput(many=True)
+    outside_program = serializers.IntegerField(min_value=0)
+    first_at = serializers.DateTimeField(allow_null=True)
+    duration_s = serializers.FloatField()
+    rail_length_m = serializers.FloatField(allow_null=True)
+    distance_m = serializers.FloatField(allow_null=True)
+    mean_speed_mps = serializers.FloatField(allow_null=True)
+    net_laps = serializers.IntegerField(allow_null=True)
+    segments = SegmentStatsOutput(many=True)
+    laps = LapOutput(many=True)
+    pass_at_m = serializers.FloatField(allow_null=True)
+    passes = PassOutput(many=True)
 
 
 class RunAnalysisApi(APIView):
     """Per-segment statistics, laps, passes at a position and missing samples of a run."""
 
-    @extend_schema(parameters=[AnalysisQuery], responses={200: dict})
+    @extend_schema(parameters=[AnalysisQuery], responses=AnalysisOutput)
     def get(self, request: Request, pk: int) -> Response:
         run = _run(request, pk)
-        query = valid_input(AnalysisQuery, request.query_params)
+        query = valid_query(AnalysisQuery, request.query_params)
         try:
             report = run_report(run=run, pass_at_m=query.get("pass_at_m"))
         except ValueError as exc:

@@ -1,0 +1,3 @@
+from amazing_cli.main import main
+
+raise SystemExit(main())

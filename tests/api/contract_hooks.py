@@ -1,0 +1,82 @@
+"""The one check the schemathesis run adds, loaded by schemathesis itself (``hooks``).
+
+``positive_data_acceptance`` (a schema-valid request must not be refused with 400) is replaced,
+for the operations of :data:`DATA_DEPENDENT_FIELDS` only, by
+:func:`refused_only_for_stated_reasons`. Their requests must meet conditions that JSON Schema
+cannot state: they name stored things (resources, users, a robot's limits), compare fields
+with each other or with the clock (an end after its start, a start in the future), or depend
+on the run (its rail's length). A schema-valid request may be refused with 400 there only when
+the answer names a field listed for that operation. No Django here: schemathesis runs apart.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import schemathesis
+
+DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
+    # end after start, at most 62 days later
+    ("GET", "/api/v1/resources/{name}/availability/"): frozenset({"end"}),
+    ("GET", "/api/v1/reservations/busy/"): frozenset({"end"}),
+    # resource and user names, the experiment against the robot (its velocities, its length
+    # against the slot's), the slot (in the future, not too long, robot in service), the
+    # fields only admins may give
+    ("POST", "/api/v1/reservations/"): frozenset(
+        {"resources", "resource", "owner", "start_at", "end_at", "experiment", "override_reason"}
+    ),
+    ("PATCH", "/api/v1/reservations/{id}/"): frozenset(
+        {"resources", "start_at", "end_at", "experiment"}
+    ),
+    # an admin cancelling someone else's booking says why
+    ("DELETE", "/api/v1/reservations/{id}/"): frozenset({"reason"}),
+    # a rejection says why
+    ("POST", "/api/v1/reservations/{id}/decision/"): frozenset({"reason"}),
+    ("POST", "/api/v1/quota/check/"): frozenset({"resources"}),
+    # resource names; the window's end after its start; some resources, or all of them
+    ("POST", "/api/v1/blackouts/"): frozenset({"resources", "end_at"}),
+    # users, groups and resources by name; a limit in hours or count needs a period
+    ("POST", "/api/v1/quota-policies/"): frozenset(
+        {"user", "group", "resource", "resource_group", "period"}
+    ),
+    ("PATCH", "/api/v1/quota-policies/{id}/"): frozenset(
+        {"user", "group", "resource", "resource_group", "period"}
+    ),
+    # velocities within the fastest robot's limit; the program's total length
+    ("POST", "/api/v1/experiments/"): frozenset({"segments"}),
+    ("PUT", "/api/v1/experiments/{id}/"): frozenset({"segments"}),
+    # the position must be on this run's rail
+    ("GET", "/api/v1/runs/{id}/analysis/"): frozenset({"pass_at_m"}),
+    # a fixed node has no robot; the robot's own velocity limit
+    ("GET", "/api/v1/resources/{name}/robot/"): frozenset({"resource"}),
+    ("POST", "/api/v1/resources/{name}/robot/control/"): frozenset({"resource", "velocity_mps"}),
+    ("POST", "/api/v1/resources/{name}/robot/stop/"): frozenset({"resource"}),
+    ("POST", "/api/v1/resources/{name}/robot/release/"): frozenset({"resource"}),
+    ("GET", "/api/v1/resources/{name}/robot/logs/{day}/"): frozenset({"resource"}),
+}
+
+
+def _field_root(path: str) -> str:
+    """``resources.0`` → ``resources``: list items and nested keys belong to their field."""
+    return path.split(".", 1)[0]
+
+
+@schemathesis.check
+def refused_only_for_stated_reasons(ctx: Any, response: Any, case: Any) -> bool | None:
+    meta = case.meta
+    if meta is None or not meta.generation.mode.is_positive or response.status_code != 400:
+        return None
+    allowed = DATA_DEPENDENT_FIELDS.get((case.method.upper(), case.path))
+    if allowed is None:
+        return None  # positive_data_acceptance itself runs on this operation
+    try:
+        fields = {_field_root(name) for name in response.json().get("fields", {})}
+    except ValueError:
+        fields = set()
+    unexpected = (fields - allowed) if fields else {"(no field named)"}
+    if unexpected:
+        raise AssertionError(
+            f"A schema-valid request was refused for {sorted(unexpected)}, which the schema "
+            f"could state: {response.text[:300]}"
+        )
+    return None

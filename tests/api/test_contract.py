@@ -1,0 +1,160 @@
+"""The OpenAPI description holds: schemathesis against a live portal, as an outside client.
+
+``schemathesis run`` against the real ASGI server on PostgreSQL, once as an experimenter and
+once as an admin (each with their token), with every check it has, a fixed seed and a bounded
+number of examples per operation; it must find nothing.
+
+Checks not run everywhere, and why:
+
+- ``positive_data_acceptance`` is replaced on the operations listed in
+  ``tests/api/contract_hooks.py``, with the reason for each: their requests must meet
+  conditions JSON Schema cannot state (stored names, one field against another or the clock).
+- ``object_level_authorization`` runs in the experimenter's run, with a second experimenter
+  as the peer who must not read her objects. An admin may read every object, so the admin's
+  run has no peer to compare with and the check does nothing there.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+from django.utils import timezone
+from rest_framework.authtoken.models import Token
+
+from portal.runs.services.booking import booking_create
+from tests.api.contract_hooks import DATA_DEPENDENT_FIELDS
+from tests.factories import (
+    ExperimentFactory,
+    FixedResourceFactory,
+    MobileResourceFactory,
+    UserFactory,
+)
+from tests.integration.live import live_portal
+from tests.integration.processes import REPO, free_port
+from tests.runs.driving import completed_run
+
+pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
+
+SEED = 20261123
+MAX_EXAMPLES = 12
+SCHEMATHESIS = Path(sys.executable).parent / "schemathesis"
+# Whose token each run uses, and the peers object_level_authorization compares.
+RUNS = {"experimenter": ("erin", ["erin", "bob"]), "admin": ("ada", [])}
+
+
+def world(*, agent_url: str) -> dict:
+    """What the portal holds while it is fuzzed: users, a robot, nodes, bookings, a run."""
+    erin = UserFactory(username="erin")
+    bob = UserFactory(username="bob")
+    ada = UserFactory(username="ada", is_staff=True, is_superuser=True)
+    mobile = MobileResourceFactory(agent_url=agent_url)
+    FixedResourceFactory(name="node-01")
+    FixedResourceFactory(name="node-02", requires_approval=True)
+    run = completed_run(erin, mobile, [(0.5, "cw", 2.0), (0.8, "ccw", 2.0)])
+    start = timezone.now() + timedelta(days=3)
+    booking_create(
+        owner=erin,
+        resource=mobile,
+        start_at=start,
+        end_at=start + timedelta(minutes=30),
+        experiment=ExperimentFactory(owner=erin),
+    )
+    tokens = {u.username: Token.objects.create(user=u).key for u in (erin, bob, ada)}
+    return {"tokens": tokens, "run": run.pk}
+
+
+def _toml(value: object) -> str:
+    return json.dumps(value)  # strings, numbers, booleans and lists of them: as in TOML
+
+
+def config(world: dict, *, role: str, auth_file: Path) -> str:
+    user, peers = RUNS[role]
+    lines = [
+        f"seed = {SEED}",
+        'hooks = "tests.api.contract_hooks"',
+        "[generation]",
+        f"max-examples = {MAX_EXAMPLES}",
+        'database = "none"',
+        # Every check, each with its defaults; the exceptions follow per operation.
+        "[checks]",
+        "enabled = true",
+        "[auth.wfc]",
+        f"path = {_toml(str(auth_file))}",
+        f"user = {_toml(user)}",
+    ]
+    if peers:
+        lines.append(f"peers = {_toml(peers)}")
+    # The stored run's reads go to it, so that its answers' shapes are checked too.
+    for path in ("/", "/samples/", "/samples.csv", "/samples.json", "/analysis/"):
+        lines += [
+            "[[operations]]",
+            f"include-path = {_toml('/api/v1/runs/{id}' + path)}",
+            'include-method = "GET"',
+            "[operations.parameters]",
+            f"id = {world['run']}",
+        ]
+    for method, path in sorted(DATA_DEPENDENT_FIELDS):
+        lines += [
+            "[[operations]]",
+            f"include-path = {_toml(path)}",
+            f"include-method = {_toml(method)}",
+            "[operations.checks.positive_data_acceptance]",
+            "enabled = false",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def auth_document(world: dict) -> dict:
+    """The users' tokens in the Web Fuzzing Commons form schemathesis reads."""
+    return {
+        "auth": [
+            {"name": name, "fixedHeaders": [{"name": "Authorization", "value": f"Token {key}"}]}
+            for name, key in world["tokens"].items()
+        ]
+    }
+
+
+@pytest.mark.parametrize("role", sorted(RUNS))
+def test_schemathesis_finds_nothing_against_a_live_portal(role, tmp_path):
+    agent_port = free_port()
+    held = world(agent_url=f"http://127.0.0.1:{agent_port}")
+    auth_file = tmp_path / "auth.json"
+    auth_file.write_text(json.dumps(auth_document(held)))
+    config_file = tmp_path / "schemathesis.toml"
+    config_file.write_text(config(held, role=role, auth_file=auth_file))
+    # The throttles have their own tests; a fuzzer sends far more than any client may.
+    with live_portal(
+        tmp_path, agent_port=agent_port, API_THROTTLE_ANON="off", API_THROTTLE_USER="off"
+    ) as portal:
+        result = subprocess.run(
+            [
+                str(SCHEMATHESIS),
+                "--config-file",
+                str(config_file),
+                "--no-color",
+                "run",
+                f"{portal.url}/api/schema/",
+                "--workers",
+                "1",
+                "--suppress-health-check",
+                "all",
+            ],
+            # Its cache and reports stay out of the checkout.
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+        )
+        logs = portal.output(80)
+    report = result.stdout[-20000:] + result.stderr[-3000:]
+    assert result.returncode == 0, report + "\n" + logs
+    # Every generated case passed every check (the summary's own count says so).
+    assert re.search(r"\n  (\d+) generated, \1 passed", report), report

@@ -1,0 +1,276 @@
+"""The `amazing` command against a live portal: login, each command, errors and exit codes.
+
+The CLI runs in this process (typer's runner) and talks HTTP to the real ASGI server on the
+test database. Every request it makes is recorded, and each must be an operation that
+`/api/schema/` describes.
+"""
+
+from __future__ import annotations
+
+import json
+import stat
+import subprocess
+import sys
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+import requests
+from django.utils import timezone
+from rest_framework.authtoken.models import Token
+from typer.testing import CliRunner
+
+from amazing_cli.api import OPERATIONS
+from amazing_cli.main import app
+from portal.runs.services.booking import booking_create
+from tests.cli.schema_paths import undocumented
+from tests.factories import (
+    ExperimentFactory,
+    FixedResourceFactory,
+    MobileResourceFactory,
+    UserFactory,
+)
+
+pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
+
+EXPERIMENT = """\
+title: there and back
+segments:
+  - {velocity_mps: 0.5, direction: cw, duration_s: 3}
+  - {velocity_mps: 0.8, direction: ccw, duration_s: 2.5}
+"""
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """Every HTTP request made in this process, as (method, URL)."""
+    made: list[tuple[str, str]] = []
+    send = requests.Session.request
+
+    def recording(self, method, url, *args, **kwargs):
+        made.append((method.upper(), url))
+        return send(self, method, url, *args, **kwargs)
+
+    monkeypatch.setattr(requests.Session, "request", recording)
+    return made
+
+
+@pytest.fixture
+def portal(live_web, monkeypatch, tmp_path):
+    """The live portal with a robot, a fixed node and erin's token in the environment."""
+    MobileResourceFactory(agent_url="http://127.0.0.1:9")
+    FixedResourceFactory(name="node-01")
+    erin = UserFactory(username="erin")
+    monkeypatch.setenv("AMAZING_URL", live_web.url)
+    monkeypatch.setenv("AMAZING_TOKEN", Token.objects.create(user=erin).key)
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("COLUMNS", "160")
+    monkeypatch.chdir(tmp_path)
+    return {"url": live_web.url, "erin": erin}
+
+
+def amazing(*args: str):
+    return CliRunner().invoke(app, list(args), catch_exceptions=False)
+
+
+def _one_line_error(result, exit_code: int) -> str:
+    assert result.exit_code == exit_code, (result.exit_code, result.stdout, result.stderr)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("amazing: ")
+    return lines[0]
+
+
+def _schema(url: str) -> dict:
+    return requests.get(
+        f"{url}/api/schema/", headers={"Accept": "application/json"}, timeout=10
+    ).json()
+
+
+def test_the_cli_imports_nothing_of_django_or_the_portal():
+    probe = (
+        "import sys, amazing_cli.main; "
+        "bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+        "('django', 'rest_framework', 'portal', 'bookings', 'basestation', 'celery')); "
+        "print(bad); sys.exit(1 if bad else 0)"
+    )
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    script = Path(sys.executable).parent / "amazing"
+    assert subprocess.run([str(script), "--help"], capture_output=True).returncode == 0
+
+
+def test_every_operation_the_cli_knows_is_in_the_schema(portal):
+    schema = _schema(portal["url"])
+    paths = [(method, template) for method, template in OPERATIONS.values()]
+    # The schema document itself is the one path it does not list.
+    assert not undocumented([p for p in paths if p[1] != "/api/schema/"], schema)
+
+
+def test_login_stores_the_token_for_the_user_alone_and_the_environment_wins(portal, monkeypatch):
+    token = Token.objects.get(user=portal["erin"]).key
+    monkeypatch.delenv("AMAZING_TOKEN")
+    monkeypatch.delenv("AMAZING_URL")
+    result = amazing("login", "--url", portal["url"], "--token", token)
+    assert result.exit_code == 0, result.stderr
+    assert "as erin" in result.stdout
+    stored = Path(portal_config_dir()) / "credentials.json"
+    assert stat.S_IMODE(stored.stat().st_mode) == 0o600
+    assert stat.S_IMODE(stored.parent.stat().st_mode) == 0o700
+    assert json.loads(stored.read_text()) == {"url": portal["url"], "token": token}
+    # The stored login serves the next commands...
+    assert amazing("quota").exit_code == 0
+    # ...but AMAZING_TOKEN takes precedence over it.
+    monkeypatch.setenv("AMAZING_TOKEN", "not-a-token")
+    line = _one_line_error(amazing("quota"), 3)
+    assert "Invalid token" in line
+    assert amazing("logout").exit_code == 0
+    assert not stored.exists()
+
+
+def portal_config_dir() -> str:
+    from amazing_cli.config import config_dir
+
+    return str(config_dir())
+
+
+def test_login_with_a_wrong_token_is_refused_and_stores_nothing(portal):
+    line = _one_line_error(amazing("login", "--token", "wrong"), 3)
+    assert "Invalid token" in line
+    assert not (Path(portal_config_dir()) / "credentials.json").exists()
+
+
+def test_a_campaign_step_by_step_calls_only_what_the_schema_describes(portal, calls, tmp_path):
+    (tmp_path / "e.yaml").write_text(EXPERIMENT)
+    assert "mobile-1" in amazing("resources").stdout
+    assert amazing("availability", "node-01", "--days", "1").exit_code == 0
+    assert amazing("quota").exit_code == 0
+
+    created = amazing("experiment", "create", "e.yaml", "--json")
+    assert created.exit_code == 0, created.stderr
+    experiment = json.loads(created.stdout)
+    assert experiment["duration_s"] == 5.5
+    assert "there and back" in amazing("experiment", "list").stdout
+
+    first = amazing("book", "--experiment", str(experiment["id"]), "--node", "node-01", "--json")
+    assert first.exit_code == 0, first.stderr
+    booking = json.loads(first.stdout)
+    assert booking["resources"] == ["mobile-1", "node-01"]
+    length_s = (
+        timezone.datetime.fromisoformat(booking["end_at"])
+        - timezone.datetime.fromisoformat(booking["start_at"])
+    ).total_seconds()
+    assert length_s == 6 + 5  # the program, rounded up, and the margin
+    run = booking["run"]["id"]
+    second = amazing("book", "--experiment", str(experiment["id"]), "--after", str(run), "--quiet")
+    assert second.exit_code == 0, second.stderr
+    next_run = int(second.stdout)
+    runs = json.loads(amazing("runs", "--json").stdout)
+    assert {r["id"] for r in runs} == {run, next_run}
+    by_id = {r["id"]: r for r in runs}
+    assert by_id[next_run]["start_at"] == by_id[run]["end_at"]
+    assert amazing("runs", "--quiet").stdout.split() == [str(next_run), str(run)]
+
+    # Taken: the same slot again is refused.
+    taken = amazing("book", "--experiment", str(experiment["id"]), "--after", str(run))
+    assert "already booked" in _one_line_error(taken, 3)
+
+    assert amazing("cancel", str(next_run)).exit_code == 0
+    watched = amazing("watch", str(next_run), "--interval", "0.2")
+    assert watched.exit_code == 1  # cancelled, not completed
+    assert "cancelled" in watched.stdout
+    for fmt in ("csv", "json"):
+        downloaded = amazing("download", str(next_run), "--format", fmt, "--json")
+        assert downloaded.exit_code == 0, downloaded.stderr
+        assert json.loads(downloaded.stdout)["samples"] == 0
+    assert (tmp_path / f"amazing-run-{next_run}.csv").read_text().startswith("seq,t,")
+
+    assert len(calls) > 15
+    schema = _schema(portal["url"])
+    assert not undocumented([c for c in calls if not c[1].endswith("/api/schema/")], schema)
+
+
+def test_watch_follows_a_run_to_its_end_and_download_streams_every_sample(portal, tmp_path):
+    from tests.runs.driving import completed_run
+
+    run = completed_run(portal["erin"], MobileResourceFactory(), [(0.5, "cw", 2.0)])
+    watched = amazing("watch", str(run.pk))
+    assert watched.exit_code == 0, watched.stderr
+    assert f"Run {run.pk} completed: 40 samples." in watched.stdout
+    downloaded = amazing("download", str(run.pk), "-o", "out.csv")
+    assert downloaded.exit_code == 0, downloaded.stderr
+    assert "Wrote out.csv: 40 samples" in downloaded.stdout
+    assert len((tmp_path / "out.csv").read_text().splitlines()) == 41
+    as_json = amazing("download", str(run.pk), "--format", "json", "-o", "out.json")
+    assert as_json.exit_code == 0, as_json.stderr
+    assert len(json.loads((tmp_path / "out.json").read_text())["samples"]) == 40
+
+
+@pytest.mark.parametrize(
+    ("case", "exit_code", "says"),
+    [
+        ("missing file", 2, "no-such.yaml: no such file"),
+        ("invalid YAML", 2, "not valid YAML at line 4"),
+        ("invalid JSON", 2, "not valid JSON"),
+        ("schema-invalid", 2, "segments.0: 'duration_s' is a required property"),
+        ("over-limit velocity", 2, "velocity 5 m/s exceeds the maximum 2 m/s of mobile-1"),
+        ("no token", 3, "no token: run `amazing login` or set AMAZING_TOKEN"),
+        ("portal down", 5, "cannot reach the portal at http://127.0.0.1:9"),
+        ("unknown run", 4, "No Run matches the given query."),
+        ("unknown format", 2, "--format 'xml': give csv or json"),
+        ("bad time", 2, "--start 'tomorrow'"),
+    ],
+)
+def test_bad_input_gives_one_clear_line_and_its_exit_code(
+    case, exit_code, says, portal, calls, tmp_path, monkeypatch
+):
+    (tmp_path / "bad.yaml").write_text("title: x\nsegments:\n  - [velocity_mps: 1\n")
+    (tmp_path / "bad.json").write_text('{"title": "x", "segments": [}')
+    (tmp_path / "short.yaml").write_text(
+        "title: x\nsegments:\n  - {velocity_mps: 1, direction: cw}\n"
+    )
+    (tmp_path / "fast.yaml").write_text(
+        "title: x\nsegments:\n  - {velocity_mps: 5, direction: cw, duration_s: 3}\n"
+    )
+    experiment = ExperimentFactory(owner=portal["erin"])
+    argv = {
+        "missing file": ["experiment", "create", "no-such.yaml"],
+        "invalid YAML": ["experiment", "create", "bad.yaml"],
+        "invalid JSON": ["experiment", "create", "bad.json"],
+        "schema-invalid": ["experiment", "create", "short.yaml"],
+        "over-limit velocity": ["experiment", "create", "fast.yaml"],
+        "no token": ["runs"],
+        "portal down": ["runs"],
+        "unknown run": ["watch", "999999"],
+        "unknown format": ["download", "1", "--format", "xml"],
+        "bad time": ["book", "--experiment", str(experiment.pk), "--start", "tomorrow"],
+    }[case]
+    if case == "no token":
+        monkeypatch.delenv("AMAZING_TOKEN")
+    if case == "portal down":
+        monkeypatch.setenv("AMAZING_URL", "http://127.0.0.1:9")
+    line = _one_line_error(amazing(*argv), exit_code)
+    assert says in line, line
+    # Nothing the portal refused was made, and files were checked before anything was sent.
+    assert not [c for c in calls if c[0] == "POST" and case != "over-limit velocity"]
+
+
+def test_a_slot_in_the_past_is_refused_by_the_portal_with_exit_code_2(portal):
+    experiment = ExperimentFactory(owner=portal["erin"])
+    past = (timezone.now() - timedelta(hours=1)).isoformat()
+    line = _one_line_error(amazing("book", "--experiment", str(experiment.pk), "--start", past), 2)
+    assert "The start is in the past." in line
+
+
+def test_another_users_run_is_not_found(portal):
+    other = UserFactory(username="bob")
+    start = timezone.now() + timedelta(hours=2)
+    theirs = booking_create(
+        owner=other,
+        resource=MobileResourceFactory(),
+        start_at=start,
+        end_at=start + timedelta(minutes=10),
+        experiment=ExperimentFactory(owner=other),
+    )
+    _one_line_error(amazing("watch", str(theirs.run.pk)), 4)
+    _one_line_error(amazing("cancel", str(theirs.run.pk)), 4)
