@@ -207,8 +207,9 @@ def booking_problems(
     In the order a person fixes them: the window, resources out of service, the program,
     maintenance, other bookings, quotas (one :class:`Problem` listing every quota rule
     broken; an admin may override it). ``first_only`` stops at the first problem found, for
-    the booking path that raises it. The resources' ``enabled`` is read from the instances
-    given: under the booking lock they are the rows just locked.
+    the booking path that raises it. The resources' ``enabled`` and ``hold_reason`` (the
+    health check's hold) are read from the instances given: under the booking lock they are
+    the rows just locked.
     """
     problems = _window_problems(start_at, end_at, now)
     if problems and first_only:
@@ -216,9 +217,15 @@ def booking_problems(
     if end_at <= start_at:
         return problems  # nothing else can be judged on an empty period
     problems += [
-        Problem("out_of_service", "resources", f"{r.name} is out of service.")
+        Problem(
+            "out_of_service",
+            "resources",
+            f"{r.name} is out of service: {r.hold_reason}."
+            if r.hold_reason
+            else f"{r.name} is out of service.",
+        )
         for r in sorted(resources, key=lambda r: r.name)
-        if not r.enabled
+        if not r.in_service
     ]
     problems += _program_problems(resources, program, (end_at - start_at).total_seconds())
     if problems and first_only:

@@ -73,7 +73,7 @@ def resource_free_intervals(
         (max(b.start_at, start_at), min(b.end_at, end_at))
         for b in blackouts_overlapping(resources=[resource], start_at=start_at, end_at=end_at)
     ]
-    if not resource.enabled:
+    if not resource.in_service:
         busy = [(start_at, end_at)]
     free: list[tuple[datetime, datetime]] = []
     cursor = start_at

@@ -20,7 +20,14 @@ from django.db import IntegrityError, transaction
 from django.utils import timezone
 
 from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState, ResourceKind
-from bookings.models import Blackout, QuotaPolicy, Reservation, ReservationItem, Resource
+from bookings.models import (
+    HOLD_REASON_MAX_CHARS,
+    Blackout,
+    QuotaPolicy,
+    Reservation,
+    ReservationItem,
+    Resource,
+)
 from bookings.rules import Program, aware_utc, booking_problems
 from bookings.tasks import reservation_notify
 from portal.accounts.models import User
@@ -315,7 +322,11 @@ def reservation_complete(*, reservation_id: int) -> bool:
 def resource_set_service(
     *, resource: Resource, by: User, enabled: bool, reason: str, ip: str | None = None
 ) -> Resource:
-    """Take a resource out of service (no new bookings) or back in; audited."""
+    """Take a resource out of service (no new bookings) or back in; audited.
+
+    Back in service also lifts the health check's hold (``resource_hold``): only an admin
+    returns a robot the health check took out, and the audit keeps the hold it lifted.
+    """
     if not by.is_testbed_admin:
         raise NotAllowed("Only admins take resources in or out of service.")
     if not reason.strip():
@@ -323,16 +334,42 @@ def resource_set_service(
     with transaction.atomic():
         # The same row lock bookings take: none is half-way through while this changes.
         locked = Resource.objects.select_for_update().get(pk=resource.pk)
+        lifted = locked.hold_reason if enabled else ""
         locked.enabled = enabled
-        locked.save(update_fields=["enabled"])
+        if enabled:
+            locked.hold_reason, locked.held_at, locked.hold_notified_at = "", None, None
+        locked.save(update_fields=["enabled", "hold_reason", "held_at", "hold_notified_at"])
         audit_record(
             actor=by,
             action="resource.in_service" if enabled else "resource.out_of_service",
             target=locked,
             ip=ip,
             reason=reason,
+            **({"lifted_hold": lifted} if lifted else {}),
         )
     return locked
+
+
+def resource_hold(*, resource_id: int, reason: str) -> bool:
+    """Take a robot out of booking for what its health check found; audited.
+
+    True if this made the hold; False if it was already held (the first reason stays, and the
+    admins are e-mailed once) or is out of service anyway.
+    """
+    with transaction.atomic():
+        held = Resource.objects.filter(pk=resource_id, enabled=True, hold_reason="").update(
+            hold_reason=reason[:HOLD_REASON_MAX_CHARS],
+            held_at=timezone.now(),
+            hold_notified_at=None,
+        )
+        if held:
+            audit_record(
+                actor=None,
+                action="resource.hold",
+                target=Resource.objects.get(pk=resource_id),
+                reason=reason,
+            )
+    return bool(held)
 
 
 def blackout_create(
@@ -458,6 +495,9 @@ class TestbedSpec:
     fixed_nodes: int = 24
     max_velocity_mps: float = 2.0
     max_accel_mps2: float = 1.0
+    # The name of the agent's token in AGENT_TOKENS ("default" is AGENT_TOKEN).
+    agent_token_name: str = "default"  # noqa: S105 - a name, not the secret
+    mobile_description: str = "Rail robot around the roof of IT building 1"
 
 
 def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
@@ -478,8 +518,9 @@ def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
         Resource(
             name=spec.mobile_name,
             kind=ResourceKind.MOBILE,
-            description="Rail robot around the roof of IT building 1",
+            description=spec.mobile_description,
             agent_url=spec.agent_url,
+            agent_token_name=spec.agent_token_name,
             max_velocity_mps=spec.max_velocity_mps,
             max_accel_mps2=spec.max_accel_mps2,
         ),

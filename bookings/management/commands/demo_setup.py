@@ -10,20 +10,38 @@ import secrets
 from typing import Any
 
 from django.conf import settings
-from django.core.management.base import BaseCommand
+from django.core.management.base import BaseCommand, CommandParser
 from django.db import transaction
 
 from bookings.services import TestbedSpec, testbed_resources_ensure
 from portal.accounts.models import User
+from portal.processes import SECOND_ROBOT
 
 
 class Command(BaseCommand):
     help = "Create an admin, an experimenter, the mobile node and the 24 fixed nodes (idempotent)."
 
+    def add_arguments(self, parser: CommandParser) -> None:
+        parser.add_argument(
+            "--second-robot",
+            metavar="AGENT_URL",
+            help="also create the second simulated robot (mobile-2), whose agent is here; "
+            "its token is AGENT_TOKENS' mobile-2",
+        )
+
     def handle(self, *args: Any, **options: Any) -> None:
         with transaction.atomic():
             # The demo's resources are the real testbed's, on the local agent.
             testbed_resources_ensure(TestbedSpec(agent_url=settings.AGENT_URL))
+            if options["second_robot"]:
+                testbed_resources_ensure(
+                    TestbedSpec(
+                        agent_url=options["second_robot"],
+                        mobile_name=SECOND_ROBOT,
+                        agent_token_name=SECOND_ROBOT,
+                        mobile_description="Second simulated robot, on a second rail",
+                    )
+                )
             created = []
             for username, staff in (("admin", True), ("experimenter", False)):
                 if User.objects.filter(username=username).exists():
