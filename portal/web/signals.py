@@ -18,6 +18,9 @@ def calendar_changed(sender: Any, **kwargs: Any) -> None:
     publish_on_commit(CALENDAR, {"type": "changed"})
 
 
-def resource_saved(sender: Any, instance: Any, **kwargs: Any) -> None:
-    """An admin took a resource out of service or put it back (lifting a hold)."""
-    hold_publish(instance)
+def resource_saved(sender: Any, instance: Any, created: bool = False, **kwargs: Any) -> None:
+    """A new resource, or one an admin took out of service or put back (lifting a hold)."""
+    if created:
+        calendar_changed(sender)
+    else:
+        hold_publish(instance)

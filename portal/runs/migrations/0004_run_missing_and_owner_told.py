@@ -12,20 +12,21 @@ def runs_already_ended_count_as_told(apps, schema_editor):
 
 
 class Migration(migrations.Migration):
-
     dependencies = [
-        ('runs', '0003_runevent_cause_by'),
+        ("runs", "0003_runevent_cause_by"),
     ]
 
     operations = [
         migrations.AddField(
-            model_name='run',
-            name='missing',
-            field=models.JSONField(blank=True, db_default=models.Value([], models.JSONField()), default=list),
+            model_name="run",
+            name="missing",
+            field=models.JSONField(
+                blank=True, db_default=models.Value([], models.JSONField()), default=list
+            ),
         ),
         migrations.AddField(
-            model_name='run',
-            name='owner_told_at',
+            model_name="run",
+            name="owner_told_at",
             field=models.DateTimeField(blank=True, null=True),
         ),
         migrations.RunPython(runs_already_ended_count_as_told, migrations.RunPython.noop),
