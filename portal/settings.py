@@ -276,7 +276,7 @@ RUN_COLLECT_GRACE_S = env.float("RUN_COLLECT_GRACE_S", default=600.0)
 # Robot health: each agent's status is read this often and cached; a robot reporting a
 # latched e-stop, a fault or a battery under the threshold, or an agent unreachable for
 # longer than the threshold, is taken out of booking until an admin returns it.
-HEALTH_POLL_INTERVAL_S = env.float("HEALTH_POLL_INTERVAL_S", default=10.0)
+HEALTH_POLL_INTERVAL_S = env.float("HEALTH_POLL_INTERVAL_S", default=2.0)
 HEALTH_UNREACHABLE_S = env.float("HEALTH_UNREACHABLE_S", default=120.0)
 HEALTH_LOW_BATTERY_V = env.float("HEALTH_LOW_BATTERY_V", default=50.0)
 CELERY_BEAT_SCHEDULE = {

@@ -83,9 +83,10 @@ def wait_http(url: str, timeout_s: float, procs: list[Proc]) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         try:
-            requests.get(url, timeout=1)
+            requests.get(url, timeout=5)
             return
-        except requests.ConnectionError:
+        except (requests.ConnectionError, requests.Timeout):
+            # Not listening yet, or busy starting (its first request sets it up).
             time.sleep(0.2)
     raise AssertionError(f"{url} did not answer\n" + "\n".join(p.output() for p in procs))
 

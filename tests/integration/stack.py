@@ -198,8 +198,11 @@ FAULT_ENV = {
 
 
 @pytest.fixture(scope="module")
-def fault_stack(tmp_path_factory):
-    """One system per module on a private Redis server, with two robots, to break on purpose."""
+def fault_stack(tmp_path_factory, django_db_setup):
+    """One system per module on a private Redis server, with two robots, to break on purpose.
+
+    After the test database is made (``django_db_setup``): the processes are pointed at it.
+    """
     base = tmp_path_factory.mktemp("fault-stack")
     server = RedisServer(base / "redis")
     server.start()
