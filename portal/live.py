@@ -30,7 +30,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncGenerator, AsyncIterator, Mapping
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
@@ -212,7 +212,9 @@ def publish_on_commit(channel: str, event: Mapping[str, Any]) -> None:
     transaction.on_commit(partial(publish, channel, dict(event)))
 
 
-async def subscribe(channels: list[str], *, idle_s: float) -> AsyncIterator[dict[str, Any] | None]:
+async def subscribe(
+    channels: list[str], *, idle_s: float
+) -> AsyncGenerator[dict[str, Any] | None, None]:
     """Events on ``channels`` as they come; ``None`` first once subscribed, then after every
     ``idle_s`` without one (for keep-alives). Raises :class:`LiveUnavailable` when the bus
     cannot be reached or drops."""

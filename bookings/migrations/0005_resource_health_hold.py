@@ -4,25 +4,24 @@ from django.db import migrations, models
 
 
 class Migration(migrations.Migration):
-
     dependencies = [
-        ('bookings', '0004_agent_url_bare_host_names'),
+        ("bookings", "0004_agent_url_bare_host_names"),
     ]
 
     operations = [
         migrations.AddField(
-            model_name='resource',
-            name='held_at',
+            model_name="resource",
+            name="held_at",
             field=models.DateTimeField(blank=True, null=True),
         ),
         migrations.AddField(
-            model_name='resource',
-            name='hold_notified_at',
+            model_name="resource",
+            name="hold_notified_at",
             field=models.DateTimeField(blank=True, null=True),
         ),
         migrations.AddField(
-            model_name='resource',
-            name='hold_reason',
-            field=models.CharField(blank=True, db_default='', max_length=300),
+            model_name="resource",
+            name="hold_reason",
+            field=models.CharField(blank=True, db_default="", max_length=300),
         ),
     ]

@@ -21,7 +21,8 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any
 
-from django.http import HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
+from django.http import HttpRequest, JsonResponse, StreamingHttpResponse
+from django.http.response import HttpResponseBase
 
 from bookings.models import Resource
 from portal.live import CALENDAR, LiveUnavailable, robot_channel, run_channel, subscribe
@@ -36,7 +37,7 @@ def _sse(event: str, data: dict[str, Any]) -> str:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'), default=str)}\n\n"
 
 
-async def _stream(channels: list[str]) -> HttpResponse:
+async def _stream(channels: list[str]) -> HttpResponseBase:
     events = subscribe(channels, idle_s=KEEPALIVE_S)
     try:
         await anext(events)  # subscribed (or the bus is down: 503 now, not a dead stream)
@@ -69,22 +70,22 @@ async def _stream(channels: list[str]) -> HttpResponse:
     return response
 
 
-def _denied() -> HttpResponse:
+def _denied() -> HttpResponseBase:
     # A stream gets no login redirect: the page that opened it handles 403 by polling.
     return JsonResponse({"error": "forbidden", "detail": "Log in to follow this."}, status=403)
 
 
-async def run_stream(request: HttpRequest, pk: int) -> HttpResponse:
+async def run_stream(request: HttpRequest, pk: int) -> HttpResponseBase:
     """State changes and new samples of one run the user may see."""
     user = await request.auser()
     if not user.is_authenticated:
         return _denied()
-    if not await runs_visible(user=user).filter(pk=pk).aexists():  # type: ignore[arg-type]
+    if not await runs_visible(user=user).filter(pk=pk).aexists():
         return JsonResponse({"error": "not_found", "detail": "No such run."}, status=404)
     return await _stream([run_channel(pk)])
 
 
-async def robot_stream(request: HttpRequest, name: str) -> HttpResponse:
+async def robot_stream(request: HttpRequest, name: str) -> HttpResponseBase:
     """A robot's status as the health check reads it, and its hold (admins)."""
     user = await request.auser()
     if not user.is_authenticated or not getattr(user, "is_testbed_admin", False):
@@ -94,7 +95,7 @@ async def robot_stream(request: HttpRequest, name: str) -> HttpResponse:
     return await _stream([robot_channel(name)])
 
 
-async def calendar_stream(request: HttpRequest) -> HttpResponse:
+async def calendar_stream(request: HttpRequest) -> HttpResponseBase:
     """Bookings and maintenance changed (the calendar reads them again), robots held."""
     user = await request.auser()
     if not user.is_authenticated:

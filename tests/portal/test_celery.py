@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import yaml
 from django.conf import settings
 
 from portal.celery import app as celery_app
 from portal.processes import MAIL_QUEUE, RUNS_QUEUE, system_processes
 from portal.runs.tasks import MAX_RETRIES
 
+REPO = Path(__file__).resolve().parents[2]
 MAIL_TASKS = {
     "bookings.tasks.reservation_notify",
     "portal.runs.tasks.run_notify",
@@ -31,7 +35,7 @@ def test_delivery_is_at_least_once_one_task_at_a_time():
 
 
 def test_mail_tasks_go_to_the_mail_queue_and_everything_else_to_the_runs_queue():
-    assert MAIL_TASKS <= set(_tasks())
+    assert set(_tasks()) >= MAIL_TASKS
     for name in _tasks():
         assert _queue(name) == (MAIL_QUEUE if name in MAIL_TASKS else RUNS_QUEUE), name
 
@@ -61,3 +65,13 @@ def test_the_visibility_timeout_outlasts_every_task_and_every_retry_delay():
         if name in ("portal.runs.tasks.run_stage", "portal.runs.tasks.run_unstage"):
             retry_delay_s = min(30, 2**MAX_RETRIES)
         assert limit_s + retry_delay_s < timeout_s, name
+
+
+def test_the_deployment_runs_a_worker_for_each_queue():
+    compose = yaml.safe_load((REPO / "docker-compose.yml").read_text())
+    queues = {
+        name: service["command"][service["command"].index("--queues") + 1]
+        for name, service in compose["services"].items()
+        if "worker" in service.get("command", []) and "celery" in service["command"]
+    }
+    assert sorted(queues.values()) == sorted([RUNS_QUEUE, MAIL_QUEUE]), queues

@@ -107,7 +107,9 @@ def test_samples_the_agent_lost_make_the_run_interrupted_with_their_range(agent,
     assert _stored_seqs(staged) == _agent_seqs(agent, staged)
     [gap] = [MissingRange(**m) for m in staged.missing]
     assert (gap.first_seq, gap.last_seq) == (10, 14)
-    assert gap.from_s is not None and gap.to_s is not None and gap.from_s < gap.to_s
+    assert gap.from_s is not None
+    assert gap.to_s is not None
+    assert gap.from_s < gap.to_s
     assert "seq 10–14" in staged.reason
 
 

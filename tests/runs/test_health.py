@@ -55,7 +55,8 @@ def _held(resource: Resource) -> str:
 def test_a_latched_estop_takes_the_robot_out_of_booking_with_the_reason(agent, robot, owner):
     agent.client.stop(user="carol", reason="someone on the roof")
     health = robot_health_check(resource_id=robot.pk)
-    assert health is not None and health.reachable
+    assert health is not None
+    assert health.reachable
     reason = "emergency stop latched: someone on the roof (by carol)"
     assert health.problems == [reason]
     assert _held(robot) == reason
@@ -72,7 +73,9 @@ def test_a_latched_estop_takes_the_robot_out_of_booking_with_the_reason(agent, r
         experiment=ExperimentFactory(owner=owner),
     )
     assert [(p.code, p.message) for p in problems] == [("out_of_service", refused.value.message)]
-    assert resource_free_intervals(resource=robot, start_at=start, end_at=start + timedelta(1)) == []
+    assert (
+        resource_free_intervals(resource=robot, start_at=start, end_at=start + timedelta(1)) == []
+    )
     [audit] = AuditEvent.objects.filter(action="resource.hold")
     assert (audit.actor_name, audit.target_id) == ("system", str(robot.pk))
 
@@ -102,13 +105,13 @@ def test_faults_and_the_agents_own_low_battery_flag_are_problems(agent):
     ]
 
 
-def test_an_agent_out_of_reach_for_longer_than_the_threshold_takes_the_robot_out(
-    robot, settings
-):
+def test_an_agent_out_of_reach_for_longer_than_the_threshold_takes_the_robot_out(robot, settings):
     Resource.objects.filter(pk=robot.pk).update(agent_url="http://127.0.0.1:9")
     first_s = time.time()
     health = robot_health_check(resource_id=robot.pk, now_s=first_s)
-    assert health is not None and not health.reachable and health.problems == []
+    assert health is not None
+    assert not health.reachable
+    assert health.problems == []
     almost_s = first_s + settings.HEALTH_UNREACHABLE_S - 1
     robot_health_check(resource_id=robot.pk, now_s=almost_s)
     assert _held(robot) == ""
@@ -122,7 +125,9 @@ def test_an_agent_that_answers_again_starts_the_count_afresh(agent, robot, setti
     robot_health_check(resource_id=robot.pk, now_s=first_s)
     Resource.objects.filter(pk=robot.pk).update(agent_url=agent.url)
     back = robot_health_check(resource_id=robot.pk, now_s=first_s + 5)
-    assert back is not None and back.reachable and back.unreachable_since_s is None
+    assert back is not None
+    assert back.reachable
+    assert back.unreachable_since_s is None
     Resource.objects.filter(pk=robot.pk).update(agent_url="http://127.0.0.1:9")
     later_s = first_s + settings.HEALTH_UNREACHABLE_S + 1
     robot_health_check(resource_id=robot.pk, now_s=later_s)
@@ -133,8 +138,10 @@ def test_the_last_reading_is_cached_for_the_pages(agent, robot):
     robot_health_check(resource_id=robot.pk)
     cached = robot_health_cached(name=robot.name)
     assert cached is not None
-    assert cached.status is not None and cached.status["resource"] == "mobile-1"
-    assert cached.reachable and cached.problems == []
+    assert cached.status is not None
+    assert cached.status["resource"] == "mobile-1"
+    assert cached.reachable
+    assert cached.problems == []
 
 
 def test_a_held_robot_stays_out_until_an_admin_puts_it_back_audited(

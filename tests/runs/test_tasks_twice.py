@@ -164,7 +164,10 @@ def test_telling_the_admins_of_a_hold_twice_sends_one_mail(agent, mobile, admin_
 def test_a_booking_mail_delivered_twice_is_sent_once(owner):
     start = timezone.now() + timedelta(days=1)
     reservation = booking_create(
-        owner=owner, resource=FixedResourceFactory(), start_at=start, end_at=start + timedelta(hours=1)
+        owner=owner,
+        resource=FixedResourceFactory(),
+        start_at=start,
+        end_at=start + timedelta(hours=1),
     )
     mail.outbox.clear()
     twice(reservation_notify, "confirmed", reservation.pk)
@@ -177,7 +180,10 @@ def test_a_booking_mail_delivered_twice_is_sent_once(owner):
 def test_reminding_twice_reminds_once(owner, eager):
     start = timezone.now() + timedelta(minutes=30)
     booking_create(
-        owner=owner, resource=FixedResourceFactory(), start_at=start, end_at=start + timedelta(hours=1)
+        owner=owner,
+        resource=FixedResourceFactory(),
+        start_at=start,
+        end_at=start + timedelta(hours=1),
     )
     mail.outbox.clear()
     twice(reservations_remind)
