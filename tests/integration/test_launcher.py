@@ -224,8 +224,12 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
         events = _sse_events(session, f"{web}/live/runs/{run_id}/", "completed", 60)
         assert events[0] == "open"
         assert "samples" in events
-        for url in run_urls:
+        for url in run_urls:  # the other robot's run ends on its own, about as soon
+            deadline = time.monotonic() + 30
             data = _json(session, f"{url}/data.json", launcher)
+            while data["live"] and time.monotonic() < deadline:
+                time.sleep(0.5)
+                data = _json(session, f"{url}/data.json", launcher)
             assert data["state"] == "completed", f"{url}: {data['reason']}\n{launcher.output()}"
             assert data["sample_count"] >= 60
         rails = {_json(session, f"{url}/data.json", launcher)["rail_length_m"] for url in run_urls}

@@ -163,8 +163,11 @@ def test_a_held_robot_stays_out_until_an_admin_puts_it_back_audited(
     _book(owner, robot)  # bookable again
 
 
-def test_a_robot_an_admin_took_out_of_service_is_not_checked(agent, robot, admin_user):
+def test_a_robot_an_admin_took_out_of_service_is_watched_but_not_held(agent, robot, admin_user):
     resource_set_service(resource=robot, by=admin_user, enabled=False, reason="maintenance")
     agent.client.stop(reason="maintenance")
-    assert robot_health_check(resource_id=robot.pk) is None
-    assert _held(robot) == ""
+    health = robot_health_check(resource_id=robot.pk)
+    assert health is not None
+    assert health.problems == ["emergency stop latched: maintenance"]
+    assert _held(robot) == ""  # out of service already; no hold, no mail
+    assert not AuditEvent.objects.filter(action="resource.hold").exists()

@@ -69,8 +69,9 @@ def robot_health_cached(*, name: str) -> RobotHealth | None:
 
 
 def robots_to_check() -> QuerySet[Resource]:
-    """Mobile nodes with an agent, in service (one taken out by an admin is left alone)."""
-    return Resource.objects.filter(kind=ResourceKind.MOBILE, enabled=True).exclude(agent_url="")
+    """Mobile nodes with an agent. One an admin took out of service is still read (its
+    console shows it while it is driven by hand for maintenance), but never held."""
+    return Resource.objects.filter(kind=ResourceKind.MOBILE).exclude(agent_url="")
 
 
 def robot_health_problems(*, status: dict[str, Any], low_battery_v: float) -> list[str]:
@@ -104,7 +105,8 @@ def _when(at_s: float) -> str:
 
 def robot_health_check(*, resource_id: int, now_s: float | None = None) -> RobotHealth | None:
     """Read one robot's status from its agent, cache it, push it, and hold the robot if it
-    is unfit. None if the resource is gone or no longer checked."""
+    is unfit (unless an admin took it out of service already). None if the resource is gone
+    or has no agent."""
     resource = robots_to_check().filter(pk=resource_id).first()
     if resource is None:
         return None
