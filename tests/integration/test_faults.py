@@ -8,6 +8,7 @@ the portal's stored samples with the agent's, sequence by sequence.
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import time
@@ -25,7 +26,8 @@ from basestation.client import AgentClient, AgentError
 from bookings.models import Resource
 from portal.runs.models import Run, Sample
 from portal.runs.services.collection import MissingRange
-from tests.factories import MobileResourceFactory, UserFactory
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.integration.processes import Proc
 from tests.integration.stack import FAULT_ENV, Stack
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -349,3 +351,41 @@ def test_an_estop_report_takes_the_robot_out_of_booking_within_one_status_period
         mail.wait_for_line(lambda line: line.startswith("Subject: mobile-2 out of booking"), 20)
     finally:
         fault_stack.agent2.release_stop()
+
+
+def _mails_sent(mail: Proc) -> int:
+    return sum("reservation_notify[" in line and "succeeded" in line for line in mail.lines)
+
+
+def test_a_mail_backlog_does_not_delay_a_run(fault_stack, robots):
+    """Mail has its own queue and worker: with the mail worker stuck and mails piling up, a
+    run is staged and collected on time; the mails go out once the worker moves again."""
+    mail = fault_stack.procs["mail"]
+    os.killpg(mail.popen.pid, signal.SIGSTOP)  # stuck, as on a mail server that never answers
+    erin = Experimenter(fault_stack, "erin")
+    try:
+        nodes = [FixedResourceFactory() for _ in range(20)]
+        start = timezone.now() + timedelta(hours=2)
+        for node in nodes:  # each booking queues its "confirmed" mail
+            booked = erin.session.post(
+                f"{fault_stack.web}/api/v1/reservations/",
+                json={
+                    "resources": [node.name],
+                    "start_at": start.isoformat(),
+                    "end_at": (start + timedelta(hours=1)).isoformat(),
+                },
+                timeout=10,
+            )
+            assert booked.status_code == 201, booked.text
+        run_id = erin.run("mobile-1", program_s=3.0)
+        run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed", timeout_s=30)
+        assert run.state == "completed", run.reason
+        assert _mails_sent(mail) == 0
+    finally:
+        os.killpg(mail.popen.pid, signal.SIGCONT)
+    wait_for(
+        "the mails of the backlog",
+        fault_stack,
+        lambda: _mails_sent(mail) >= 21,
+        30,
+    )
