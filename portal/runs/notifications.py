@@ -17,6 +17,7 @@ from django.db import transaction
 from django.db.models import QuerySet
 from django.utils import timezone
 
+from bookings.choices import ReservationState
 from bookings.models import Resource
 from portal.accounts.models import User
 from portal.runs.models import Run
@@ -28,7 +29,11 @@ TOLD_STATES = (RunState.FAILED, RunState.INTERRUPTED)
 
 
 def runs_owner_untold() -> QuerySet[Run]:
-    return Run.objects.filter(state__in=TOLD_STATES, owner_told_at__isnull=True)
+    """Runs that failed or were interrupted, whose owner has not been told. A run whose
+    booking was cancelled or rejected is left out: whoever ended it said so already."""
+    return Run.objects.filter(state__in=TOLD_STATES, owner_told_at__isnull=True).exclude(
+        reservation__state__in=[ReservationState.CANCELLED, ReservationState.REJECTED]
+    )
 
 
 def run_message(run: Run) -> tuple[str, str]:

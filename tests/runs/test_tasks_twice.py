@@ -22,7 +22,7 @@ from bookings.tasks import reservation_notify, reservations_remind
 from portal.audit.models import AuditEvent, IdempotencyKey
 from portal.audit.tasks import idempotency_keys_delete_expired
 from portal.celery import app as celery_app
-from portal.runs import tasks
+from portal.runs import notifications, tasks
 from portal.runs.models import Run, RunEvent, Sample
 from portal.runs.services import staging
 from portal.runs.services.booking import booking_cancel, booking_create
@@ -114,6 +114,19 @@ def test_collecting_twice_stores_every_sample_once(agent, run):
 def test_the_sweep_twice_with_its_queued_work_does_each_step_once(agent, run, eager):
     twice(tasks.runs_sweep)
     assert _events(run) == ["scheduled", "staged"]
+
+
+def test_a_run_its_owner_cancelled_is_not_told_about(agent, run, owner):
+    staging.run_stage(run_id=run.pk)
+    start_s = run.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 1.0)
+    tasks.run_collect.apply(args=(run.pk,))  # running here too
+    booking_cancel(reservation=run.reservation, by=owner)
+    staging.run_unstage(run_id=run.pk)  # aborted on the robot, then collected
+    agent.run_clock(start_s + 1.05, start_s + 2.0)
+    tasks.run_collect.apply(args=(run.pk,))
+    assert Run.objects.get(pk=run.pk).state == RunState.INTERRUPTED
+    assert not notifications.runs_owner_untold().exists()
 
 
 def test_telling_the_owner_twice_sends_one_mail(run):
