@@ -72,7 +72,7 @@ def test_a_run_the_agent_completed_with_every_sample_here_is_completed(agent, st
 
 
 def test_a_run_stopped_early_on_the_agent_is_interrupted_with_the_part_never_recorded(
-    agent, staged
+    agent, staged, api
 ):
     start_s = staged.start_at.timestamp()
     agent.run_clock(start_s, start_s + 1.0)
@@ -91,6 +91,8 @@ def test_a_run_stopped_early_on_the_agent_is_interrupted_with_the_part_never_rec
     assert "agent restarted during run" in staged.reason
     assert f"seq {stored[-1] + 1} onwards" in staged.reason
     assert missing_described(staged.missing) == [tail.describe()]
+    shown = api.get(f"/api/v1/runs/{staged.pk}/").json()
+    assert (shown["state"], shown["missing"]) == ("interrupted", staged.missing)
 
 
 def test_samples_the_agent_lost_make_the_run_interrupted_with_their_range(agent, staged):
