@@ -10,8 +10,9 @@ nothing happens. Each stream:
 - ends after ``STREAM_MAX_S`` (the browser reconnects and the login is checked again), or
   when the bus drops — the page then shows "reconnecting", polls, and reconnects.
 
-A bus that cannot be reached answers 503 at once. The pages read their data once on every
-(re)connect, so events missed while the stream was down are never needed.
+A bus that cannot be reached answers 503 at once; a WSGI server (no streams there) 204. The
+pages read their data once on every (re)connect, so events missed while the stream was down
+are never needed.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any
 
-from django.http import HttpRequest, JsonResponse, StreamingHttpResponse
+from django.core.handlers.asgi import ASGIRequest
+from django.http import HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
 from django.http.response import HttpResponseBase
 
 from bookings.models import Resource
@@ -70,6 +72,12 @@ async def _stream(channels: list[str]) -> HttpResponseBase:
     return response
 
 
+def _no_stream() -> HttpResponseBase:
+    """Under a WSGI server (a test's live server, a WSGI deployment) a stream would hold its
+    thread for good. 204 tells the browser not to reconnect; the page polls instead."""
+    return HttpResponse(status=204)
+
+
 def _denied() -> HttpResponseBase:
     # A stream gets no login redirect: the page that opened it handles 403 by polling.
     return JsonResponse({"error": "forbidden", "detail": "Log in to follow this."}, status=403)
@@ -77,6 +85,8 @@ def _denied() -> HttpResponseBase:
 
 async def run_stream(request: HttpRequest, pk: int) -> HttpResponseBase:
     """State changes and new samples of one run the user may see."""
+    if not isinstance(request, ASGIRequest):
+        return _no_stream()
     user = await request.auser()
     if not user.is_authenticated:
         return _denied()
@@ -87,6 +97,8 @@ async def run_stream(request: HttpRequest, pk: int) -> HttpResponseBase:
 
 async def robot_stream(request: HttpRequest, name: str) -> HttpResponseBase:
     """A robot's status as the health check reads it, and its hold (admins)."""
+    if not isinstance(request, ASGIRequest):
+        return _no_stream()
     user = await request.auser()
     if not user.is_authenticated or not getattr(user, "is_testbed_admin", False):
         return _denied()
@@ -97,6 +109,8 @@ async def robot_stream(request: HttpRequest, name: str) -> HttpResponseBase:
 
 async def calendar_stream(request: HttpRequest) -> HttpResponseBase:
     """Bookings and maintenance changed (the calendar reads them again), robots held."""
+    if not isinstance(request, ASGIRequest):
+        return _no_stream()
     user = await request.auser()
     if not user.is_authenticated:
         return _denied()

@@ -182,3 +182,9 @@ def _sample(seq: int) -> dict[str, Any]:
         "battery_v": 59.0,
         "track_m": 1.0 + seq * 0.025,
     }
+
+
+def test_a_wsgi_server_answers_no_stream_and_the_page_polls(client, owner):
+    """A stream would hold a WSGI thread for good: 204 tells the browser not to reconnect."""
+    client.force_login(owner)
+    assert client.get("/live/calendar/").status_code == 204
