@@ -343,3 +343,4 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
         if redis_proc is not None:
             redis_proc.terminate()
             redis_proc.wait(timeout=10)
+        shutil.rmtree(work, ignore_errors=True)
