@@ -3,8 +3,10 @@
 ``python -m bench`` runs every benchmark; ``python -m bench agent`` (or ``telemetry``) only
 the ones named. The telemetry benchmark runs on a scratch PostgreSQL database
 (``<name>_bench`` next to the one in DATABASE_URL), created afresh and dropped at the end;
-the agent benchmark needs no database. Each benchmark compares the system with a baseline
-measured in the same run on the same machine, so the ratios travel between machines.
+the agent benchmark needs no database. ``live`` (sample to browser, SSE against polling)
+starts the whole system on such a scratch database and a redis-server of its own. Each
+benchmark compares the system with a baseline measured in the same run on the same machine,
+so the ratios travel between machines.
 """
 
 from __future__ import annotations
@@ -80,7 +82,7 @@ def main() -> None:
     parser.add_argument(
         "benchmarks",
         nargs="*",
-        help="which to run: telemetry, bookings, scheduler, agent, timing (default: all)",
+        help="which to run: telemetry, bookings, scheduler, agent, timing, live (default: all)",
     )
     parser.add_argument("--samples", type=int, default=72_000, help="samples of the long run")
     parser.add_argument(
@@ -88,7 +90,7 @@ def main() -> None:
     )
     parser.add_argument("--no-report", action="store_true", help="print only")
     args = parser.parse_args()
-    known = ["telemetry", "bookings", "scheduler", "agent", "timing"]
+    known = ["telemetry", "bookings", "scheduler", "agent", "timing", "live"]
     # Checked here: argparse rejects an empty list against ``choices`` with nargs="*".
     unknown = sorted(set(args.benchmarks) - set(known))
     if unknown:
@@ -104,6 +106,8 @@ def main() -> None:
         _agent(args.agent_seconds, report=not args.no_report)
     if "timing" in which:
         _timing(report=not args.no_report)
+    if "live" in which:
+        _live(report=not args.no_report)
 
 
 def _on_scratch_database(key: str, run: Callable[[], str], *, report: bool) -> None:
@@ -183,6 +187,17 @@ def _timing(*, report: bool) -> None:
     if report:
         write_section("timing", f"{results}\n\n{stamp}")
         print(f"written to {REPORT.relative_to(REPO)}")
+
+
+def _live(*, report: bool) -> None:
+    url, _ = _scratch_database()
+
+    def run() -> str:
+        from bench import live
+
+        return live.run(database_url=url)
+
+    _on_scratch_database("live", run, report=report)
 
 
 if __name__ == "__main__":

@@ -48,6 +48,8 @@ class ResourceOutput(serializers.ModelSerializer):
             "max_velocity_mps",
             "max_accel_mps2",
             "enabled",
+            "hold_reason",
+            "held_at",
             "requires_approval",
         ]
 

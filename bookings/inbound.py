@@ -80,7 +80,7 @@ def _node_doc(resource: Resource) -> dict[str, Any]:
         "name": resource.name,
         "resource_type": "node",
         "domain": DOMAIN,
-        "available": resource.enabled,
+        "available": resource.in_service,
         "exclusive": True,
     }
 

@@ -135,9 +135,10 @@ def _not_being_booked(public_id: uuid.UUID) -> bool:
         return bool(cursor.fetchone()[0])
 
 
-def leases_refresh(*, start_at: datetime, end_at: datetime) -> None:
-    """Mirror the scheduler's leases over ``[start_at, end_at)`` now (before a booking),
-    so that a lease made elsewhere a moment ago refuses the booking with its name."""
+def leases_refresh(*, start_at: datetime, end_at: datetime) -> list[Lease]:
+    """The scheduler's leases over ``[start_at, end_at)`` now (before a booking), so that a
+    lease made elsewhere a moment ago refuses the booking with its name; mirrored too (a
+    refused booking's transaction may take that back: the sweep mirrors them again)."""
     listed_at = timezone.now()
     try:
         with scheduler_client() as scheduler:
@@ -145,6 +146,7 @@ def leases_refresh(*, start_at: datetime, end_at: datetime) -> None:
     except SchedulerError as exc:
         raise _domain_error(exc, "booked") from exc
     _mirror(leases, now=listed_at, window=(start_at, end_at))
+    return leases
 
 
 def lease_take(

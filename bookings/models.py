@@ -13,6 +13,7 @@ from django.db import models
 from bookings.choices import BookedVia, QuotaPeriod, ReservationState, ResourceKind
 
 _Timed = TypeVar("_Timed", bound=models.Model)
+HOLD_REASON_MAX_CHARS = 300
 
 
 class PeriodQuerySet(models.QuerySet[_Timed]):
@@ -76,6 +77,13 @@ class Resource(models.Model):
     requires_approval = models.BooleanField(
         default=False, help_text="Bookings wait for an admin's decision."
     )
+    # Set by the robot health check (a latched e-stop, a fault, a low battery, an agent out of
+    # reach): out of service like ``enabled`` off, until an admin puts it back in service.
+    # A database default too: rows written by the previous release during an upgrade.
+    hold_reason = models.CharField(max_length=HOLD_REASON_MAX_CHARS, blank=True, db_default="")
+    held_at = models.DateTimeField(null=True, blank=True)
+    # When the admins were e-mailed about the hold (once per hold).
+    hold_notified_at = models.DateTimeField(null=True, blank=True)
 
     class Meta:
         ordering = ["kind", "name"]
@@ -93,6 +101,11 @@ class Resource(models.Model):
     @property
     def is_mobile(self) -> bool:
         return self.kind == ResourceKind.MOBILE
+
+    @property
+    def in_service(self) -> bool:
+        """Bookable: neither taken out of service by an admin nor held by the health check."""
+        return self.enabled and not self.hold_reason
 
 
 class Reservation(models.Model):

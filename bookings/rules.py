@@ -25,6 +25,7 @@ from django.utils import timezone
 from bookings.choices import ResourceKind
 from bookings.models import Blackout, ReservationItem, Resource, SchedulerLease
 from bookings.quotas import quota_violations
+from bookings.scheduler import Lease
 from portal.accounts.models import User
 from portal.errors import Conflict, DomainError, InvalidInput
 
@@ -193,13 +194,53 @@ def _conflicts(
     return problems
 
 
-def _lease_problems(
-    resources: Sequence[Resource], start_at: datetime, end_at: datetime, *, first_only: bool
-) -> list[Problem]:
-    """Leases made on the testbed's scheduler (not for a portal booking) holding a node.
+def _lease_problem(
+    nodes: Sequence[str], account: str, start_at: datetime, end_at: datetime, name: str
+) -> Problem:
+    by = f" by {account}" if account else ""
+    return Problem(
+        "lease",
+        "start_at",
+        f"{', '.join(sorted(nodes))} is leased on the testbed scheduler{by} from "
+        f"{_period(start_at)} to {_period(end_at)} (lease “{name}”).",
+    )
 
-    Only scheduler-owned nodes have leases; portal bookings' own leases are their items.
+
+def _lease_problems(
+    resources: Sequence[Resource],
+    start_at: datetime,
+    end_at: datetime,
+    *,
+    first_only: bool,
+    fresh: Sequence[Lease] | None,
+    exclude_lease_uuid: str,
+) -> list[Problem]:
+    """Leases on the testbed's scheduler holding one of ``resources`` (scheduler-owned).
+
+    ``fresh`` is what the scheduler listed a moment ago (booking asks it first); without it
+    the mirror speaks, where leases made for portal bookings are those bookings' items.
     """
+    wanted = {r.name for r in resources}
+    problems = []
+    if fresh is not None:
+        for lease in sorted(fresh, key=lambda x: x.valid_from):
+            held = sorted(wanted.intersection(lease.component_names))
+            if (
+                lease.holds_nodes
+                and held
+                and lease.uuid != exclude_lease_uuid
+                and lease.overlaps(start=start_at, end=end_at)
+            ):
+                problems.append(
+                    _lease_problem(
+                        held,
+                        lease.account_name,
+                        lease.valid_from,
+                        lease.valid_until,
+                        lease.name,
+                    )
+                )
+        return problems[:1] if first_only else problems
     leases = (
         SchedulerLease.objects.overlapping(start_at, end_at)
         .filter(
@@ -212,19 +253,9 @@ def _lease_problems(
         .distinct()
         .order_by("start_at")
     )
-    problems = []
-    wanted = {r.pk for r in resources}
-    for lease in leases[:1] if first_only else leases:
-        nodes = ", ".join(sorted(r.name for r in lease.resources.all() if r.pk in wanted))
-        account = f" by {lease.account_name}" if lease.account_name else ""
-        problems.append(
-            Problem(
-                "lease",
-                "start_at",
-                f"{nodes} is leased on the testbed scheduler{account} from "
-                f"{_period(lease.start_at)} to {_period(lease.end_at)} (lease “{lease.name}”).",
-            )
-        )
+    for row in leases[:1] if first_only else leases:
+        names = [r.name for r in row.resources.all() if r.name in wanted]
+        problems.append(_lease_problem(names, row.account_name, row.start_at, row.end_at, row.name))
     return problems
 
 
@@ -240,17 +271,20 @@ def booking_problems(
     first_only: bool = False,
     program_required: bool = True,
     scheduler_owned: Sequence[Resource] = (),
+    scheduler_leases: Sequence[Lease] | None = None,
+    own_lease_uuid: str = "",
 ) -> list[Problem]:
     """Everything that forbids ``owner`` booking ``resources`` for ``[start_at, end_at)``.
 
     In the order a person fixes them: the window, resources out of service, the program,
     maintenance, other bookings, leases on the testbed scheduler (of the ``scheduler_owned``
-    resources, from the mirror), quotas (one :class:`Problem` listing every quota rule
+    resources: as ``scheduler_leases`` listed them a moment ago, else from the mirror;
+    ``own_lease_uuid`` is the booking's own), quotas (one :class:`Problem` listing every quota rule
     broken; an admin may override it). ``program_required=False`` lets a mobile node be held
     without a program (a lease asked for through the scheduler's vocabulary). ``first_only``
     stops at the first problem found, for the booking path that raises it. The resources'
-    ``enabled`` is read from the instances given: under the booking lock they are the rows
-    just locked.
+    ``enabled`` and ``hold_reason`` (the health check's hold) are read from the instances
+    given: under the booking lock they are the rows just locked.
     """
     problems = _window_problems(start_at, end_at, now)
     if problems and first_only:
@@ -258,9 +292,15 @@ def booking_problems(
     if end_at <= start_at:
         return problems  # nothing else can be judged on an empty period
     problems += [
-        Problem("out_of_service", "resources", f"{r.name} is out of service.")
+        Problem(
+            "out_of_service",
+            "resources",
+            f"{r.name} is out of service: {r.hold_reason}."
+            if r.hold_reason
+            else f"{r.name} is out of service.",
+        )
         for r in sorted(resources, key=lambda r: r.name)
-        if not r.enabled
+        if not r.in_service
     ]
     problems += _program_problems(
         resources, program, (end_at - start_at).total_seconds(), required=program_required
@@ -273,7 +313,14 @@ def booking_problems(
     if problems and first_only:
         return problems[:1]
     if scheduler_owned:
-        problems += _lease_problems(scheduler_owned, start_at, end_at, first_only=first_only)
+        problems += _lease_problems(
+            scheduler_owned,
+            start_at,
+            end_at,
+            first_only=first_only,
+            fresh=scheduler_leases,
+            exclude_lease_uuid=own_lease_uuid,
+        )
         if problems and first_only:
             return problems[:1]
     quota = quota_violations(

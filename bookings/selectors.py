@@ -77,7 +77,7 @@ def resource_free_intervals(
         (max(lease.start_at, start_at), min(lease.end_at, end_at))
         for lease in external_leases(start_at, end_at, resource)
     ]
-    if not resource.enabled:
+    if not resource.in_service:
         busy = [(start_at, end_at)]
     free: list[tuple[datetime, datetime]] = []
     cursor = start_at

@@ -37,7 +37,14 @@ from bookings.leases import (
     scheduler_enabled,
     scheduler_owned,
 )
-from bookings.models import Blackout, QuotaPolicy, Reservation, ReservationItem, Resource
+from bookings.models import (
+    HOLD_REASON_MAX_CHARS,
+    Blackout,
+    QuotaPolicy,
+    Reservation,
+    ReservationItem,
+    Resource,
+)
 from bookings.rules import Program, aware_utc, booking_problems
 from bookings.scheduler import Lease, SchedulerError
 from bookings.tasks import lease_cancel, reservation_notify
@@ -86,6 +93,8 @@ def _check(
     exclude_id: int | None,
     override_reason: str,
     program_required: bool = True,
+    scheduler_leases: Sequence[Lease] | None = None,
+    own_lease_uuid: str = "",
 ) -> list[str]:
     """Raise the first problem with this booking; returns the quota rules overridden."""
     problems = booking_problems(
@@ -99,6 +108,8 @@ def _check(
         first_only=True,
         program_required=program_required,
         scheduler_owned=scheduler_owned(resources),
+        scheduler_leases=scheduler_leases,
+        own_lease_uuid=own_lease_uuid,
     )
     if not problems:
         return []
@@ -155,10 +166,11 @@ def reservation_create(
     needs_approval = any(r.requires_approval for r in resources) and not by.is_testbed_admin
     state = ReservationState.REQUESTED if needs_approval else ReservationState.CONFIRMED
     owned = scheduler_owned(resources)
+    fresh: list[Lease] | None = None
     if owned and start_at < end_at:
         # The leases made elsewhere a moment ago refuse this booking by name, not by a 409
         # from the scheduler (which names no lease).
-        leases_refresh(start_at=start_at, end_at=end_at)
+        fresh = leases_refresh(start_at=start_at, end_at=end_at)
     public_id = uuid.uuid4()
     lease: Lease | None = None
 
@@ -175,6 +187,7 @@ def reservation_create(
                 exclude_id=None,
                 override_reason=override_reason,
                 program_required=program_required,
+                scheduler_leases=fresh,
             )
             if owned:
                 booking_guard(public_id)
@@ -266,8 +279,9 @@ def reservation_reschedule(
         raise NotAllowed("Only the owner or an admin can change this reservation.")
     start_at = aware_utc(start_at, "start_at")
     end_at = aware_utc(end_at, "end_at")
+    fresh: list[Lease] | None = None
     if reservation.lease_uuid and start_at < end_at:
-        leases_refresh(start_at=start_at, end_at=end_at)
+        fresh = leases_refresh(start_at=start_at, end_at=end_at)
     moved_lease: tuple[datetime, datetime] | None = None
     try:
         with transaction.atomic():
@@ -285,6 +299,8 @@ def reservation_reschedule(
                 exclude_id=locked.pk,
                 override_reason=locked.override_reason,
                 program_required=locked.booked_via == BookedVia.PORTAL,
+                scheduler_leases=fresh,
+                own_lease_uuid=locked.lease_uuid,
             )
             before = (locked.start_at, locked.end_at)
             if locked.lease_uuid:
@@ -402,7 +418,11 @@ def reservation_complete(*, reservation_id: int) -> bool:
 def resource_set_service(
     *, resource: Resource, by: User, enabled: bool, reason: str, ip: str | None = None
 ) -> Resource:
-    """Take a resource out of service (no new bookings) or back in; audited."""
+    """Take a resource out of service (no new bookings) or back in; audited.
+
+    Back in service also lifts the health check's hold (``resource_hold``): only an admin
+    returns a robot the health check took out, and the audit keeps the hold it lifted.
+    """
     if not by.is_testbed_admin:
         raise NotAllowed("Only admins take resources in or out of service.")
     if not reason.strip():
@@ -410,16 +430,42 @@ def resource_set_service(
     with transaction.atomic():
         # The same row lock bookings take: none is half-way through while this changes.
         locked = Resource.objects.select_for_update().get(pk=resource.pk)
+        lifted = locked.hold_reason if enabled else ""
         locked.enabled = enabled
-        locked.save(update_fields=["enabled"])
+        if enabled:
+            locked.hold_reason, locked.held_at, locked.hold_notified_at = "", None, None
+        locked.save(update_fields=["enabled", "hold_reason", "held_at", "hold_notified_at"])
         audit_record(
             actor=by,
             action="resource.in_service" if enabled else "resource.out_of_service",
             target=locked,
             ip=ip,
             reason=reason,
+            **({"lifted_hold": lifted} if lifted else {}),
         )
     return locked
+
+
+def resource_hold(*, resource_id: int, reason: str) -> bool:
+    """Take a robot out of booking for what its health check found; audited.
+
+    True if this made the hold; False if it was already held (the first reason stays, and the
+    admins are e-mailed once) or is out of service anyway.
+    """
+    with transaction.atomic():
+        held = Resource.objects.filter(pk=resource_id, enabled=True, hold_reason="").update(
+            hold_reason=reason[:HOLD_REASON_MAX_CHARS],
+            held_at=timezone.now(),
+            hold_notified_at=None,
+        )
+        if held:
+            audit_record(
+                actor=None,
+                action="resource.hold",
+                target=Resource.objects.get(pk=resource_id),
+                reason=reason,
+            )
+    return bool(held)
 
 
 def blackout_create(
@@ -545,6 +591,9 @@ class TestbedSpec:
     fixed_nodes: int = 24
     max_velocity_mps: float = 2.0
     max_accel_mps2: float = 1.0
+    # The name of the agent's token in AGENT_TOKENS ("default" is AGENT_TOKEN).
+    agent_token_name: str = "default"  # noqa: S105 - a name, not the secret
+    mobile_description: str = "Rail robot around the roof of IT building 1"
     # The fixed nodes by name, as the testbed's scheduler lists them; ``node-01`` … otherwise.
     fixed_node_names: tuple[str, ...] = ()
 
@@ -583,8 +632,9 @@ def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
         Resource(
             name=spec.mobile_name,
             kind=ResourceKind.MOBILE,
-            description="Rail robot around the roof of IT building 1",
+            description=spec.mobile_description,
             agent_url=spec.agent_url,
+            agent_token_name=spec.agent_token_name,
             max_velocity_mps=spec.max_velocity_mps,
             max_accel_mps2=spec.max_accel_mps2,
         ),

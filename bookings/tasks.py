@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from celery import Task, shared_task
+from django.db import transaction
 from django.utils import timezone
 
 from bookings import leases, notifications, reminders
+from portal.audit.once import claim_once, task_once_key
 
 MAX_RETRIES = 5
 
@@ -20,7 +22,10 @@ MAX_RETRIES = 5
 )
 def reservation_notify(self: Task, kind: str, reservation_id: int, **extra: int) -> None:
     # Mail servers fail transiently (OSError covers SMTP connection errors); retry those only.
-    notifications.reservation_notify(kind, reservation_id, **extra)
+    # A message delivered again (its worker died) finds its claim and sends nothing twice.
+    with transaction.atomic():
+        if claim_once(task_once_key(self.name, self.request.id)):
+            notifications.reservation_notify(kind, reservation_id, **extra)
 
 
 @shared_task(time_limit=60, soft_time_limit=50)

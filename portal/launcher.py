@@ -1,10 +1,10 @@
 """``make run``: the whole system on this machine, with the simulated robot.
 
 Prepares the embedded setup (database, demo data, agent token) and then runs the system's
-processes (``portal.processes``: the agent, the web server, a Celery worker and beat) as
-children, each line of their output prefixed with the process's name. Ctrl-C (or SIGTERM)
-stops every child and its own children; if any child dies, the rest are stopped too and the
-exit code says so.
+processes (``portal.processes``: the agent, the web server, the Celery workers and beat; with
+``ROBOTS=2`` a second agent and robot on a second rail) as children, each line of their
+output prefixed with the process's name. Ctrl-C (or SIGTERM) stops every child and its own
+children; if any child dies, the rest are stopped too and the exit code says so.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from portal.processes import system_processes
+from portal.processes import SECOND_ROBOT, system_processes
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 STOP_GRACE_S = 10.0
@@ -62,11 +62,7 @@ def _environment(var_dir: Path) -> dict[str, str]:
     env.setdefault("AGENT_URL", f"http://127.0.0.1:{agent_port}")
     env.setdefault("AGENT_DATA_DIR", str(var_dir / "agent"))
     if "AGENT_TOKEN" not in env and "AGENT_TOKEN_FILE" not in env:
-        token_file = var_dir / "agent-token"
-        if not token_file.exists():
-            token_file.write_text(secrets.token_urlsafe(32))
-            token_file.chmod(0o600)
-        env["AGENT_TOKEN_FILE"] = str(token_file)
+        env["AGENT_TOKEN_FILE"] = str(_token_file(var_dir / "agent-token"))
     env.setdefault("DJANGO_ALLOWED_HOSTS", "127.0.0.1,localhost")
     if "SCHEDULER_URL" not in env:
         # No testbed scheduler given: the stand-in plays it, and owns the fixed nodes.
@@ -74,7 +70,27 @@ def _environment(var_dir: Path) -> dict[str, str]:
         env["SCHEDULER_URL"] = f"http://127.0.0.1:{standin_port}"
         env["_STANDIN"] = "1"
     env["_PORTAL_PORT"] = str(portal_port)
+    robots = env.setdefault("ROBOTS", "1")
+    if robots not in ("1", "2"):
+        raise SystemExit(f"ROBOTS is 1 or 2, not {robots!r}")
+    if robots == "2":
+        second_port = int(env.setdefault("AGENT_2_PORT", str(agent_port + 1)))
+        env.setdefault("AGENT_2_URL", f"http://127.0.0.1:{second_port}")
+        # The second agent's own token: in its file for the agent, by name for the portal.
+        token = _token_file(var_dir / "agent-2-token").read_text().strip()
+        tokens_file = var_dir / "agent-tokens"
+        tokens_file.write_text(f"{SECOND_ROBOT}={token}\n")
+        tokens_file.chmod(0o600)
+        env.setdefault("AGENT_TOKENS_FILE", str(tokens_file))
     return env
+
+
+def _token_file(path: Path) -> Path:
+    """A random token in ``path``, made the first time."""
+    if not path.exists():
+        path.write_text(secrets.token_urlsafe(32))
+        path.chmod(0o600)
+    return path
 
 
 def _manage(env: dict[str, str], *args: str) -> None:
@@ -139,12 +155,15 @@ def main() -> int:
     portal_port = int(env["PORTAL_PORT"])
     agent_port = int(env["AGENT_PORT"])
     standin_port = int(env["STANDIN_PORT"]) if env.get("_STANDIN") else None
-    ports = [("portal", portal_port), ("agent", agent_port)]
+    second_port = int(env["AGENT_2_PORT"]) if env["ROBOTS"] == "2" else None
+    ports = [("portal", "PORTAL_PORT", portal_port), ("agent", "AGENT_PORT", agent_port)]
+    if second_port is not None:
+        ports.append(("second agent", "AGENT_2_PORT", second_port))
     if standin_port is not None:
-        ports.append(("standin", standin_port))
-    for name, port in ports:
+        ports.append(("stand-in scheduler", "STANDIN_PORT", standin_port))
+    for name, variable, port in ports:
         if not _port_free(port):
-            _say("launch", f"port {port} for the {name} is taken; set {name.upper()}_PORT")
+            _say("launch", f"port {port} for the {name} is taken; set {variable}")
             return 2
 
     _say("launch", f"database: {env.get('DATABASE_URL', 'SQLite in ' + str(var_dir))}")
@@ -154,6 +173,7 @@ def main() -> int:
         f"testbed scheduler: {env['SCHEDULER_URL']}"
         + (" (the stand-in)" if standin_port is not None else ""),
     )
+    _say("launch", f"live updates: {env.get('REDIS_URL') or 'files in ' + str(var_dir / 'live')}")
     children = [
         Child(spec.name, list(spec.argv), dict(spec.env))
         for spec in system_processes(
@@ -163,6 +183,7 @@ def main() -> int:
             var_dir=var_dir,
             access_log=False,  # a line per request would drown everything else
             standin_port=standin_port,
+            second_agent_port=second_port,
         )
     ]
 
@@ -181,7 +202,10 @@ def main() -> int:
             if child.name != "broker" and not set_up:
                 # The stand-in, if any, is up first: it lists the fixed nodes demo_setup makes.
                 _manage(env, "migrate", "--no-input", "-v", "0")
-                _manage(env, "demo_setup")
+                if second_port is not None:
+                    _manage(env, "demo_setup", "--second-robot", env["AGENT_2_URL"])
+                else:
+                    _manage(env, "demo_setup")
                 set_up = True
             _start(child, env)
             stand_in = child.name == "broker" and standin_port is not None

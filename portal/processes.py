@@ -15,6 +15,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 DEFAULT_HOST = "127.0.0.1"
+REPO = Path(__file__).resolve().parent.parent
+# Celery queues, each with its own worker: a backlog of mail never delays a run.
+RUNS_QUEUE = "runs"
+MAIL_QUEUE = "mail"
+# The second simulated robot (make run with ROBOTS=2): its resource name, and the rail it
+# drives, beside the first.
+SECOND_ROBOT = "mobile-2"
+SECOND_RAIL_FILE = REPO / "basestation" / "telemetry" / "second_rail.json"
 
 
 @dataclass(frozen=True)
@@ -34,21 +42,52 @@ def agent_process(*, python: str, port: int, host: str = DEFAULT_HOST) -> Proces
     return ProcessSpec("agent", (python, "-m", "basestation", "--host", host, "--port", str(port)))
 
 
+def second_agent_process(
+    *, python: str, port: int, data_dir: Path, token_file: Path, host: str = DEFAULT_HOST
+) -> ProcessSpec:
+    """A second agent with its own simulated robot on its own rail, store and token."""
+    return ProcessSpec(
+        "agent-2",
+        (python, "-m", "basestation", "--host", host, "--port", str(port)),
+        {
+            "AGENT_RESOURCE": SECOND_ROBOT,
+            "AGENT_DATA_DIR": str(data_dir),
+            "AGENT_RAIL_FILE": str(SECOND_RAIL_FILE),
+            # Its own token: the first agent's (by value or by file) is not its.
+            "AGENT_TOKEN": "",
+            "AGENT_TOKEN_FILE": str(token_file),
+        },
+    )
+
+
+# An open live stream (Server-Sent Events) never ends by itself: on shutdown the server
+# waits this long for requests, then closes the streams (the pages reconnect).
+WEB_GRACEFUL_SHUTDOWN_S = 3
+
+
 def web_process(
     *, python: str, port: int, host: str = DEFAULT_HOST, access_log: bool = True
 ) -> ProcessSpec:
     """The portal behind the ASGI server."""
     argv = [python, "-m", "uvicorn", "portal.asgi:application", "--host", host]
-    argv += ["--port", str(port)]
+    argv += ["--port", str(port), "--timeout-graceful-shutdown", str(WEB_GRACEFUL_SHUTDOWN_S)]
     if not access_log:
         argv.append("--no-access-log")
     return ProcessSpec("web", tuple(argv))
 
 
-def worker_process(*, python: str, concurrency: int = 4, log_level: str = "INFO") -> ProcessSpec:
-    """A Celery worker. Threads, not forks: the tasks wait on the network, not the CPU."""
+def worker_process(
+    *,
+    python: str,
+    concurrency: int = 4,
+    log_level: str = "INFO",
+    queue: str = RUNS_QUEUE,
+    name: str = "worker",
+) -> ProcessSpec:
+    """A Celery worker for one queue. Threads, not forks: the tasks wait on the network,
+    not the CPU."""
     return ProcessSpec(
-        "worker",
+        name,
         (
             python,
             "-m",
@@ -62,10 +101,22 @@ def worker_process(*, python: str, concurrency: int = 4, log_level: str = "INFO"
             "threads",
             "--concurrency",
             str(concurrency),
-            # One worker: nothing to synchronise with at start or to chat with afterwards.
+            "--queues",
+            queue,
+            # Its own name: two workers on one host must not share one.
+            "--hostname",
+            f"{name}@%h",
+            # Nothing to synchronise with at start or to chat with afterwards.
             "--without-mingle",
             "--without-gossip",
         ),
+    )
+
+
+def mail_worker_process(*, python: str, log_level: str = "INFO") -> ProcessSpec:
+    """The worker that sends e-mail, apart from the one that stages and collects runs."""
+    return worker_process(
+        python=python, concurrency=2, log_level=log_level, queue=MAIL_QUEUE, name="mail"
     )
 
 
@@ -113,33 +164,47 @@ def system_processes(
     log_level: str = "INFO",
     standin_port: int | None = None,
     standin_test_control: bool = False,
+    second_agent_port: int | None = None,
 ) -> list[ProcessSpec]:
-    """The agent, the web server, a Celery worker and beat, in the order to start them.
+    """The agent, the web server, the Celery workers (runs, mail) and beat, in the order to
+    start them.
 
-    ``python`` runs every process; ``host`` is the address the agent and the web server listen
-    on; ``var_dir`` holds local state (beat's schedule); ``access_log`` turns the web server's
-    line per request on or off. ``standin_port`` adds the stand-in scheduler first (the
-    portal's ``SCHEDULER_URL`` must then point at it), its leases kept in ``var_dir``.
+    ``python`` runs every process; ``host`` is the address the agents and the web server
+    listen on; ``var_dir`` holds local state (beat's schedule, the second agent's store and
+    token, the stand-in's leases); ``access_log`` turns the web server's line per request on
+    or off; ``second_agent_port`` adds a second agent with its own simulated robot there;
+    ``standin_port`` adds the stand-in scheduler first (the portal's ``SCHEDULER_URL`` must
+    then point at it).
     """
-    standin = (
-        []
-        if standin_port is None
-        else [
+    processes = [
+        agent_process(python=python, port=agent_port, host=host),
+        web_process(python=python, port=portal_port, host=host, access_log=access_log),
+        worker_process(python=python, concurrency=worker_concurrency, log_level=log_level),
+        mail_worker_process(python=python, log_level=log_level),
+        beat_process(
+            python=python, schedule_file=var_dir / "celerybeat-schedule", log_level=log_level
+        ),
+    ]
+    if second_agent_port is not None:
+        processes.insert(
+            1,
+            second_agent_process(
+                python=python,
+                port=second_agent_port,
+                host=host,
+                data_dir=var_dir / "agent-2",
+                token_file=var_dir / "agent-2-token",
+            ),
+        )
+    if standin_port is not None:
+        processes.insert(
+            0,
             standin_process(
                 python=python,
                 port=standin_port,
                 db_path=var_dir / "scheduler-standin.sqlite3",
                 host=host,
                 test_control=standin_test_control,
-            )
-        ]
-    )
-    return [
-        *standin,
-        agent_process(python=python, port=agent_port, host=host),
-        web_process(python=python, port=portal_port, host=host, access_log=access_log),
-        worker_process(python=python, concurrency=worker_concurrency, log_level=log_level),
-        beat_process(
-            python=python, schedule_file=var_dir / "celerybeat-schedule", log_level=log_level
-        ),
-    ]
+            ),
+        )
+    return processes

@@ -15,6 +15,7 @@ import environ
 from django.core.exceptions import ImproperlyConfigured
 
 from bookings.scheduler import config as scheduler_config
+from portal.processes import MAIL_QUEUE, RUNS_QUEUE
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 VAR_DIR = Path(environ.Env().str("AMAZING_VAR_DIR", default=str(BASE_DIR / "var")))
@@ -70,6 +71,23 @@ if AGENT_TOKEN is None and not DEBUG:
         "AGENT_TOKEN (or AGENT_TOKEN_FILE) is required when DJANGO_DEBUG is off"
     )
 AGENT_TOKENS: dict[str, str] = {"default": AGENT_TOKEN or ""}
+
+
+def _agent_tokens(value: str | None) -> dict[str, str]:
+    """``name=token`` pairs, separated by commas or lines: one token per further agent."""
+    tokens: dict[str, str] = {}
+    for item in (value or "").replace("\n", ",").split(","):
+        if not item.strip():
+            continue
+        name, sep, token = item.strip().partition("=")
+        if not sep or not name.strip() or not token.strip():
+            raise ImproperlyConfigured("AGENT_TOKENS is name=token pairs, e.g. mobile-2=…")
+        tokens[name.strip()] = token.strip()
+    return tokens
+
+
+# Further agents' tokens by name (``Resource.agent_token_name``); "default" is AGENT_TOKEN.
+AGENT_TOKENS.update(_agent_tokens(env_secret("AGENT_TOKENS")))
 AGENT_URL = env.str("AGENT_URL", default="http://127.0.0.1:8700")
 AGENT_TIMEOUT_S = env.float("AGENT_TIMEOUT_S", default=5.0)
 
@@ -189,6 +207,9 @@ WHITENOISE_USE_FINDERS = DEBUG
 WHITENOISE_AUTOREFRESH = DEBUG
 
 REDIS_URL = env.str("REDIS_URL", default="")
+# Live pushes to the pages (portal/live.py) go through REDIS_URL's pub/sub; without Redis
+# (make run), through files here that the web process watches.
+LIVE_DIR = VAR_DIR / "live"
 CACHES = {
     "default": (
         {"BACKEND": "django.core.cache.backends.redis.RedisCache", "LOCATION": REDIS_URL}
@@ -216,6 +237,8 @@ if CELERY_BROKER_URL == "filesystem://":
         "control_folder": str(_broker_dir / "control"),
         "store_processed": False,
     }
+# At least once: a task is acknowledged only when it has finished, a worker takes one at a
+# time, and a task whose worker died is delivered again. Every task is safe to run twice.
 CELERY_TASK_IGNORE_RESULT = True
 CELERY_TASK_ACKS_LATE = True
 CELERY_TASK_REJECT_ON_WORKER_LOST = True
@@ -223,6 +246,21 @@ CELERY_WORKER_PREFETCH_MULTIPLIER = 1
 CELERY_TASK_TIME_LIMIT = 120
 CELERY_TASK_SOFT_TIME_LIMIT = 100
 CELERY_BROKER_CONNECTION_RETRY_ON_STARTUP = True
+# A broker restart must never stop a worker: it reconnects for as long as it takes.
+CELERY_BROKER_CONNECTION_MAX_RETRIES = None
+# Redis hands an unacknowledged task to another worker after this long. Above the longest
+# task plus the longest retry delay (mail backs off up to 600 s), or a slow task would run
+# twice at once; a task lost with a killed worker is meanwhile redone by the next sweep.
+CELERY_VISIBILITY_TIMEOUT_S = 3600
+CELERY_BROKER_TRANSPORT_OPTIONS["visibility_timeout"] = CELERY_VISIBILITY_TIMEOUT_S
+# Two queues, each with its own worker (portal/processes.py): a backlog of mail (a slow or
+# unreachable mail server) cannot delay staging and collecting a run.
+CELERY_TASK_DEFAULT_QUEUE = RUNS_QUEUE
+CELERY_TASK_ROUTES = {
+    "bookings.tasks.reservation_notify": {"queue": MAIL_QUEUE},
+    "portal.runs.tasks.run_notify": {"queue": MAIL_QUEUE},
+    "portal.runs.tasks.robot_hold_notify": {"queue": MAIL_QUEUE},
+}
 CELERY_TIMEZONE = "UTC"
 # How often beat sweeps the database for runs to stage and collect, and how far ahead of
 # ``start_at`` a run is staged on its agent.
@@ -233,12 +271,28 @@ RESERVATION_REMINDER_LEAD_S = env.float("RESERVATION_REMINDER_LEAD_S", default=3
 # only, which cannot tell a booking in progress) how old an orphan lease must be to go.
 SCHEDULER_SYNC_INTERVAL_S = env.float("SCHEDULER_SYNC_INTERVAL_S", default=30.0)
 SCHEDULER_ORPHAN_GRACE_S = env.float("SCHEDULER_ORPHAN_GRACE_S", default=120.0)
+# A run not on its base station by this long after its start fails (its owner is told).
+RUN_START_GRACE_S = env.float("RUN_START_GRACE_S", default=60.0)
+# How long after a run's end its base station may stay unreachable, or keep samples back,
+# before the run is closed with what was collected: ``interrupted`` with the missing
+# ranges, or ``failed`` when nothing came.
+RUN_COLLECT_GRACE_S = env.float("RUN_COLLECT_GRACE_S", default=600.0)
+# Robot health: each agent's status is read this often and cached; a robot reporting a
+# latched e-stop, a fault or a battery under the threshold, or an agent unreachable for
+# longer than the threshold, is taken out of booking until an admin returns it.
+HEALTH_POLL_INTERVAL_S = env.float("HEALTH_POLL_INTERVAL_S", default=2.0)
+HEALTH_UNREACHABLE_S = env.float("HEALTH_UNREACHABLE_S", default=120.0)
+HEALTH_LOW_BATTERY_V = env.float("HEALTH_LOW_BATTERY_V", default=50.0)
 CELERY_BEAT_SCHEDULE = {
     "scheduler-sweep": {
         "task": "bookings.tasks.scheduler_sweep",
         "schedule": SCHEDULER_SYNC_INTERVAL_S,
     },
     "runs-sweep": {"task": "portal.runs.tasks.runs_sweep", "schedule": RUN_SWEEP_INTERVAL_S},
+    "robots-health": {
+        "task": "portal.runs.tasks.robots_health_sweep",
+        "schedule": HEALTH_POLL_INTERVAL_S,
+    },
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
     "idempotency-keys-delete-expired": {
         "task": "portal.audit.tasks.idempotency_keys_delete_expired",

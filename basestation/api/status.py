@@ -18,6 +18,24 @@ bp = Blueprint("status", __name__)
 # No telemetry for longer than this and the link counts as down (the firmware's dead-man
 # stops the robot after 0.5 s without a command, so by then it is not under our control).
 LINK_DOWN_AFTER_S = 1.0
+# Down this long while the control loop runs, and it is a fault rather than a lost frame or
+# two: the robot is off, out of range or its radio is broken. The portal stops bookings on it.
+LINK_FAULT_AFTER_S = 5.0
+
+
+def faults(*, loop_started: bool, control: ControlStats, link_age_s: float | None) -> list[str]:
+    """What keeps this base station from running a program now, in words for an admin."""
+    found = []
+    if loop_started and not control.running:
+        found.append("control loop stopped")
+    elif (
+        loop_started
+        and control.ticks >= LINK_FAULT_AFTER_S * control.hz
+        and (link_age_s is None or link_age_s > LINK_FAULT_AFTER_S)
+    ):
+        silent = "yet" if link_age_s is None else f"for {link_age_s:.0f} s"
+        found.append(f"robot not answering (no telemetry {silent})")
+    return found
 
 
 def _ms(value_s: float | None) -> float | None:
@@ -69,6 +87,7 @@ def status() -> ResponseReturnValue:
     disk = runtime.disk()
     manual = manager.manual(now_s)
     threshold_v = runtime.config.low_battery_v
+    control = runtime.control_stats()
     return jsonify(
         {
             "version": AGENT_VERSION,
@@ -97,6 +116,11 @@ def status() -> ResponseReturnValue:
                 "disk_free_bytes": None if disk is None else disk.free_bytes,
                 "disk_total_bytes": None if disk is None else disk.total_bytes,
             },
-            "control": control_json(runtime.control_stats()),
+            "control": control_json(control),
+            "faults": faults(
+                loop_started=runtime.control_loop is not None,
+                control=control,
+                link_age_s=age_s,
+            ),
         }
     )

@@ -63,3 +63,19 @@ class IdempotencyKey(models.Model):
 
     def __str__(self) -> str:
         return f"{self.user_id}:{self.key}"
+
+
+class TaskOnce(models.Model):
+    """A side effect of a task message that must not happen twice (an e-mail sent).
+
+    Tasks are delivered at least once: a message whose worker died is delivered again with
+    the same id. The task claims its key in the transaction that does the work
+    (``portal.audit.once.claim_once``), so a redelivery finds it claimed.
+    """
+
+    key = models.CharField(max_length=200, unique=True)
+    # Indexed for the expiry sweep, which deletes by age.
+    created_at = models.DateTimeField(auto_now_add=True, db_index=True)
+
+    def __str__(self) -> str:
+        return self.key

@@ -5,8 +5,10 @@ from __future__ import annotations
 from celery import shared_task
 
 from portal.audit.idempotency import idempotency_keys_delete_expired as _delete_expired
+from portal.audit.once import task_once_delete_expired
 
 
 @shared_task(time_limit=300, soft_time_limit=280)
 def idempotency_keys_delete_expired() -> int:
-    return _delete_expired()
+    # Both are keys that make a repeated request or task harmless, kept as long.
+    return _delete_expired() + task_once_delete_expired()

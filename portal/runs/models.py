@@ -4,6 +4,7 @@ from typing import Any
 
 from django.conf import settings
 from django.db import models
+from django.db.models import Value
 
 from basestation.contract import SAMPLE_FIELDS
 from portal.experiments.choices import Direction
@@ -37,6 +38,12 @@ class Run(models.Model):
     agent_sample_count = models.PositiveIntegerField(null=True, blank=True)
     # Where the samples' track_m wraps, as the agent reported it: laps and passes need it.
     rail_length_m = models.FloatField(null=True, blank=True)
+    # What the final check against the agent found missing (``collection.MissingRange``):
+    # gaps in the sequence numbers, and the part of the program never recorded.
+    # (A database default too: rows written by the previous release during an upgrade.)
+    missing = models.JSONField(default=list, blank=True, db_default=Value([], models.JSONField()))
+    # When the owner was e-mailed that the run failed or was interrupted (once).
+    owner_told_at = models.DateTimeField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 

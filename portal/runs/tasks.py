@@ -1,4 +1,10 @@
-"""Celery tasks for runs: thin wrappers that take ids and call one service each."""
+"""Celery tasks for runs and robots: thin wrappers that take ids and call one service each.
+
+Every task is safe to run twice (a message is delivered again when its worker dies before
+acknowledging it): each service re-reads the database and does only what is still due. The
+sweeps re-queue whatever is still due, so a task lost with a broker or worker is redone.
+Mail goes to its own queue (settings ``CELERY_TASK_ROUTES``).
+"""
 
 from __future__ import annotations
 
@@ -10,7 +16,8 @@ from django.utils import timezone
 
 from basestation.client import AgentError
 from portal.health import SWEEP, heartbeat_record
-from portal.runs.services import collection, staging
+from portal.runs import notifications
+from portal.runs.services import collection, health, staging
 
 logger = logging.getLogger(__name__)
 
@@ -19,7 +26,8 @@ MAX_RETRIES = 5
 
 @shared_task(time_limit=30, soft_time_limit=25)
 def runs_sweep() -> None:
-    """Find runs due for staging or collection and queue one task each.
+    """Find runs due for staging, withdrawal or collection, and owners still to be told of
+    a run's end, and queue one task each.
 
     Queued tasks expire after two sweeps: a backlog never turns into a pile of duplicates,
     and the next sweep queues whatever is still due.
@@ -28,8 +36,12 @@ def runs_sweep() -> None:
     expires_s = 2 * settings.RUN_SWEEP_INTERVAL_S
     for run_id in staging.runs_due_for_staging(now=now).values_list("pk", flat=True):
         run_stage.apply_async((run_id,), expires=expires_s)
+    for run_id in staging.runs_due_for_withdrawal().values_list("pk", flat=True):
+        run_unstage.apply_async((run_id,), expires=expires_s)
     for run_id in collection.runs_due_for_collection(now=now).values_list("pk", flat=True):
         run_collect.apply_async((run_id,), expires=expires_s)
+    for run_id in notifications.runs_owner_untold().values_list("pk", flat=True):
+        run_notify.apply_async((run_id,), expires=expires_s)
     heartbeat_record(SWEEP)
 
 
@@ -64,3 +76,32 @@ def run_collect(run_id: int) -> None:
         collection.run_collect(run_id=run_id)
     except AgentError as exc:
         logger.warning("run %s: collection deferred: %s", run_id, exc)
+
+
+@shared_task(time_limit=60, soft_time_limit=50)
+def run_notify(run_id: int) -> None:
+    """Tell a run's owner that it failed or was interrupted (mail queue). A mail server
+    that fails leaves the owner untold, and the next sweep queues this again."""
+    notifications.run_owner_notify(run_id=run_id)
+
+
+@shared_task(time_limit=30, soft_time_limit=25)
+def robots_health_sweep() -> None:
+    """Queue a health check of every robot, and the admins' mail about new holds."""
+    expires_s = 2 * settings.HEALTH_POLL_INTERVAL_S
+    for resource_id in health.robots_to_check().values_list("pk", flat=True):
+        robot_health_check.apply_async((resource_id,), expires=expires_s)
+    for resource_id in health.robots_hold_unnotified().values_list("pk", flat=True):
+        robot_hold_notify.apply_async((resource_id,), expires=expires_s)
+
+
+@shared_task(time_limit=30, soft_time_limit=25)
+def robot_health_check(resource_id: int) -> None:
+    health.robot_health_check(resource_id=resource_id)
+
+
+@shared_task(time_limit=60, soft_time_limit=50)
+def robot_hold_notify(resource_id: int) -> None:
+    """Tell the admins that a robot was taken out of booking (mail queue); retried by the
+    next health sweep if the mail server fails."""
+    notifications.robot_hold_notify(resource_id=resource_id)

@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.web import views
+from portal.web import live, views
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -21,4 +21,8 @@ urlpatterns = [
     path("robot/<slug:name>/", views.robot_console, name="robot"),
     path("usage/", views.usage_report, name="usage"),
     path("scheduler-link/", views.scheduler_link, name="scheduler-link"),
+    # Server-Sent Events (portal/web/live.py): the pages' live updates.
+    path("live/runs/<int:pk>/", live.run_stream, name="live-run"),
+    path("live/robots/<slug:name>/", live.robot_stream, name="live-robot"),
+    path("live/calendar/", live.calendar_stream, name="live-calendar"),
 ]

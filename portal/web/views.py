@@ -46,6 +46,8 @@ from portal.runs.selectors import (
     runs_visible,
 )
 from portal.runs.services.booking import booking_cancel, booking_create, booking_decide
+from portal.runs.services.collection import missing_described
+from portal.runs.services.health import robots_held
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
@@ -192,6 +194,7 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     return {
         "run": run,
         "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES),
+        "missing": missing_described(run.missing),
         "report": report,
         "analysis": report.analysis,
         "laps": [(lap, at(lap.end_s)) for lap in report.analysis.laps],
@@ -219,6 +222,7 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
             "state": run.state,
             "state_label": run.get_state_display(),
             "reason": run.reason,
+            "missing": context["missing"],
             "sample_count": report.analysis.samples,
             "live": context["live"],
             "series": report.series,
@@ -251,6 +255,7 @@ def calendar_page(request: HttpRequest) -> HttpResponse:
         "web/calendar.html",
         {
             "resources": resources_bookable(),
+            "held": robots_held(),
             "experiments": experiments_visible(user=user).filter(owner=user),
             "quota": quota_summary(user=user, now=timezone.now()),
         },

@@ -10,8 +10,10 @@ import pytest
 from flask import Flask
 from flask.testing import FlaskClient
 
+from basestation.api.status import LINK_FAULT_AFTER_S, faults
 from basestation.app import create_app
 from basestation.config import AgentConfig
+from basestation.control import ControlStats
 from basestation.runtime import get_runtime
 from basestation.system import clock_synchronized, cpu_temp_c
 from tests.basestation.conftest import RecordingRobot
@@ -93,3 +95,48 @@ def test_status_reports_battery_estop_manual_and_the_control_window(
         "tick_p99_ms",
         "tick_max_ms",
     }
+
+
+def _control(*, running: bool, ticks: int, hz: float = 20.0) -> ControlStats:
+    return ControlStats(
+        hz=hz,
+        running=running,
+        ticks=ticks,
+        late_ticks=0,
+        skipped_ticks=0,
+        tick_errors=0,
+        max_lateness_s=0.0,
+    )
+
+
+def test_no_faults_while_the_loop_runs_and_the_robot_answers(
+    client: FlaskClient, auth: dict[str, str]
+) -> None:
+    status = client.get("/api/v1/status", headers=auth).json
+    assert status is not None
+    assert status["faults"] == []  # driven by hand: no loop to judge
+    assert (
+        faults(loop_started=True, control=_control(running=True, ticks=500), link_age_s=0.05) == []
+    )
+
+
+def test_a_stopped_control_loop_is_a_fault() -> None:
+    found = faults(loop_started=True, control=_control(running=False, ticks=500), link_age_s=0.05)
+    assert found == ["control loop stopped"]
+
+
+def test_a_robot_silent_for_longer_than_a_blip_is_a_fault() -> None:
+    silent_s = LINK_FAULT_AFTER_S + 2
+    found = faults(
+        loop_started=True, control=_control(running=True, ticks=500), link_age_s=silent_s
+    )
+    assert found == [f"robot not answering (no telemetry for {silent_s:.0f} s)"]
+    never = faults(loop_started=True, control=_control(running=True, ticks=500), link_age_s=None)
+    assert never == ["robot not answering (no telemetry yet)"]
+    # A lost frame or two, or a loop just started, is not.
+    assert (
+        faults(loop_started=True, control=_control(running=True, ticks=500), link_age_s=2.0) == []
+    )
+    assert (
+        faults(loop_started=True, control=_control(running=True, ticks=10), link_age_s=None) == []
+    )

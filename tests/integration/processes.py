@@ -83,7 +83,7 @@ def wait_http(url: str, timeout_s: float, procs: list[Proc]) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         try:
-            requests.get(url, timeout=1)
+            requests.get(url, timeout=5)
             return
         except requests.RequestException:
             # Refused while the server starts, or too slow to answer under load: try again.

@@ -25,6 +25,14 @@ def _csrf(session: requests.Session, url: str) -> str:
     return match.group(1)
 
 
+def _json(session: requests.Session, url: str, launcher: Proc) -> dict:
+    """``url``'s JSON; if the portal is gone, fail with what its processes said."""
+    try:
+        return session.get(url, timeout=10).json()
+    except requests.ConnectionError as exc:
+        raise AssertionError(f"{url}: {exc}\n{launcher.output(200)}") from exc
+
+
 def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
     var_dir = tmp_path / "var"
     portal_port, agent_port, standin_port = free_port(), free_port(), free_port()
@@ -107,7 +115,7 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         deadline = time.monotonic() + 60
         data = {}
         while time.monotonic() < deadline:
-            data = session.get(data_url, timeout=10).json()
+            data = _json(session, data_url, launcher)
             if not data["live"]:
                 break
             time.sleep(0.5)
@@ -152,3 +160,115 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             os.kill(pid, signal.SIGKILL)
     assert not leftover, f"processes left behind: {leftover}\n{launcher.output()}"
     assert any("all processes stopped" in s for s in launcher.lines)
+
+
+def _sse_events(session: requests.Session, url: str, until: str, timeout_s: float) -> list[str]:
+    """The ``event:`` names of a live stream, read until one named ``until``."""
+    names: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    with session.get(url, stream=True, timeout=(5, timeout_s)) as response:
+        assert response.status_code == 200, response.text[:500]
+        assert response.headers["Content-Type"] == "text/event-stream"
+        for line in response.iter_lines(decode_unicode=True):
+            if line and line.startswith("data:") and f'"state":"{until}"' in line:
+                names.append(until)
+                return names
+            if line and line.startswith("event:"):
+                names.append(line.split(":", 1)[1].strip())
+            if time.monotonic() > deadline:
+                break
+    raise AssertionError(f"no {until} on {url}: saw {names}")
+
+
+def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
+    """ROBOTS=2: a second agent and robot on a second rail; runs on both at once; the run
+    page's stream works on the embedded setup (no Redis: files under var/live)."""
+    var_dir = tmp_path / "var"
+    portal_port, agent_port, second_port = free_port(), free_port(), free_port()
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k
+        not in {"DATABASE_URL", "CELERY_BROKER_URL", "REDIS_URL", "AGENT_TOKEN", "AGENT_TOKEN_FILE"}
+    }
+    env.update(
+        {
+            "AMAZING_VAR_DIR": str(var_dir),
+            "PORTAL_PORT": str(portal_port),
+            "AGENT_PORT": str(agent_port),
+            "AGENT_2_PORT": str(second_port),
+            "ROBOTS": "2",
+            "RUN_SWEEP_INTERVAL_S": "0.5",
+        }
+    )
+    launcher = Proc("launch", [python(), "-m", "portal.launcher"], env)
+    try:
+        line = launcher.wait_for_line(lambda s: "demo user created: experimenter" in s, 90)
+        password = line.split("password: ")[1].strip()
+        launcher.wait_for_line(lambda s: "ready: log in at" in s, 90)
+        assert any(f"live updates: files in {var_dir / 'live'}" in s for s in launcher.lines)
+        assert any(s.startswith("agent-2") for s in launcher.lines)
+
+        web = f"http://127.0.0.1:{portal_port}"
+        session = requests.Session()
+        token = _csrf(session, f"{web}/accounts/login/")
+        session.post(
+            f"{web}/accounts/login/",
+            data={"csrfmiddlewaretoken": token, "login": "experimenter", "password": password},
+            headers={"Referer": f"{web}/accounts/login/"},
+            timeout=10,
+        )
+        token = _csrf(session, f"{web}/experiments/new/")
+        saved = session.post(
+            f"{web}/experiments/new/",
+            data={
+                "csrfmiddlewaretoken": token,
+                "title": "two rails",
+                "velocity_mps": ["0.5", ""],
+                "direction": ["cw", "cw"],
+                "duration_s": ["3", ""],
+            },
+            timeout=10,
+        )
+        experiment_id = re.search(r'href="/book/\?experiment=(\d+)"', saved.text).group(1)
+        start = timezone.localtime(timezone.now() + timedelta(seconds=6)).replace(microsecond=0)
+        run_urls = []
+        for resource in ("mobile-1", "mobile-2"):
+            token = _csrf(session, f"{web}/book/")
+            booked = session.post(
+                f"{web}/book/",
+                data={
+                    "csrfmiddlewaretoken": token,
+                    "resource": resource,
+                    "experiment": experiment_id,
+                    "start_at": start.strftime("%Y-%m-%dT%H:%M:%S"),
+                    "end_at": (start + timedelta(seconds=6)).strftime("%Y-%m-%dT%H:%M:%S"),
+                },
+                timeout=10,
+            )
+            assert "/runs/" in booked.url, booked.text[:3000]
+            run_urls.append(booked.url.rstrip("/"))
+
+        run_id = run_urls[1].rsplit("/", 1)[1]
+        events = _sse_events(session, f"{web}/live/runs/{run_id}/", "completed", 60)
+        assert events[0] == "open"
+        assert "samples" in events
+        for url in run_urls:  # the other robot's run ends on its own, about as soon
+            deadline = time.monotonic() + 30
+            data = _json(session, f"{url}/data.json", launcher)
+            while data["live"] and time.monotonic() < deadline:
+                time.sleep(0.5)
+                data = _json(session, f"{url}/data.json", launcher)
+            assert data["state"] == "completed", f"{url}: {data['reason']}\n{launcher.output()}"
+            assert data["sample_count"] >= 60
+        rails = {_json(session, f"{url}/data.json", launcher)["rail_length_m"] for url in run_urls}
+        assert len(rails) == 2  # two robots, two rails
+
+        launcher.popen.send_signal(signal.SIGINT)
+        assert launcher.popen.wait(timeout=30) == 0, launcher.output()
+    finally:
+        launcher.stop(signal.SIGKILL)
+        leftover = processes_matching_env("AMAZING_VAR_DIR", str(var_dir))
+        for pid in leftover:
+            os.kill(pid, signal.SIGKILL)
+    assert not leftover, f"processes left behind: {leftover}\n{launcher.output()}"

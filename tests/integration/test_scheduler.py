@@ -132,7 +132,7 @@ def test_the_web_killed_between_lease_and_commit_leaves_an_orphan_the_sweep_canc
     booking = threading.Thread(target=book)
     booking.start()
     [orphan] = _until("the lease on the broker", lambda: _live(stack), 20, stack)
-    stack["by_name"]["web"].stop(signal.SIGKILL)
+    stack.kill("web", signal.SIGKILL)
     booking.join(timeout=30)
     assert "error" in outcome  # the client never got an answer
     requests.post(f"{stack['standin']}/_standin/faults", json={"answer_delay_s": 0}, timeout=5)
@@ -186,16 +186,19 @@ def test_a_lease_made_on_the_broker_blocks_the_node_shows_busy_and_a_late_one_is
         headers={"Referer": f"{web}/accounts/login/"},
         timeout=10,
     )
-    events = session.get(
-        f"{web}/calendar/events.json",
-        params={"start": (start - timedelta(hours=1)).isoformat(), "end": end.isoformat()},
-        timeout=10,
-    ).json()
-    from bookings.models import SchedulerLease
 
-    assert [e["title"] for e in events if e["extendedProps"]["kind"] == "lease"] == [
+    def lease_titles() -> list[str]:
+        events = session.get(
+            f"{web}/calendar/events.json",
+            params={"start": (start - timedelta(hours=1)).isoformat(), "end": end.isoformat()},
+            timeout=10,
+        ).json()
+        return [e["title"] for e in events if e["extendedProps"]["kind"] == "lease"]
+
+    # The sweep (every second here) keeps the mirror the calendar shows.
+    assert _until("the lease on the calendar", lease_titles, 10, stack) == [
         "Leased on the testbed scheduler: fit-campaign [node-06]"
-    ], (events, list(SchedulerLease.objects.values()))
+    ]
 
     # A booking first, then a lease written into the scheduler around its rules.
     later = end + timedelta(hours=1)
@@ -228,9 +231,9 @@ def test_a_lease_made_on_the_broker_blocks_the_node_shows_busy_and_a_late_one_is
         stack,
     )
     assert "“sneaky”" in flagged
-    # The owner is told: the worker sends the e-mail (the console backend prints it; its
+    # The owner is told: the mail worker sends the e-mail (the console backend prints it; its
     # subject is MIME-encoded, its body is not).
-    stack["by_name"]["worker"].wait_for_line(
+    stack.procs["mail"].wait_for_line(
         lambda line: "there is a problem with your booking of node-01" in line, 15
     )
-    stack["by_name"]["worker"].wait_for_line(lambda line: "To: erin@example.org" in line, 5)
+    stack.procs["mail"].wait_for_line(lambda line: "To: erin@example.org" in line, 5)

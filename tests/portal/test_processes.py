@@ -26,12 +26,32 @@ def _option(argv: tuple[str, ...], flag: str) -> str:
     return argv[argv.index(flag) + 1]
 
 
-def test_it_lists_agent_web_worker_and_beat_in_start_order_all_on_the_given_python():
+def test_it_lists_agent_web_workers_and_beat_in_start_order_all_on_the_given_python():
     processes = _processes()
-    assert list(processes) == ["agent", "web", "worker", "beat"]
+    assert list(processes) == ["agent", "web", "worker", "mail", "beat"]
     for spec in processes.values():
         assert spec.argv[0] == PYTHON
         assert spec.env == {}
+
+
+def test_runs_and_mail_have_a_worker_each_so_a_mail_backlog_cannot_delay_a_run():
+    processes = _processes()
+    worker, mail = processes["worker"].argv, processes["mail"].argv
+    assert (_option(worker, "--queues"), _option(mail, "--queues")) == ("runs", "mail")
+    assert _option(worker, "--hostname") != _option(mail, "--hostname")
+
+
+def test_a_second_robot_is_an_agent_of_its_own_on_its_own_rail_store_and_token():
+    processes = _processes(second_agent_port=8766)
+    assert list(processes) == ["agent", "agent-2", "web", "worker", "mail", "beat"]
+    second = processes["agent-2"]
+    assert _option(second.argv, "--port") == "8766"
+    assert second.env["AGENT_RESOURCE"] == "mobile-2"
+    assert second.env["AGENT_DATA_DIR"] == "/srv/amazing/var/agent-2"
+    assert second.env["AGENT_TOKEN_FILE"] == "/srv/amazing/var/agent-2-token"
+    assert second.env["AGENT_TOKEN"] == ""  # the first agent's token is not inherited
+    assert Path(second.env["AGENT_RAIL_FILE"]).is_file()
+    assert "AGENT_RAIL_FILE" not in processes["agent"].env
 
 
 def test_the_ports_and_the_host_go_to_the_agent_and_the_web_server():
@@ -41,7 +61,7 @@ def test_the_ports_and_the_host_go_to_the_agent_and_the_web_server():
     assert (_option(agent, "--port"), _option(agent, "--host")) == ("8765", "192.0.2.10")
     assert "portal.asgi:application" in web
     assert (_option(web, "--port"), _option(web, "--host")) == ("8123", "192.0.2.10")
-    for other in ("worker", "beat"):
+    for other in ("worker", "mail", "beat"):
         assert "8123" not in processes[other].argv
         assert "8765" not in processes[other].argv
 
@@ -82,4 +102,4 @@ def test_the_list_is_built_without_setting_up_django():
         timeout=60,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    assert result.stdout.strip() == "['agent', 'web', 'worker', 'beat'] False False"
+    assert result.stdout.strip() == "['agent', 'web', 'worker', 'mail', 'beat'] False False"

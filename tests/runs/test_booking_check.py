@@ -77,6 +77,13 @@ def out_of_service(owner) -> Case:
     return Case([FixedResourceFactory(enabled=False)], None)
 
 
+def robot_held_by_its_health_check(owner) -> Case:
+    return Case(
+        [MobileResourceFactory(hold_reason="emergency stop latched", held_at=NOW)],
+        _program(owner, 1.0),
+    )
+
+
 def robot_without_experiment(owner) -> Case:
     return Case([MobileResourceFactory()], None)
 
@@ -134,6 +141,7 @@ CASES: list[tuple[Callable[[Any], Case], str | None, type[DomainError] | None, s
     (start_in_the_past, "window", InvalidInput, "start_at"),
     (too_long, "window", InvalidInput, "end_at"),
     (out_of_service, "out_of_service", InvalidInput, "resources"),
+    (robot_held_by_its_health_check, "out_of_service", InvalidInput, "resources"),
     (robot_without_experiment, "program", InvalidInput, "experiment"),
     (experiment_on_a_fixed_node, "program", InvalidInput, "experiment"),
     (two_robots, "program", InvalidInput, "resources"),

@@ -33,6 +33,16 @@ class RunEventOutput(serializers.Serializer):
     reason = serializers.CharField()
 
 
+class MissingRangeOutput(serializers.Serializer):
+    """Sequence numbers the run lacks; ``last_seq`` null: everything after ``first_seq``
+    (the part of the program never recorded). Times in seconds since the run's start."""
+
+    first_seq = serializers.IntegerField()
+    last_seq = serializers.IntegerField(allow_null=True)
+    from_s = serializers.FloatField(allow_null=True)
+    to_s = serializers.FloatField(allow_null=True)
+
+
 class RunOutput(serializers.ModelSerializer):
     reservation = serializers.IntegerField(source="reservation_id")
     resource = serializers.CharField(source="resource.name")
@@ -40,6 +50,7 @@ class RunOutput(serializers.ModelSerializer):
     segments = SegmentOutput(many=True)
     sample_count = serializers.SerializerMethodField(help_text="Samples stored in the portal.")
     events = RunEventOutput(many=True)
+    missing = MissingRangeOutput(many=True, read_only=True)
 
     class Meta:
         model = Run
@@ -59,6 +70,7 @@ class RunOutput(serializers.ModelSerializer):
             "sample_count",
             "agent_sample_count",
             "rail_length_m",
+            "missing",
             "events",
         ]
 

@@ -1,26 +1,44 @@
 """Collecting a run's samples from its base-station agent, and closing the run.
 
 The database is the schedule: a periodic sweep finds runs due for collection and
-:func:`run_collect` does one round, idempotently — it resumes after the last stored sample,
-stores each (run, seq) once, and closes the run only when the stored count equals the
-agent's. Nothing is marked complete with a gap.
+:func:`run_collect` does one round, idempotently — it resumes after the last stored sample
+(so a worker killed half-way loses nothing: the next round starts where the database says),
+stores each (run, seq) once, and publishes what arrived for the live pages.
+
+Once the agent has ended the run, a final check compares what is stored with the agent's
+count and sequence range and decides how the run ends here:
+
+- ``completed``: the agent completed it and every sequence number from 1 to its last is
+  stored — nothing is marked complete with a gap;
+- ``interrupted``: the agent stopped it early (e-stop, low battery, a restart of the agent),
+  or sequence numbers are missing; :class:`MissingRange` lists them, and the part of the
+  program never recorded;
+- ``failed``: the agent failed it, has no record of it, or stayed out of reach for
+  ``RUN_COLLECT_GRACE_S`` after the run's end without a sample collected (with the reason).
+
+While the stored count is short of the agent's, the run stays ``collecting`` and the next
+sweeps pull again, up to the same grace.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
-from datetime import UTC, datetime
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import psycopg
+from django.conf import settings
 from django.db import IntegrityError, connection, transaction
-from django.db.models import Count, Max, QuerySet
+from django.db.models import Count, F, Max, Min, QuerySet, Window
+from django.db.models.functions import Lead
+from django.utils import timezone
 
 from basestation.client import AgentClient, AgentError
 from basestation.contract import AGENT_RUNNING, SAMPLE_FIELDS, sample_parse
 from bookings.services import reservation_complete
+from portal.live import publish_on_commit, run_channel
 from portal.runs.agents import agent_client_for
 from portal.runs.models import Run, Sample
 from portal.runs.services.transitions import run_transition
@@ -65,6 +83,16 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
                 ignore_conflicts=True,
             )
         Run.objects.filter(pk=run.pk, last_seq__lt=last_seq).update(last_seq=last_seq)
+        newest = max(rows, key=lambda r: r[0])
+        publish_on_commit(
+            run_channel(run.pk),
+            {
+                "type": "samples",
+                "count": len(rows),
+                "last_seq": last_seq,
+                "last_t": newest[_T].timestamp(),
+            },
+        )
     run.last_seq = max(run.last_seq, last_seq)
     return len(rows)
 
@@ -114,6 +142,102 @@ def run_sample_stats(*, run: Run) -> dict[str, int]:
     return {"count": stats["count"] or 0, "last_seq": stats["last_seq"] or 0}
 
 
+# --- What is missing ------------------------------------------------------------------------
+
+MAX_MISSING_RANGES = 100
+
+
+@dataclass(frozen=True)
+class MissingRange:
+    """Sequence numbers a run lacks, and the time around them (seconds since ``start_at``).
+
+    ``last_seq`` None: everything after ``first_seq - 1`` — the part of the program the base
+    station never recorded, ``from_s`` to ``to_s``. ``from_s`` or ``to_s`` is None where no
+    stored sample bounds the range.
+    """
+
+    first_seq: int
+    last_seq: int | None
+    from_s: float | None
+    to_s: float | None
+
+    def describe(self) -> str:
+        seqs = (
+            f"seq {self.first_seq} onwards"
+            if self.last_seq is None
+            else f"seq {self.first_seq}"
+            + (f"–{self.last_seq}" if self.last_seq != self.first_seq else "")
+        )
+        if self.from_s is None and self.to_s is None:
+            return seqs
+        since = "the start" if self.from_s is None else f"{self.from_s:.1f} s"
+        until = "" if self.to_s is None else f" to {self.to_s:.1f} s"
+        return f"{seqs} (from {since}{until})"
+
+
+def missing_described(missing: list[dict[str, Any]]) -> list[str]:
+    """A run's stored ``missing`` ranges in words, for its page."""
+    described = []
+    for item in missing:
+        try:
+            described.append(MissingRange(**item).describe())
+        except TypeError:
+            logger.warning("unreadable missing range %r", item)
+    return described
+
+
+def _since_start_s(run: Run, at: datetime | None) -> float | None:
+    return None if at is None else round((at - run.start_at).total_seconds(), 2)
+
+
+def run_missing_ranges(
+    *, run: Run, agent_last_seq: int, program_end: datetime | None
+) -> list[MissingRange]:
+    """What the run lacks among sequence numbers 1 to ``agent_last_seq`` (the base station's
+    last), and — with ``program_end`` — after its last sample up to that instant."""
+    samples = Sample.objects.filter(run=run)
+    bounds = samples.aggregate(first=Min("seq"), last=Max("seq"))
+    first, last = bounds["first"], bounds["last"]
+    ranges: list[MissingRange] = []
+    if first is None:
+        if agent_last_seq > 0 or program_end is not None:
+            end_s = _since_start_s(run, program_end) if program_end is not None else None
+            ranges.append(MissingRange(1, agent_last_seq or None, 0.0, end_s))
+        return ranges
+    times = dict(samples.filter(seq__in=[first, last]).values_list("seq", "t"))
+    if first > 1:
+        ranges.append(MissingRange(1, first - 1, None, _since_start_s(run, times[first])))
+    gaps = (
+        samples.annotate(
+            next_seq=Window(Lead("seq"), order_by=F("seq").asc()),
+            next_t=Window(Lead("t"), order_by=F("seq").asc()),
+        )
+        .filter(next_seq__gt=F("seq") + 1)
+        .order_by("seq")
+        .values_list("seq", "t", "next_seq", "next_t")
+    )
+    for seq, t, next_seq, next_t in gaps[:MAX_MISSING_RANGES]:
+        ranges.append(
+            MissingRange(seq + 1, next_seq - 1, _since_start_s(run, t), _since_start_s(run, next_t))
+        )
+    if agent_last_seq > last:
+        ranges.append(
+            MissingRange(last + 1, agent_last_seq, _since_start_s(run, times[last]), None)
+        )
+    elif program_end is not None and times[last] < program_end:
+        ranges.append(
+            MissingRange(
+                last + 1, None, _since_start_s(run, times[last]), _since_start_s(run, program_end)
+            )
+        )
+    return ranges[:MAX_MISSING_RANGES]
+
+
+def _program_end(run: Run) -> datetime:
+    """When the program would have finished: its segments end, at most the booking's end."""
+    return min(run.start_at + timedelta(seconds=run.duration_s), run.end_at)
+
+
 # --- Collection -----------------------------------------------------------------------------
 
 
@@ -125,6 +249,7 @@ class AgentRunView:
     sample_count: int
     reason: str
     rail_length_m: float | None
+    last_seq: int = 0
 
 
 def _rail_length_m(agent_run: dict[str, Any]) -> float | None:
@@ -162,6 +287,7 @@ def _look(run: Run, client: AgentClient) -> AgentRunView | None:
         sample_count=int(agent_run.get("sample_count") or 0),
         reason=str(agent_run.get("reason") or ""),
         rail_length_m=_rail_length_m(agent_run),
+        last_seq=int(agent_run.get("last_seq") or 0),
     )
 
 
@@ -176,8 +302,34 @@ def _pull(run: Run, client: AgentClient) -> None:
             return
 
 
-def _close(run: Run, view: AgentRunView, final_state: RunState) -> None:
-    """The agent has ended the run: verify the count and end it here the same way."""
+def _past_grace(run: Run, now: datetime) -> bool:
+    return now > run.end_at + timedelta(seconds=settings.RUN_COLLECT_GRACE_S)
+
+
+def _end(run: Run, to_state: RunState, reason: str, missing: list[MissingRange]) -> bool:
+    """Record what is missing and end a collecting run; False if it had ended already."""
+    with transaction.atomic():
+        ended = run_transition(
+            run_id=run.pk,
+            to_state=to_state,
+            cause=Cause.DISPATCH,
+            from_states=[RunState.COLLECTING],
+            reason=reason,
+        )
+        if ended:
+            Run.objects.filter(pk=run.pk).update(missing=[asdict(m) for m in missing])
+    if ended and to_state == RunState.COMPLETED:
+        reservation_complete(reservation_id=run.reservation_id)
+    return ended
+
+
+def _missing_text(missing: list[MissingRange]) -> str:
+    shown = "; ".join(m.describe() for m in missing[:5])
+    return f"missing {shown}" + (" …" if len(missing) > 5 else "")
+
+
+def _close(run: Run, view: AgentRunView, final_state: RunState, now: datetime) -> None:
+    """The agent has ended the run: check what is stored against it and end it here."""
     run_transition(
         run_id=run.pk,
         to_state=RunState.COLLECTING,
@@ -187,8 +339,8 @@ def _close(run: Run, view: AgentRunView, final_state: RunState) -> None:
     )
     Run.objects.filter(pk=run.pk).update(agent_sample_count=view.sample_count)
     stored = run_sample_stats(run=run)["count"]
-    if stored != view.sample_count:
-        # Stays ``collecting``: the next sweep pulls again.
+    if stored != view.sample_count and not _past_grace(run, now):
+        # Stays ``collecting``: the next sweep looks and pulls again.
         logger.warning(
             "run %s: %d samples stored, base station reports %d; collecting again",
             run.pk,
@@ -196,39 +348,84 @@ def _close(run: Run, view: AgentRunView, final_state: RunState) -> None:
             view.sample_count,
         )
         return
-    reason = f"{view.sample_count} samples collected" + (f"; {view.reason}" if view.reason else "")
-    ended = run_transition(
-        run_id=run.pk,
-        to_state=final_state,
-        cause=Cause.DISPATCH,
-        from_states=[RunState.COLLECTING],
-        reason=reason,
+    agent_said = f"; {view.reason}" if view.reason else ""
+    if final_state in (RunState.FAILED, RunState.CANCELLED):
+        missing = run_missing_ranges(run=run, agent_last_seq=view.last_seq, program_end=None)
+        _end(run, final_state, f"{view.state} on the base station{agent_said}", missing)
+        return
+    # Stopped early on the base station: the rest of the program was never recorded.
+    early = final_state == RunState.INTERRUPTED
+    missing = run_missing_ranges(
+        run=run, agent_last_seq=view.last_seq, program_end=_program_end(run) if early else None
     )
-    if ended and final_state == RunState.COMPLETED:
-        reservation_complete(reservation_id=run.reservation_id)
+    collected = f"{stored} samples collected"
+    if not early and not missing and stored == view.sample_count:
+        _end(run, RunState.COMPLETED, collected + agent_said, [])
+        return
+    why = f"{view.state} on the base station{agent_said}" if early else "samples are missing"
+    _end(run, RunState.INTERRUPTED, f"{why}; {collected}; {_missing_text(missing)}", missing)
 
 
-def run_collect(*, run_id: int) -> None:
-    """Pull new samples of an active run; once the agent has ended it, verify and close it."""
-    run = Run.objects.select_related("resource").get(pk=run_id)
-    if run.state not in RUN_ACTIVE_STATES:
+def _close_unreachable(run: Run, error: AgentError) -> None:
+    """The agent stayed out of reach past the grace after the run's end: end the run with
+    what was collected, saying so."""
+    run_transition(
+        run_id=run.pk,
+        to_state=RunState.COLLECTING,
+        cause=Cause.DISPATCH,
+        from_states=[RunState.STAGED, RunState.RUNNING],
+        reason="the base station is out of reach after the run's end",
+    )
+    stored = run_sample_stats(run=run)
+    why = (
+        f"the base station could not be reached for {settings.RUN_COLLECT_GRACE_S:g} s after "
+        f"the run's end ({error.message})"
+    )
+    if stored["count"] == 0:
+        _end(run, RunState.FAILED, f"{why}; no samples collected", [])
+        return
+    missing = run_missing_ranges(run=run, agent_last_seq=0, program_end=_program_end(run))
+    _end(
+        run,
+        RunState.INTERRUPTED,
+        f"{why}; {stored['count']} samples collected, up to seq {stored['last_seq']}; "
+        + _missing_text(missing),
+        missing,
+    )
+
+
+def run_collect(*, run_id: int, now: datetime | None = None) -> None:
+    """Pull new samples of an active run; once the agent has ended it, check and close it.
+
+    Raises ``AgentError`` while the agent cannot be reached, until ``RUN_COLLECT_GRACE_S``
+    after the run's end; then the run ends with what was collected.
+    """
+    now = now or timezone.now()
+    run = Run.objects.select_related("resource").filter(pk=run_id).first()
+    if run is None or run.state not in RUN_ACTIVE_STATES:
         return
     client = agent_client_for(run.resource)
-    # Look before pulling: if the run has already ended there, this pull gets every sample.
-    view = _look(run, client)
-    if view is None:
-        return
-    if view.rail_length_m is not None and view.rail_length_m != run.rail_length_m:
-        Run.objects.filter(pk=run.pk).update(rail_length_m=view.rail_length_m)
-    if view.state == AGENT_RUNNING:
-        run_transition(
-            run_id=run.pk,
-            to_state=RunState.RUNNING,
-            cause=Cause.DISPATCH,
-            from_states=[RunState.STAGED],
-            reason="started on the base station",
-        )
-    _pull(run, client)
+    try:
+        # Look before pulling: if the run has already ended there, this pull gets every sample.
+        view = _look(run, client)
+        if view is None:
+            return
+        if view.rail_length_m is not None and view.rail_length_m != run.rail_length_m:
+            Run.objects.filter(pk=run.pk).update(rail_length_m=view.rail_length_m)
+        if view.state == AGENT_RUNNING:
+            run_transition(
+                run_id=run.pk,
+                to_state=RunState.RUNNING,
+                cause=Cause.DISPATCH,
+                from_states=[RunState.STAGED],
+                reason="started on the base station",
+            )
+        _pull(run, client)
+    except AgentError as exc:
+        if _past_grace(run, now):
+            _close_unreachable(run, exc)
+            return
+        raise
     final_state = STATE_FOR_AGENT_END.get(view.state)
     if final_state is not None:
-        _close(run, view, final_state)
+        _close(run, view, final_state, now)

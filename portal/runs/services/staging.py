@@ -16,7 +16,7 @@ from django.conf import settings
 from django.db.models import QuerySet
 from django.utils import timezone
 
-from basestation.client import AgentConflict, AgentRejected
+from basestation.client import AgentConflict, AgentError, AgentRejected
 from bookings.choices import ReservationState
 from portal.runs.agents import agent_client_for
 from portal.runs.models import Run
@@ -29,6 +29,16 @@ logger = logging.getLogger(__name__)
 def runs_due_for_staging(*, now: datetime) -> QuerySet[Run]:
     lead = timedelta(seconds=settings.RUN_STAGE_LEAD_S)
     return Run.objects.filter(state=RunState.SCHEDULED, start_at__lte=now + lead)
+
+
+def runs_due_for_withdrawal() -> QuerySet[Run]:
+    """Runs on their agents whose booking was cancelled or rejected: the withdrawal queued
+    with the cancellation may have been lost (a worker or broker restart), so the sweep
+    queues it again until collection sees the run end."""
+    return Run.objects.filter(
+        state__in=[RunState.STAGED, RunState.RUNNING],
+        reservation__state__in=[ReservationState.CANCELLED, ReservationState.REJECTED],
+    )
 
 
 def run_agent_body(run: Run) -> dict[str, Any]:
@@ -48,8 +58,9 @@ def run_agent_body(run: Run) -> dict[str, Any]:
     }
 
 
-def _load(run_id: int) -> Run:
-    return Run.objects.select_related("resource", "reservation__owner").get(pk=run_id)
+def _load(run_id: int) -> Run | None:
+    """The run, or None if it is gone (its reservation deleted since the task was queued)."""
+    return Run.objects.select_related("resource", "reservation__owner").filter(pk=run_id).first()
 
 
 def _fail(run: Run, reason: str) -> None:
@@ -65,11 +76,13 @@ def _fail(run: Run, reason: str) -> None:
 def run_stage(*, run_id: int, now: datetime | None = None) -> None:
     """Send a scheduled run to its agent (``PUT``, idempotent by run id) → ``staged``.
 
-    Raises ``AgentError`` with ``retryable`` set for the caller to retry.
+    Raises ``AgentError`` with ``retryable`` set for the caller to retry, until
+    ``RUN_START_GRACE_S`` after the run's start: an agent still out of reach then fails the
+    run with the error (its owner is told). A run staged late starts late on the robot.
     """
     now = now or timezone.now()
     run = _load(run_id)
-    if run.state != RunState.SCHEDULED:
+    if run is None or run.state != RunState.SCHEDULED:
         return
     confirmed = run.reservation.state == ReservationState.CONFIRMED
     if not confirmed and run.end_at > now:
@@ -85,6 +98,16 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
         client.put_run(run.agent_run_id, run_agent_body(run))
     except (AgentConflict, AgentRejected) as exc:
         _fail(run, f"the base station refused the run: {exc}")
+        return
+    except AgentError as exc:
+        grace_s = settings.RUN_START_GRACE_S
+        if exc.retryable and now <= run.start_at + timedelta(seconds=grace_s):
+            raise
+        _fail(
+            run,
+            f"the base station could not be reached by {grace_s:g} s after the run's start: "
+            f"{exc.message}",
+        )
         return
     if not run_transition(
         run_id=run.pk,
@@ -102,7 +125,7 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
 def run_unstage(*, run_id: int) -> None:
     """Withdraw a staged run from its agent, or abort it there if it is running."""
     run = _load(run_id)
-    if run.state not in (RunState.STAGED, RunState.RUNNING):
+    if run is None or run.state not in (RunState.STAGED, RunState.RUNNING):
         return
     client = agent_client_for(run.resource)
     # A conflict means it had already ended there; collection records how.

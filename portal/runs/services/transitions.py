@@ -13,8 +13,9 @@ from portal.accounts.models import User
 from portal.audit.services import audit_record
 from portal.errors import Conflict, InvalidInput, NotAllowed
 from portal.experiments.models import Experiment
+from portal.live import publish_on_commit, run_channel
 from portal.runs.models import Run, RunEvent
-from portal.runs.states import Cause, RunState, allowed, sources
+from portal.runs.states import RUN_END_STATES, Cause, RunState, allowed, sources
 
 logger = logging.getLogger(__name__)
 
@@ -98,6 +99,16 @@ def run_transition(
             reason=reason,
             cause=cause,
             by=by,
+        )
+        publish_on_commit(
+            run_channel(run_id),
+            {
+                "type": "state",
+                "state": to_state,
+                "label": RunState(to_state).label,
+                "reason": reason,
+                "live": to_state not in RUN_END_STATES,
+            },
         )
     logger.info("run %s: %s → %s (%s) %s", run_id, current, to_state, cause, reason)
     return True

@@ -23,7 +23,7 @@ from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import LeaseStatus
 from bookings.selectors import resource_free_intervals
 from bookings.services import fixed_node_names_from_scheduler, reservation_create
-from bookings.tasks import scheduler_sweep
+from bookings.tasks import lease_cancel, scheduler_sweep
 from portal.errors import Conflict, NotAllowed
 from portal.runs.models import Run
 from portal.runs.services.booking import (
@@ -35,6 +35,7 @@ from portal.runs.services.booking import (
 )
 from tests.bookings.scheduler.conftest import Standin
 from tests.factories import ExperimentFactory, FixedResourceFactory
+from tests.runs.test_tasks_twice import twice
 
 pytestmark = pytest.mark.django_db
 
@@ -369,3 +370,38 @@ def test_only_admins_and_the_scheduler_account_book_for_others(linked, owner, ot
             owner=owner, by=other, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
         )
     assert _live(linked) == []
+
+
+def test_the_sweep_twice_cancels_an_orphan_and_tells_an_owner_once(
+    linked, owner, slot, eager_tasks
+):
+    booked = reservation_create(owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1])
+    linked.seed(
+        name="sneaky",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-02"}],
+        account_attributes={"name": "elsewhere"},
+    )
+    with linked.scheduler() as scheduler:
+        scheduler.create_lease(
+            name=leases.lease_name_for(uuid.uuid4()),
+            valid_from=slot[0],
+            valid_until=slot[1],
+            component_names=["node-05"],
+        )
+    mail.outbox.clear()
+    twice(scheduler_sweep)
+    assert SchedulerLink.objects.get().orphans_cancelled == 1
+    assert len(mail.outbox) == 1
+    booked.refresh_from_db()
+    assert "sneaky" in booked.conflict
+
+
+def test_cancelling_a_lease_twice_cancels_it_once(linked, owner, slot):
+    reservation = reservation_create(
+        owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
+    )
+    twice(lease_cancel, reservation.lease_uuid)
+    [lease] = _broker_leases(linked)
+    assert lease.status == LeaseStatus.CANCELLED

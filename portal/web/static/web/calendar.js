@@ -178,4 +178,37 @@
   });
   filter.addEventListener("change", () => calendar.refetchEvents());
   calendar.render();
+
+  // Robots held by their health check: the reason, as bookings of them would be refused.
+  const holds = document.getElementById("robot-holds");
+  function onHold(hold) {
+    let item = holds.querySelector(`li[data-resource="${CSS.escape(hold.resource)}"]`);
+    if (!hold.reason) {
+      if (item) item.remove();
+    } else {
+      if (!item) {
+        item = holds.appendChild(document.createElement("li"));
+        item.dataset.resource = hold.resource;
+      }
+      item.textContent = "";
+      item.appendChild(document.createElement("strong")).textContent = hold.resource;
+      const since = hold.held_at ? DateTime.fromISO(hold.held_at, { zone }).toFormat("yyyy-LL-dd HH:mm") : "now";
+      item.append(` is out of service since ${since}: ${hold.reason}`);
+    }
+    holds.hidden = !holds.querySelector("li");
+    if (dialog.open) liveCheck();
+  }
+  // Others' bookings and maintenance windows appear without a reload (several changes in a
+  // burst cause one read).
+  let refetchTimer = null;
+  function onChanged() {
+    clearTimeout(refetchTimer);
+    refetchTimer = setTimeout(() => calendar.refetchEvents(), 300);
+  }
+  liveFollow(el.dataset.stream, {
+    events: { changed: onChanged, hold: onHold },
+    poll: () => calendar.refetchEvents(),
+    pollMs: 30000,
+    indicator: document.getElementById("live-status"),
+  });
 })();

@@ -1,4 +1,5 @@
-// Admin robot console: live status, manual drive, emergency stop, service, daily log.
+// Admin robot console: live status (pushed by the health check, polled while the stream is
+// down), manual drive, emergency stop, service and holds, daily log.
 (function () {
   "use strict";
   const root = document.getElementById("robot");
@@ -30,26 +31,50 @@
   const set = (id, text) => { document.getElementById(id).textContent = text; };
   const fmt = (value, unit, digits) => (value === null || value === undefined ? "—" : `${Number(value).toFixed(digits)} ${unit}`);
 
+  function show(s, battery) {
+    const link = s.link || {};
+    set("st-link", `${link.state || "?"}${link.loss_pct !== undefined && link.loss_pct !== null ? `, ${Number(link.loss_pct).toFixed(0)} % loss` : ""}`);
+    set("st-battery", fmt(battery.filtered_v, "V", 1) + (battery.low ? " (LOW)" : ""));
+    const robot = s.robot || {};
+    set("st-velocity", robot.velocity_mps === null || robot.velocity_mps === undefined ? "—" : `${Number(robot.velocity_mps).toFixed(2)} m/s ${robot.direction || ""}`);
+    set("st-position", fmt(robot.track_m, "m", 1));
+    set("st-run", s.current_run || "none");
+    const estop = s.estop;
+    set("st-estop", estop && estop.latched ? `LATCHED${estop.reason ? ": " + estop.reason : ""}` : "released");
+    const host = s.host || {};
+    set("st-cpu", fmt(host.cpu_temp_c, "°C", 0));
+    set("st-disk", host.disk_free_bytes === null || host.disk_free_bytes === undefined ? "—" : fmt(host.disk_free_bytes / 1e6, "MB", 0));
+  }
+
   async function refresh() {
     try {
       const data = await call("GET", "/robot/");
-      const s = data.status;
-      const link = s.link || {};
-      set("st-link", `${link.state || "?"}${link.loss_pct !== undefined && link.loss_pct !== null ? `, ${Number(link.loss_pct).toFixed(0)} % loss` : ""}`);
-      set("st-battery", fmt(data.battery.filtered_v, "V", 1) + (data.battery.low ? " (LOW)" : ""));
-      const robot = s.robot || {};
-      set("st-velocity", robot.velocity_mps === null || robot.velocity_mps === undefined ? "—" : `${Number(robot.velocity_mps).toFixed(2)} m/s ${robot.direction || ""}`);
-      set("st-position", fmt(robot.track_m, "m", 1));
-      set("st-run", s.current_run || "none");
-      const estop = s.estop;
-      set("st-estop", estop && estop.latched ? `LATCHED${estop.reason ? ": " + estop.reason : ""}` : "released");
-      const host = s.host || {};
-      set("st-cpu", fmt(host.cpu_temp_c, "°C", 0));
-      set("st-disk", host.disk_free_bytes === null || host.disk_free_bytes === undefined ? "—" : fmt(host.disk_free_bytes / 1e6, "MB", 0));
+      show(data.status, data.battery);
       set("status-age", "updated " + new Date().toLocaleTimeString());
     } catch (error) {
       set("status-age", "base station unreachable: " + error.message);
     }
+  }
+
+  // The health check's reading, pushed every few seconds (portal/runs/services/health.py).
+  function onStatus(health) {
+    if (health.reachable && health.status) {
+      show(health.status, health.status.battery || {});
+      set("status-age", "updated " + new Date(health.checked_at_s * 1000).toLocaleTimeString());
+    } else {
+      set("status-age", "base station unreachable: " + (health.error || "no answer"));
+    }
+  }
+
+  // Held by the health check, or back in service: the banner and the service form follow.
+  function onHold(hold) {
+    const banner = document.getElementById("robot-hold");
+    banner.hidden = !hold.reason;
+    set("hold-reason", hold.reason || "");
+    set("hold-since", hold.held_at ? new Date(hold.held_at).toLocaleString() : "");
+    set("service-state", hold.in_service ? "open" : "closed (out of service)");
+    document.querySelector("#service-form [name=enabled]").value = hold.in_service ? "false" : "true";
+    set("service-button", hold.in_service ? "Take out of service" : "Put back in service");
   }
 
   document.getElementById("estop").addEventListener("click", async () => {
@@ -78,8 +103,12 @@
   document.getElementById("service-form").addEventListener("submit", async (event) => {
     event.preventDefault();
     const f = event.target;
-    try { await call("POST", "/service/", { enabled: f.enabled.value === "true", reason: f.reason.value }); window.location.reload(); }
-    catch (error) { say("Not changed: " + error.message, true); }
+    try {
+      const resource = await call("POST", "/service/", { enabled: f.enabled.value === "true", reason: f.reason.value });
+      onHold({ reason: resource.hold_reason, held_at: resource.held_at, in_service: resource.enabled && !resource.hold_reason });
+      f.reason.value = "";
+      say(resource.enabled ? "Back in service: bookings are open." : "Out of service: no new bookings.");
+    } catch (error) { say("Not changed: " + error.message, true); }
   });
   document.getElementById("log-form").addEventListener("submit", async (event) => {
     event.preventDefault();
@@ -94,6 +123,10 @@
       if (!log.entries.length) rows.insertRow().insertCell().textContent = "Nothing that day.";
     } catch (error) { say("Log not read: " + error.message, true); }
   });
-  refresh();
-  setInterval(refresh, 2000);
+  liveFollow(root.dataset.stream, {
+    events: { status: onStatus, hold: onHold },
+    poll: refresh,
+    pollMs: 2000,
+    indicator: document.getElementById("live-status"),
+  });
 })();

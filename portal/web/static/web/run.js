@@ -1,4 +1,5 @@
-// Run page: charts of velocity, position and battery; refresh charts and tables while live.
+// Run page: charts of velocity, position and battery; while the run is live, its state and
+// new samples are pushed (live.js) and the charts and tables redrawn.
 (function () {
   "use strict";
   const status = document.getElementById("run-status");
@@ -43,8 +44,29 @@
     }
   }
 
+  function showState(state, label, reason) {
+    const el = document.getElementById("run-state");
+    el.textContent = label;
+    el.dataset.state = state;
+    document.getElementById("run-reason").textContent = reason || "";
+  }
+
+  function showMissing(missing) {
+    const box = document.getElementById("run-missing");
+    const list = box.querySelector("ul");
+    list.textContent = "";
+    for (const text of missing || []) list.appendChild(document.createElement("li")).textContent = text;
+    box.hidden = !(missing && missing.length);
+  }
+
+  let follow = null;
   let firstLoad = true;
+  let loading = false;
+  let again = false;
+  // One read at a time; pushes that arrive meanwhile cause one more read after it.
   async function refresh() {
+    if (loading) { again = true; return; }
+    loading = true;
     let data;
     try {
       const response = await fetch(status.dataset.url, { headers: { Accept: "application/json" } });
@@ -52,13 +74,12 @@
       data = await response.json();
     } catch (error) {
       document.getElementById("run-progress").textContent = "(could not refresh: " + error.message + ")";
-      setTimeout(refresh, 5000);
+      loading = false;
       return;
     }
     draw(data.series);
-    const state = document.getElementById("run-state");
-    state.textContent = data.state_label;
-    state.dataset.state = data.state;
+    showState(data.state, data.state_label, data.reason);
+    showMissing(data.missing);
     document.getElementById("sample-count").textContent = String(data.sample_count);
     // The server rendered the tables with the page; while samples arrive they are redrawn.
     if (!firstLoad || data.live) document.getElementById("run-analysis").innerHTML = data.analysis_html;
@@ -73,7 +94,22 @@
     const progress = document.getElementById("run-progress");
     progress.setAttribute("aria-busy", data.live ? "true" : "false");
     progress.textContent = data.live ? "updating…" : "";
-    if (data.live) setTimeout(refresh, 2000);
+    loading = false;
+    if (!data.live && follow) { follow.stop(); follow = null; }
+    if (again) { again = false; refresh(); }
   }
-  refresh();
+
+  if (status.dataset.live === "1") {
+    follow = liveFollow(status.dataset.stream, {
+      events: {
+        state: (event) => { showState(event.state, event.label, event.reason); refresh(); },
+        samples: () => refresh(),
+      },
+      poll: refresh,
+      pollMs: 3000,
+      indicator: document.getElementById("live-status"),
+    });
+  } else {
+    refresh();
+  }
 })();

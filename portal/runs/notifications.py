@@ -1,0 +1,117 @@
+"""E-mails about runs and robots: a run that failed or was interrupted (to its owner), a robot
+the health check took out of booking (to the admins). Each is sent once.
+
+Who still has to be told is in the database (``Run.owner_told_at``,
+``Resource.hold_notified_at`` empty): the sweep queues a mail for each, and the mail marks it
+told in the transaction that sends it. A lost task is queued again by the next sweep; a
+task delivered twice finds it told already.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from django.conf import settings
+from django.core.mail import send_mail
+from django.db import transaction
+from django.db.models import QuerySet
+from django.utils import timezone
+
+from bookings.choices import ReservationState
+from bookings.models import Resource
+from portal.accounts.models import User
+from portal.runs.models import Run
+from portal.runs.states import RunState
+
+logger = logging.getLogger(__name__)
+
+TOLD_STATES = (RunState.FAILED, RunState.INTERRUPTED)
+
+
+def runs_owner_untold() -> QuerySet[Run]:
+    """Runs that failed or were interrupted, whose owner has not been told. A run whose
+    booking was cancelled or rejected is left out: whoever ended it said so already."""
+    return Run.objects.filter(state__in=TOLD_STATES, owner_told_at__isnull=True).exclude(
+        reservation__state__in=[ReservationState.CANCELLED, ReservationState.REJECTED]
+    )
+
+
+def run_message(run: Run) -> tuple[str, str]:
+    when = timezone.localtime(run.start_at)
+    what = f"“{run.title}” on {run.resource.name}, {when:%Y-%m-%d %H:%M} ({settings.TIME_ZONE})"
+    ended = "failed" if run.state == RunState.FAILED else "was interrupted"
+    lines = [
+        f"Hello {run.reservation.owner.get_username()},",
+        "",
+        f"your run {what} {ended}: {run.reason}",
+    ]
+    if run.state == RunState.INTERRUPTED:
+        lines += ["", "The data recorded until then is kept: see the run's page and downloads."]
+    lines += ["", "— AMazING testbed"]
+    return f"Run {ended}: {run.title}", "\n".join(lines)
+
+
+def run_owner_notify(*, run_id: int) -> int:
+    """E-mail the owner of a failed or interrupted run, once; how many were sent."""
+    with transaction.atomic():
+        run = (
+            runs_owner_untold()
+            .select_for_update(of=("self",))
+            .select_related("resource", "reservation__owner")
+            .filter(pk=run_id)
+            .first()
+        )
+        if run is None:
+            return 0  # told already (a repeated task), or not an end to tell
+        Run.objects.filter(pk=run.pk).update(owner_told_at=timezone.now())
+        address = run.reservation.owner.email
+        if not address:
+            logger.warning("run %s: its owner has no address to tell", run.pk)
+            return 0
+        subject, body = run_message(run)
+        # Sent inside the transaction: a failure rolls "told" back and the task retries.
+        return send_mail(subject, body, settings.DEFAULT_FROM_EMAIL, [address])
+
+
+def robot_hold_message(resource: Resource) -> tuple[str, str]:
+    since = timezone.localtime(resource.held_at) if resource.held_at else timezone.localtime()
+    body = "\n".join(
+        [
+            f"{resource.name} was taken out of booking at {since:%Y-%m-%d %H:%M:%S} "
+            f"({settings.TIME_ZONE}):",
+            "",
+            f"    {resource.hold_reason}",
+            "",
+            "Runs already booked keep their slots. Once the robot is fit again, put it back in",
+            "service on its console (the reason is recorded in the audit log).",
+            "",
+            "— AMazING testbed",
+        ]
+    )
+    return f"{resource.name} out of booking: {resource.hold_reason}", body
+
+
+def robot_hold_notify(*, resource_id: int) -> int:
+    """E-mail the admins about a robot's hold, once per hold; how many were sent."""
+    with transaction.atomic():
+        resource = (
+            Resource.objects.select_for_update()
+            .exclude(hold_reason="")
+            .filter(pk=resource_id, hold_notified_at__isnull=True)
+            .first()
+        )
+        if resource is None:
+            return 0
+        Resource.objects.filter(pk=resource.pk).update(hold_notified_at=timezone.now())
+        admins = sorted(
+            set(
+                User.objects.filter(is_staff=True, is_active=True)
+                .exclude(email="")
+                .values_list("email", flat=True)
+            )
+        )
+        if not admins:
+            logger.warning("%s held, but no admin has an e-mail address", resource.name)
+            return 0
+        subject, body = robot_hold_message(resource)
+        return send_mail(subject, body, settings.DEFAULT_FROM_EMAIL, admins)

@@ -1,0 +1,163 @@
+"""The pages update live in Chromium, and survive the web process restarting under them.
+
+Real processes (``fault_stack``: web, workers, beat, two agents, a Redis of its own). The run
+page, the robot console and the calendar follow their Server-Sent Events streams; when the
+web process goes away a page says "reconnecting", polls, and picks the stream up again.
+"""
+
+from __future__ import annotations
+
+import signal
+from datetime import timedelta
+
+import pytest
+import requests
+from django.utils import timezone
+from playwright.sync_api import Page, expect
+from rest_framework.authtoken.models import Token
+
+from tests.browser.conftest import login
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.integration.stack import Stack
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+PASSWORD = "correct horse battery"
+
+
+def _api(stack: Stack, username: str) -> requests.Session:
+    session = requests.Session()
+    token = Token.objects.create(user=UserFactory(username=username)).key
+    session.headers["Authorization"] = f"Token {token}"
+    return session
+
+
+def _book_run(stack: Stack, api: requests.Session, *, ahead_s: float, program_s: float) -> int:
+    experiment = api.post(
+        f"{stack.web}/api/v1/experiments/",
+        json={
+            "title": "watched run",
+            "segments": [{"velocity_mps": 0.4, "direction": "cw", "duration_s": program_s}],
+        },
+        timeout=10,
+    )
+    assert experiment.status_code == 201, experiment.text
+    start = timezone.now() + timedelta(seconds=ahead_s)
+    booking = api.post(
+        f"{stack.web}/api/v1/reservations/",
+        json={
+            "resource": "mobile-1",
+            "experiment": experiment.json()["id"],
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(seconds=program_s + 4)).isoformat(),
+        },
+        timeout=10,
+    )
+    assert booking.status_code == 201, booking.text
+    return int(booking.json()["run"]["id"])
+
+
+SCRIPT_ERRORS: list[str] = []
+
+
+def _page(browser, stack: Stack, username: str) -> Page:
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    page = context.new_page()
+    page.on("pageerror", lambda exc: SCRIPT_ERRORS.append(f"{username}: {exc}"))
+    login(page, stack.web, username, PASSWORD)
+    return page
+
+
+@pytest.fixture(autouse=True)
+def _no_script_errors():
+    SCRIPT_ERRORS.clear()
+    yield
+    assert not SCRIPT_ERRORS, SCRIPT_ERRORS
+
+
+def test_the_run_page_reconnects_when_the_web_process_restarts_and_ends_completed(
+    browser, fault_stack
+):
+    MobileResourceFactory(agent_url=fault_stack.agent_url)
+    api = _api(fault_stack, "gale")
+    run_id = _book_run(fault_stack, api, ahead_s=4, program_s=8)
+    page = _page(browser, fault_stack, "gale")
+    page.goto(f"{fault_stack.web}/runs/{run_id}/")
+    live = page.locator("#live-status")
+    expect(live).to_have_attribute("data-state", "live", timeout=15_000)
+    expect(page.locator("#run-state")).to_have_attribute("data-state", "running", timeout=20_000)
+
+    fault_stack.kill("web", signal.SIGTERM)
+    expect(live).to_have_attribute("data-state", "reconnecting", timeout=15_000)
+    expect(live).to_have_text("reconnecting…")
+    fault_stack.start("web")
+    fault_stack.wait_ready("web")
+
+    expect(live).to_have_attribute("data-state", "live", timeout=30_000)
+    expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
+    assert fault_stack.agent is not None
+    on_agent = fault_stack.agent.get_run(f"run-{run_id}")
+    expect(page.locator("#sample-count")).to_have_text(str(on_agent["sample_count"]))
+    # Ended: the page stops following.
+    expect(live).to_have_attribute("data-state", "off")
+    page.context.close()
+
+
+def test_the_console_and_the_calendar_show_a_hold_and_new_bookings_without_a_reload(
+    browser, fault_stack
+):
+    robot = MobileResourceFactory(
+        name="mobile-2", agent_url=fault_stack.agent2_url, agent_token_name="mobile-2"
+    )
+    UserFactory(username="root", is_staff=True, is_superuser=True, email="root@example.org")
+    UserFactory(username="hana")
+    console = _page(browser, fault_stack, "root")
+    console.goto(f"{fault_stack.web}/robot/mobile-2/")
+    expect(console.locator("#live-status")).to_have_attribute("data-state", "live", timeout=15_000)
+    expect(console.locator("#st-link")).to_contain_text("up", timeout=15_000)
+    expect(console.locator("#robot-hold")).to_be_hidden()
+
+    calendar = _page(browser, fault_stack, "hana")
+    calendar.goto(f"{fault_stack.web}/calendar/")
+    expect(calendar.locator("#live-status")).to_have_attribute("data-state", "live", timeout=15_000)
+    events_before = calendar.locator(".fc-event").count()
+
+    # Someone else books: the calendar shows it as busy, without a reload.
+    node = FixedResourceFactory()
+    start = timezone.now() + timedelta(hours=1)
+    other = _api(fault_stack, "ivan").post(
+        f"{fault_stack.web}/api/v1/reservations/",
+        json={
+            "resources": [node.name],
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(hours=1)).isoformat(),
+        },
+        timeout=10,
+    )
+    assert other.status_code == 201, other.text
+    expect(calendar.locator(".fc-event")).to_have_count(events_before + 1, timeout=10_000)
+
+    assert fault_stack.agent2 is not None
+    try:
+        fault_stack.agent2.stop(user="carol", reason="someone on the roof")
+        reason = "emergency stop latched: someone on the roof (by carol)"
+        expect(console.locator("#hold-reason")).to_have_text(reason, timeout=15_000)
+        expect(console.locator("#robot-hold")).to_be_visible()
+        expect(console.locator("#st-estop")).to_contain_text("LATCHED")
+        expect(console.locator("#service-button")).to_have_text("Put back in service")
+        held = calendar.locator('#robot-holds li[data-resource="mobile-2"]')
+        expect(held).to_contain_text("mobile-2 is out of service since", timeout=15_000)
+        expect(held).to_contain_text(reason)
+    finally:
+        fault_stack.agent2.release_stop()
+
+    # Only an admin puts it back, from the console; both pages follow.
+    console.locator("#service-form input[name=reason]").fill("roof clear, stop released")
+    console.locator("#service-button").click()
+    expect(console.locator("#robot-hold")).to_be_hidden(timeout=10_000)
+    expect(console.locator("#service-state")).to_have_text("open")
+    expect(calendar.locator("#robot-holds")).to_be_hidden(timeout=10_000)
+    robot.refresh_from_db()
+    assert robot.hold_reason == ""
+    console.context.close()
+    calendar.context.close()

@@ -1,0 +1,395 @@
+"""Runs survive every fault, with real processes: web, workers, beat, two agents, PostgreSQL
+and a Redis server of the module's own (``fault_stack``).
+
+Each test books a run a few seconds ahead, injects one fault — a worker or an agent killed
+with SIGKILL, Redis stopped, an agent down when its run is due, an e-stop — and then compares
+the portal's stored samples with the agent's, sequence by sequence.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import time
+from collections import Counter
+from collections.abc import Callable
+from datetime import datetime, timedelta
+from typing import Any, TypeVar
+
+import pytest
+import requests
+from django.utils import timezone
+from rest_framework.authtoken.models import Token
+
+from basestation.client import AgentClient, AgentError
+from bookings.models import Resource
+from portal.runs.models import Run, Sample
+from portal.runs.services.collection import MissingRange
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.integration.processes import Proc
+from tests.integration.stack import FAULT_ENV, Stack
+
+pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
+
+T = TypeVar("T")
+PASSWORD = "correct horse battery"
+
+
+def wait_for(what: str, stack: Stack, check: Callable[[], T | None], timeout_s: float) -> T:
+    """Poll ``check`` until it returns something truthy; fail with the processes' logs."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}\n{stack.output()}")
+        time.sleep(0.2)
+
+
+def _segments(seconds: float, velocity_mps: float = 0.4) -> list[dict[str, Any]]:
+    half = seconds / 2
+    return [
+        {"velocity_mps": velocity_mps, "direction": "cw", "duration_s": half},
+        {"velocity_mps": velocity_mps, "direction": "ccw", "duration_s": half},
+    ]
+
+
+class Experimenter:
+    """A user booking over the REST API, as a script would."""
+
+    def __init__(self, stack: Stack, username: str) -> None:
+        self.user = UserFactory(username=username)
+        self.stack = stack
+        self.session = requests.Session()
+        token = Token.objects.create(user=self.user).key
+        self.session.headers["Authorization"] = f"Token {token}"
+
+    def book(
+        self,
+        resource: str,
+        *,
+        ahead_s: float,
+        program_s: float,
+        slack_s: float = 4.0,
+        start: datetime | None = None,
+    ) -> requests.Response:
+        web = self.stack.web
+        experiment = self.session.post(
+            f"{web}/api/v1/experiments/",
+            json={"title": f"{resource} fault run", "segments": _segments(program_s)},
+            timeout=10,
+        )
+        assert experiment.status_code == 201, experiment.text
+        start = start or timezone.now() + timedelta(seconds=ahead_s)
+        return self.session.post(
+            f"{web}/api/v1/reservations/",
+            json={
+                "resource": resource,
+                "experiment": experiment.json()["id"],
+                "start_at": start.isoformat(),
+                "end_at": (start + timedelta(seconds=program_s + slack_s)).isoformat(),
+            },
+            timeout=10,
+        )
+
+    def run(
+        self,
+        resource: str,
+        *,
+        ahead_s: float = 3.0,
+        program_s: float = 4.0,
+        start: datetime | None = None,
+    ) -> int:
+        booking = self.book(resource, ahead_s=ahead_s, program_s=program_s, start=start)
+        assert booking.status_code == 201, booking.text
+        return int(booking.json()["run"]["id"])
+
+
+def _run(run_id: int) -> Run:
+    return Run.objects.get(pk=run_id)
+
+
+def wait_state(stack: Stack, run_id: int, *states: str, timeout_s: float = 60) -> Run:
+    return wait_for(
+        f"run {run_id} to be {' or '.join(states)}",
+        stack,
+        lambda: (run := _run(run_id)).state in states and run,
+        timeout_s,
+    )
+
+
+def wait_stored(stack: Stack, run_id: int, count: int) -> int:
+    return wait_for(
+        f"{count} samples of run {run_id} stored",
+        stack,
+        lambda: (n := Sample.objects.filter(run_id=run_id).count()) >= count and n,
+        30,
+    )
+
+
+def assert_same_samples(run_id: int, agent: AgentClient) -> list[int]:
+    """The portal holds exactly the agent's samples: each sequence once, same values."""
+    on_agent = list(agent.iter_samples(f"run-{run_id}"))
+    stored = list(
+        Sample.objects.filter(run_id=run_id)
+        .order_by("seq")
+        .values_list("seq", "t", "velocity_mps", "track_m", "battery_v")
+    )
+    seqs = [row[0] for row in stored]
+    assert not [seq for seq, n in Counter(seqs).items() if n > 1], "a sequence stored twice"
+    assert seqs == [s["seq"] for s in on_agent]
+    for (seq, t, velocity, track, battery), sample in zip(stored, on_agent, strict=True):
+        assert (seq, velocity, track, battery) == (
+            sample["seq"],
+            sample["velocity_mps"],
+            sample["track_m"],
+            sample["battery_v"],
+        )
+        assert t.timestamp() == pytest.approx(sample["t"], abs=1e-6)
+    return seqs
+
+
+@pytest.fixture
+def robots(fault_stack: Stack) -> tuple[Resource, Resource]:
+    first = MobileResourceFactory(agent_url=fault_stack.agent_url)
+    second = MobileResourceFactory(
+        name="mobile-2", agent_url=fault_stack.agent2_url, agent_token_name="mobile-2"
+    )
+    return first, second
+
+
+def test_a_worker_killed_mid_collection_and_restarted_stores_every_sample_once(fault_stack, robots):
+    erin = Experimenter(fault_stack, "erin")
+    run_id = erin.run("mobile-1", program_s=6.0)
+    stored = wait_stored(fault_stack, run_id, 20)
+    fault_stack.kill("worker")  # SIGKILL: tasks in hand are lost unacknowledged
+    # The robot drives on: the agent records a backlog the dead worker does not collect.
+    assert fault_stack.agent is not None
+    wait_for(
+        "the agent to record a backlog",
+        fault_stack,
+        lambda: fault_stack.agent.get_run(f"run-{run_id}")["sample_count"] >= stored + 40,
+        20,
+    )
+    fault_stack.start("worker")
+    fault_stack.wait_ready("worker")
+    run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed")
+    assert run.state == "completed", run.reason
+    seqs = assert_same_samples(run_id, fault_stack.agent)
+    assert seqs == list(range(1, len(seqs) + 1))
+    assert run.agent_sample_count == len(seqs)
+
+
+REDIS_DOWN_S = 10.0
+
+
+def test_redis_stopped_for_ten_seconds_mid_run_loses_and_duplicates_nothing(fault_stack, robots):
+    erin = Experimenter(fault_stack, "erin")
+    run_id = erin.run("mobile-1", program_s=16.0)
+    wait_stored(fault_stack, run_id, 20)
+    assert fault_stack.redis is not None
+    assert fault_stack.agent is not None
+    fault_stack.redis.stop()
+    down_since = time.monotonic()
+    # The fault lasts 10 s; meanwhile the robot keeps driving and the agent recording.
+    recorded = fault_stack.agent.get_run(f"run-{run_id}")["sample_count"]
+    while time.monotonic() - down_since < REDIS_DOWN_S:
+        time.sleep(0.5)
+    assert fault_stack.agent.get_run(f"run-{run_id}")["sample_count"] > recorded + 100
+    fault_stack.redis.start()
+    run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed", timeout_s=90)
+    assert run.state == "completed", run.reason
+    seqs = assert_same_samples(run_id, fault_stack.agent)
+    assert seqs == list(range(1, len(seqs) + 1))
+    health = requests.get(f"{fault_stack.web}/healthz", timeout=10).json()
+    assert health["cache"] == "ok", health
+
+
+def _agent_down(stack: Stack) -> None:
+    stack.kill("agent", signal.SIGTERM)
+    assert stack.agent is not None
+    with pytest.raises(AgentError):
+        stack.agent.healthz()
+
+
+def _agent_up(stack: Stack) -> None:
+    stack.start("agent")
+    stack.wait_ready("agent")
+
+
+def test_an_agent_down_at_staging_and_back_before_the_start_runs_the_run(fault_stack, robots):
+    _agent_down(fault_stack)
+    erin = Experimenter(fault_stack, "erin")
+    run_id = erin.run("mobile-1", ahead_s=8.0, program_s=3.0)
+    worker = fault_stack.procs["worker"]
+    worker.wait_for_line(lambda line: "run_stage" in line and "retry in" in line, 20)
+    assert _run(run_id).state == "scheduled"
+    _agent_up(fault_stack)
+    run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed")
+    assert run.state == "completed", run.reason
+    assert fault_stack.agent is not None
+    assert_same_samples(run_id, fault_stack.agent)
+
+
+def test_an_agent_down_past_the_start_and_its_grace_fails_the_run_and_tells_the_owner(
+    fault_stack, robots
+):
+    _agent_down(fault_stack)
+    try:
+        erin = Experimenter(fault_stack, "erin")
+        run_id = erin.run("mobile-1", ahead_s=2.0, program_s=6.0)
+        run = wait_state(fault_stack, run_id, "staged", "failed", timeout_s=30)
+        assert run.state == "failed"
+        grace_s = float(FAULT_ENV["RUN_START_GRACE_S"])
+        assert f"could not be reached by {grace_s:g} s after the run's start" in run.reason
+        assert "ConnectionError" in run.reason
+        assert Sample.objects.filter(run_id=run_id).count() == 0
+        mail = fault_stack.procs["mail"]
+        mail.wait_for_line(lambda line: line.startswith("Subject: Run failed:"), 30)
+        mail.wait_for_line(lambda line: line == "To: erin@example.org", 5)
+        told = wait_for("the owner told", fault_stack, lambda: _run(run_id).owner_told_at, 10)
+        assert told is not None
+    finally:
+        _agent_up(fault_stack)
+
+
+def _page_of(stack: Stack, username: str, path: str) -> str:
+    """A page as a logged-in browser gets it (session login through the form)."""
+    session = requests.Session()
+    login_url = f"{stack.web}/accounts/login/"
+    token = re.search(
+        r'name="csrfmiddlewaretoken" value="([^"]+)"', session.get(login_url, timeout=10).text
+    )
+    assert token
+    session.post(
+        login_url,
+        data={"csrfmiddlewaretoken": token.group(1), "login": username, "password": PASSWORD},
+        headers={"Referer": login_url},
+        timeout=10,
+    )
+    page = session.get(f"{stack.web}{path}", timeout=10)
+    assert page.status_code == 200, page.text[:500]
+    return page.text
+
+
+def test_an_agent_killed_mid_run_interrupts_the_run_keeping_every_sample_up_to_the_kill(
+    fault_stack, robots
+):
+    erin = Experimenter(fault_stack, "erin")
+    run_id = erin.run("mobile-1", program_s=8.0)
+    wait_stored(fault_stack, run_id, 20)
+    fault_stack.kill("agent")  # SIGKILL mid-run; the robot's dead-man stops it
+    _agent_up(fault_stack)  # as its supervisor restarts it
+    run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed")
+    assert run.state == "interrupted", run.reason
+    assert fault_stack.agent is not None
+    on_agent = fault_stack.agent.get_run(f"run-{run_id}")
+    assert on_agent["state"] == "interrupted"
+    seqs = assert_same_samples(run_id, fault_stack.agent)
+    assert seqs == list(range(1, on_agent["last_seq"] + 1))
+    assert len(seqs) < 8.0 * 20  # it stopped before the program's end
+    [tail] = [MissingRange(**m) for m in run.missing]
+    assert (tail.first_seq, tail.last_seq) == (seqs[-1] + 1, None)
+    assert tail.to_s == pytest.approx(8.0)
+    assert "agent restarted during run" in run.reason
+    page = _page_of(fault_stack, "erin", f"/runs/{run_id}/")
+    assert 'data-state="interrupted"' in page
+    assert "agent restarted during run" in page
+    assert f"seq {seqs[-1] + 1} onwards (from {tail.from_s:.1f} s to 8.0 s)" in page
+
+
+def test_two_robots_run_at_the_same_time_each_with_its_own_data(fault_stack, robots):
+    erin, finn = Experimenter(fault_stack, "erin"), Experimenter(fault_stack, "finn")
+    start = timezone.now() + timedelta(seconds=4)
+    first = erin.run("mobile-1", start=start, program_s=4.0)
+    second = finn.run("mobile-2", start=start, program_s=4.0)
+    assert fault_stack.agent is not None
+    assert fault_stack.agent2 is not None
+    for run_id, agent, other in (
+        (first, fault_stack.agent, fault_stack.agent2),
+        (second, fault_stack.agent2, fault_stack.agent),
+    ):
+        run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed")
+        assert run.state == "completed", run.reason
+        assert_same_samples(run_id, agent)
+        with pytest.raises(AgentError) as unknown:
+            other.get_run(f"run-{run_id}")
+        assert unknown.value.status == 404
+    one, two = _run(first), _run(second)
+    assert (one.start_at, one.end_at) == (two.start_at, two.end_at)
+    # Two rails: each run's positions wrap at its own robot's rail.
+    assert one.rail_length_m == pytest.approx(120.0, abs=0.1)
+    assert two.rail_length_m == pytest.approx(79.9, abs=0.1)
+    assert max(Sample.objects.filter(run=two).values_list("track_m", flat=True)) < 80
+
+
+def test_an_estop_report_takes_the_robot_out_of_booking_within_one_status_period(
+    fault_stack, robots
+):
+    _, second = robots
+    UserFactory(username="root", is_staff=True, email="root@example.org")
+    erin = Experimenter(fault_stack, "erin")
+    assert fault_stack.agent2 is not None
+    period_s = float(FAULT_ENV["HEALTH_POLL_INTERVAL_S"])
+    try:
+        stopped_at = time.monotonic()
+        fault_stack.agent2.stop(user="carol", reason="someone on the roof")
+        reason = wait_for(
+            "the hold", fault_stack, lambda: Resource.objects.get(pk=second.pk).hold_reason, 10
+        )
+        held_after_s = time.monotonic() - stopped_at
+        # One period until the next check, plus the check's own round trip through the
+        # broker and the agent (generous on a loaded 2-core machine).
+        assert held_after_s <= period_s + 2.0, held_after_s
+        assert reason == "emergency stop latched: someone on the roof (by carol)"
+        refused = erin.book("mobile-2", ahead_s=60, program_s=4)
+        assert refused.status_code == 400, refused.text
+        assert f"mobile-2 is out of service: {reason}." in refused.text
+        mail = fault_stack.procs["mail"]
+        mail.wait_for_line(lambda line: line.startswith("Subject: mobile-2 out of booking"), 20)
+    finally:
+        fault_stack.agent2.release_stop()
+
+
+def _confirmed(mail: Proc, nodes: list[Resource]) -> int:
+    """How many of ``nodes``' bookings the mail worker has confirmed by e-mail."""
+    sent = [line for line in mail.lines if line.startswith("your booking of ")]
+    return sum(
+        any(line.startswith(f"your booking of {n.name} on ") for line in sent) for n in nodes
+    )
+
+
+def test_a_mail_backlog_does_not_delay_a_run(fault_stack, robots):
+    """Mail has its own queue and worker: with the mail worker stuck and mails piling up, a
+    run is staged and collected on time; the mails go out once the worker moves again."""
+    mail = fault_stack.procs["mail"]
+    os.killpg(mail.popen.pid, signal.SIGSTOP)  # stuck, as on a mail server that never answers
+    erin = Experimenter(fault_stack, "erin")
+    nodes = [FixedResourceFactory() for _ in range(20)]
+    try:
+        start = timezone.now() + timedelta(hours=2)
+        for node in nodes:  # each booking queues its "confirmed" mail
+            booked = erin.session.post(
+                f"{fault_stack.web}/api/v1/reservations/",
+                json={
+                    "resources": [node.name],
+                    "start_at": start.isoformat(),
+                    "end_at": (start + timedelta(hours=1)).isoformat(),
+                },
+                timeout=10,
+            )
+            assert booked.status_code == 201, booked.text
+        run_id = erin.run("mobile-1", program_s=3.0)
+        run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed", timeout_s=30)
+        assert run.state == "completed", run.reason
+        assert _confirmed(mail, nodes) == 0
+    finally:
+        os.killpg(mail.popen.pid, signal.SIGCONT)
+    wait_for(
+        "the mails of the backlog",
+        fault_stack,
+        lambda: _confirmed(mail, nodes) == len(nodes),
+        30,
+    )

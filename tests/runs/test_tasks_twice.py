@@ -1,0 +1,225 @@
+"""Every Celery task is safe to run twice: what a redelivered message does again changes
+nothing (no second sample, state change, hold, audit entry or e-mail).
+
+Celery delivers a message again, with the same task id, when its worker died before
+acknowledging it (``acks_late``); the sweeps also queue whatever is still due. Each test
+here runs one task twice with the same id and compares the effects with one run. A test at
+the end checks that every task the workers know is covered.
+"""
+
+from __future__ import annotations
+
+import uuid
+from datetime import timedelta
+
+import pytest
+from django.core import mail
+from django.utils import timezone
+
+from bookings.models import Reservation, Resource
+from bookings.tasks import reservation_notify, reservations_remind
+from portal.audit.models import AuditEvent, IdempotencyKey
+from portal.audit.tasks import idempotency_keys_delete_expired
+from portal.celery import app as celery_app
+from portal.runs import notifications, tasks
+from portal.runs.models import Run, RunEvent, Sample
+from portal.runs.services import staging
+from portal.runs.services.booking import booking_cancel, booking_create
+from portal.runs.states import RunState
+from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
+
+pytestmark = pytest.mark.django_db
+
+# Each is run twice by a test below; a new task is added here with its test.
+COVERED = {
+    "portal.runs.tasks.runs_sweep",
+    "portal.runs.tasks.run_stage",
+    "portal.runs.tasks.run_unstage",
+    "portal.runs.tasks.run_collect",
+    "portal.runs.tasks.run_notify",
+    "portal.runs.tasks.robots_health_sweep",
+    "portal.runs.tasks.robot_health_check",
+    "portal.runs.tasks.robot_hold_notify",
+    "bookings.tasks.reservation_notify",
+    "bookings.tasks.reservations_remind",
+    "portal.audit.tasks.idempotency_keys_delete_expired",
+    # Run twice in tests/bookings/scheduler/test_booking_flow.py (they need the stand-in).
+    "bookings.tasks.scheduler_sweep",
+    "bookings.tasks.lease_cancel",
+}
+
+
+def twice(task, *args) -> None:
+    """Run ``task`` as the same message delivered twice."""
+    assert task.name in COVERED
+    task_id = str(uuid.uuid4())
+    for _ in range(2):
+        result = task.apply(args=args, task_id=task_id)
+        assert result.successful(), result.traceback
+
+
+@pytest.fixture
+def run(agent, owner, mobile) -> Run:
+    mobile.agent_url = agent.url
+    mobile.save()
+    start = timezone.now() + timedelta(minutes=2)
+    reservation = booking_create(
+        owner=owner,
+        resource=mobile,
+        start_at=start,
+        end_at=start + timedelta(seconds=10),
+        experiment=ExperimentFactory(
+            owner=owner, segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 2.0}]
+        ),
+    )
+    return Run.objects.get(reservation=reservation)
+
+
+def _events(run: Run) -> list[str]:
+    return list(RunEvent.objects.filter(run=run).values_list("to_state", flat=True))
+
+
+def test_staging_twice_stages_once(agent, run):
+    twice(tasks.run_stage, run.pk)
+    assert _events(run) == ["scheduled", "staged"]
+    assert [r["id"] for r in agent.client.list_runs()] == [run.agent_run_id]
+
+
+def test_withdrawing_twice_withdraws_once(agent, run, owner):
+    staging.run_stage(run_id=run.pk)
+    booking_cancel(reservation=run.reservation, by=owner)
+    twice(tasks.run_unstage, run.pk)
+    assert _events(run) == ["scheduled", "staged", "cancelled"]
+    assert agent.client.get_run(run.agent_run_id)["state"] == "cancelled"
+
+
+def test_collecting_twice_stores_every_sample_once(agent, run):
+    staging.run_stage(run_id=run.pk)
+    start_s = run.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 3.0)
+    twice(tasks.run_collect, run.pk)
+    on_agent = [s["seq"] for s in agent.client.iter_samples(run.agent_run_id)]
+    assert list(Sample.objects.filter(run=run).values_list("seq", flat=True)) == on_agent
+    assert _events(run) == ["scheduled", "staged", "collecting", "completed"]
+
+
+def test_the_sweep_twice_with_its_queued_work_does_each_step_once(agent, run, eager_tasks):
+    twice(tasks.runs_sweep)
+    assert _events(run) == ["scheduled", "staged"]
+
+
+def test_a_run_its_owner_cancelled_is_not_told_about(agent, run, owner):
+    staging.run_stage(run_id=run.pk)
+    start_s = run.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 1.0)
+    tasks.run_collect.apply(args=(run.pk,))  # running here too
+    booking_cancel(reservation=run.reservation, by=owner)
+    staging.run_unstage(run_id=run.pk)  # aborted on the robot, then collected
+    agent.run_clock(start_s + 1.05, start_s + 2.0)
+    tasks.run_collect.apply(args=(run.pk,))
+    assert Run.objects.get(pk=run.pk).state == RunState.INTERRUPTED
+    assert not notifications.runs_owner_untold().exists()
+
+
+def test_telling_the_owner_twice_sends_one_mail(run):
+    staging._fail(run, "the base station refused the run")
+    mail.outbox.clear()
+    twice(tasks.run_notify, run.pk)
+    assert [m.subject for m in mail.outbox] == [f"Run failed: {run.title}"]
+    assert mail.outbox[0].to == [run.reservation.owner.email]
+    assert "refused" in mail.outbox[0].body
+
+
+def _latch_estop(agent) -> None:
+    agent.client.stop(user="test", reason="someone on the roof")
+
+
+@pytest.fixture
+def admin_with_mail():
+    return UserFactory(username="root", is_staff=True, email="root@example.org")
+
+
+def test_a_health_check_twice_holds_once(agent, run, mobile):
+    _latch_estop(agent)
+    twice(tasks.robot_health_check, mobile.pk)
+    mobile.refresh_from_db()
+    assert "emergency stop latched" in mobile.hold_reason
+    assert AuditEvent.objects.filter(action="resource.hold").count() == 1
+
+
+def test_the_health_sweep_twice_holds_and_mails_the_admins_once(
+    agent, run, mobile, eager_tasks, admin_with_mail
+):
+    _latch_estop(agent)
+    mail.outbox.clear()
+    twice(tasks.robots_health_sweep)  # the first checks and holds; the next mails
+    twice(tasks.robots_health_sweep)
+    assert AuditEvent.objects.filter(action="resource.hold").count() == 1
+    assert [m.to for m in mail.outbox] == [["root@example.org"]]
+    assert mail.outbox[0].subject.startswith("mobile-1 out of booking: emergency stop latched")
+
+
+def test_telling_the_admins_of_a_hold_twice_sends_one_mail(agent, mobile, admin_with_mail):
+    Resource.objects.filter(pk=mobile.pk).update(hold_reason="battery low", held_at=timezone.now())
+    mail.outbox.clear()
+    twice(tasks.robot_hold_notify, mobile.pk)
+    assert len(mail.outbox) == 1
+
+
+def test_a_booking_mail_delivered_twice_is_sent_once(owner):
+    start = timezone.now() + timedelta(days=1)
+    reservation = booking_create(
+        owner=owner,
+        resource=FixedResourceFactory(),
+        start_at=start,
+        end_at=start + timedelta(hours=1),
+    )
+    mail.outbox.clear()
+    twice(reservation_notify, "confirmed", reservation.pk)
+    assert [m.subject.split(":")[0] for m in mail.outbox] == ["Booking confirmed"]
+    # Another message (a second request to send it) is another mail: only redelivery is one.
+    reservation_notify.apply(args=("confirmed", reservation.pk))
+    assert len(mail.outbox) == 2
+
+
+def test_reminding_twice_reminds_once(owner, eager_tasks):
+    start = timezone.now() + timedelta(minutes=30)
+    booking_create(
+        owner=owner,
+        resource=FixedResourceFactory(),
+        start_at=start,
+        end_at=start + timedelta(hours=1),
+    )
+    mail.outbox.clear()
+    twice(reservations_remind)
+    assert [m.subject.split(":")[0] for m in mail.outbox] == ["Reminder"]
+    assert Reservation.objects.filter(reminder_sent_at__isnull=False).count() == 1
+
+
+def test_deleting_expired_keys_twice_deletes_them_once(owner, settings):
+    key = IdempotencyKey.objects.create(
+        user=owner, key="k", method="POST", path="/", request_hash="h", status=201, response={}
+    )
+    IdempotencyKey.objects.filter(pk=key.pk).update(
+        created_at=timezone.now() - timedelta(seconds=settings.IDEMPOTENCY_KEY_TTL_S + 1)
+    )
+    kept = IdempotencyKey.objects.create(
+        user=owner, key="k2", method="POST", path="/", request_hash="h", status=201, response={}
+    )
+    twice(idempotency_keys_delete_expired)
+    assert list(IdempotencyKey.objects.values_list("pk", flat=True)) == [kept.pk]
+
+
+def test_every_task_the_workers_know_is_run_twice_here():
+    """A new task must show here that it is safe to run twice."""
+    known = {name for name in celery_app.tasks if not name.startswith("celery.")}
+    assert known == COVERED, f"not run twice: {sorted(known - COVERED)}"
+
+
+def test_a_state_change_seen_by_a_late_task_changes_nothing(agent, run):
+    """The sweep queues by the database: a task arriving after its step is a no-op."""
+    staging.run_stage(run_id=run.pk)
+    Run.objects.filter(pk=run.pk).update(state=RunState.COMPLETED)
+    for task in (tasks.run_stage, tasks.run_unstage, tasks.run_collect):
+        task.apply(args=(run.pk,))
+    assert _events(run) == ["scheduled", "staged"]
