@@ -206,8 +206,9 @@ def reservation_create(
                 booked_via=booked_via,
             )
             # The window was checked above and the database enforces the constraint again;
-            # re-running it here would only cost three more round trips under the lock.
-            reservation.full_clean(exclude=["owner"], validate_constraints=False)
+            # re-running it here would only cost round trips under the lock (a fresh uuid4
+            # public id needs no uniqueness query either: the unique index stands behind it).
+            reservation.full_clean(exclude=["owner", "public_id"], validate_constraints=False)
             reservation.save()
             ReservationItem.objects.bulk_create(
                 ReservationItem(
@@ -251,13 +252,6 @@ def reservation_create(
         raise
     logger.info("reservation %s (%s) created by %s", reservation.pk, state, by.get_username())
     return reservation
-
-
-def reservation_mobile(reservation: Reservation) -> Resource | None:
-    """The mobile node a reservation holds, if any (a booking holds at most one)."""
-    return next(
-        (item.resource for item in reservation.items.all() if item.resource.is_mobile), None
-    )
 
 
 def reservation_reschedule(

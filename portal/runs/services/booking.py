@@ -23,7 +23,6 @@ from bookings.services import (
     reservation_cancel,
     reservation_create,
     reservation_decide,
-    reservation_mobile,
     reservation_reschedule,
 )
 from portal.accounts.models import User
@@ -58,27 +57,30 @@ def booking_create(
 ) -> Reservation:
     """Book resources; on a mobile node, also schedule the run of ``experiment`` there."""
     _own_experiment(experiment, owner)
+    chosen = list(resources or ([resource] if resource is not None else []))
+    mobile = next((r for r in chosen if r.is_mobile), None)
+    book = partial(
+        reservation_create,
+        owner=owner,
+        resources=chosen,
+        start_at=start_at,
+        end_at=end_at,
+        program=experiment,
+        title=title or (experiment.title if experiment is not None else ""),
+        by=by,
+        override_reason=override_reason,
+        ip=ip,
+        now=now,
+    )
+    if mobile is None or experiment is None:
+        return book()  # no run to make with it (or booking refuses it and says why)
     reservation: Reservation | None = None
     try:
         with transaction.atomic():
-            reservation = reservation_create(
-                owner=owner,
-                resources=resources,
-                resource=resource,
-                start_at=start_at,
-                end_at=end_at,
-                program=experiment,
-                title=title or (experiment.title if experiment is not None else ""),
-                by=by,
-                override_reason=override_reason,
-                ip=ip,
-                now=now,
+            reservation = book()
+            run_create(
+                reservation=reservation, resource=mobile, experiment=experiment, by=by or owner
             )
-            mobile = reservation_mobile(reservation)
-            if mobile is not None and experiment is not None:
-                run_create(
-                    reservation=reservation, resource=mobile, experiment=experiment, by=by or owner
-                )
     except BaseException:
         # The reservation was rolled back with its run: give its lease back at once (the
         # scheduler sweep would cancel it as an orphan otherwise).
