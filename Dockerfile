@@ -1,4 +1,4 @@
-# One image for the portal's processes (web, worker, beat) and the simulated agent.
+# One image for the portal's processes (web, streams, workers, collector, beat) and the simulated agent.
 FROM node:20-bookworm-slim AS assets
 WORKDIR /src
 COPY package.json package-lock.json ./
@@ -8,6 +8,7 @@ FROM python:3.11-slim-bookworm
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 AMAZING_VAR_DIR=/var/lib/amazing
 WORKDIR /app
 COPY pyproject.toml README.md ./
+COPY core core
 COPY portal portal
 COPY bookings bookings
 COPY basestation basestation
@@ -25,5 +26,5 @@ RUN DJANGO_DEBUG=1 AMAZING_VAR_DIR=/tmp/build python manage.py collectstatic --n
     && useradd --system --home /var/lib/amazing amazing && mkdir -p /var/lib/amazing \
     && chown amazing /var/lib/amazing
 USER amazing
-EXPOSE 8000 8700
-CMD ["uvicorn", "portal.asgi:application", "--host", "0.0.0.0", "--port", "8000"]
+EXPOSE 8000 8001 8700
+CMD ["gunicorn", "-c", "python:portal.gunicorn_conf", "--bind", "0.0.0.0:8000", "portal.wsgi:application"]

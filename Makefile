@@ -82,7 +82,7 @@ test: setup system-deps services
 lint: setup system-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
-	DJANGO_DEBUG=1 $(VENV)/bin/mypy portal bookings basestation amazing_cli cad bench
+	DJANGO_DEBUG=1 $(VENV)/bin/mypy core portal bookings basestation amazing_cli cad bench
 	$(VENV)/bin/lint-imports --no-cache
 	docker-compose -f docker-compose.yml config --quiet
 	DJANGO_DEBUG=1 $(PY) manage.py makemigrations --check --dry-run

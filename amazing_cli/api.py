@@ -26,6 +26,7 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "experiment_create": ("POST", "/api/v1/experiments/"),
     "experiment": ("GET", "/api/v1/experiments/{id}/"),
     "reservation_create": ("POST", "/api/v1/reservations/"),
+    "reservation_check": ("POST", "/api/v1/reservations/check/"),
     "reservation_cancel": ("DELETE", "/api/v1/reservations/{id}/"),
     "runs": ("GET", "/api/v1/runs/"),
     "run": ("GET", "/api/v1/runs/{id}/"),

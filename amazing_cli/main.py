@@ -37,6 +37,7 @@ from amazing_cli.api import Api
 from amazing_cli.errors import (
     NOT_FOUND,
     OK,
+    REFUSED,
     RUN_NOT_COMPLETED,
     UNAVAILABLE,
     CliError,
@@ -406,6 +407,14 @@ def book(
             metavar="SECONDS", min=0, help="With `asap`: start no sooner than this many seconds."
         ),
     ] = 15,
+    check: Annotated[
+        bool,
+        typer.Option(
+            "--check",
+            help="Book nothing: say whether the booking would be made, and every reason it "
+            "would not (exit code 3).",
+        ),
+    ] = False,
     as_json: JsonOption = False,
     quiet: QuietOption = False,
 ) -> None:
@@ -433,6 +442,9 @@ def book(
         "start_at": times.iso(begin),
         "end_at": times.iso(end),
     }
+    if check:
+        _check(api, body, as_json=as_json, quiet=quiet)
+        return
     if title:
         body["title"] = title
     booked = api.create("reservation_create", body)
@@ -448,6 +460,28 @@ def book(
             f"{times.local(booked['start_at'])} to {times.local(booked['end_at'])}, "
             f"{booked['state']}."
         )
+
+
+def _check(api: Api, body: dict[str, Any], *, as_json: bool, quiet: bool) -> None:
+    """The portal's live check of ``body``: exit code 0 when it would be booked, else 3."""
+    answer = api.call("reservation_check", json=body)
+    if answer.get("notice"):
+        err.print(f"amazing: {answer['notice']}", markup=False)
+    if as_json:
+        _print_json(answer)
+    elif not quiet and answer["fits"]:
+        wait = " (an admin must approve it)" if answer.get("needs_approval") else ""
+        out.print(
+            f"Would be booked{wait}: {', '.join(body['resources'])}, "
+            f"{times.local(body['start_at'])} to {times.local(body['end_at'])}."
+        )
+    elif not quiet:
+        for problem in answer["problems"]:
+            messages = answer["quota"] if problem["code"] == "quota" else [problem["message"]]
+            for message in messages:
+                out.print(f"{problem['code']}: {message}", markup=False)
+    if not answer["fits"]:
+        raise typer.Exit(REFUSED)
 
 
 @app.command()

@@ -18,12 +18,14 @@ def create_app(
     start_control_loop: bool = True,
     robot: Robot | None = None,
 ) -> Flask:
-    """Build the agent: open the run store, attach the robot, start the control loop.
+    """Build the agent: open the run store, start the control loop's process (which opens
+    the robot).
 
     ``config`` defaults to :meth:`AgentConfig.from_env` (raises ``ConfigError``).
-    With ``start_control_loop=False`` nothing moves until someone calls
-    ``get_runtime(app).manager.tick(now_s)`` — how tests drive time. The caller owns the
-    returned app's runtime and should call ``get_runtime(app).close()`` when done.
+    With ``start_control_loop=False`` the run manager and ``robot`` live in this process and
+    nothing moves until someone calls ``get_runtime(app).manager.tick(now_s)`` — how tests
+    drive time. The caller owns the returned app's runtime and should call
+    ``get_runtime(app).close()`` when done.
     """
     if config is None:
         config = AgentConfig.from_env()
@@ -38,9 +40,12 @@ def create_app(
     app.config["PROVIDE_AUTOMATIC_OPTIONS"] = False
     app.url_map.merge_slashes = False
 
-    runtime = AgentRuntime.open(config, robot=robot)
+    if start_control_loop:
+        if robot is not None:
+            raise ValueError("the control loop's process builds its own robot")
+        runtime = AgentRuntime.open_with_loop_process(config)
+    else:
+        runtime = AgentRuntime.open(config, robot=robot)
     app.extensions[EXTENSION_KEY] = runtime
     register_api(app)
-    if start_control_loop:
-        runtime.start_control_loop()
     return app

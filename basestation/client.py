@@ -153,12 +153,23 @@ class AgentClient:
         """The usage log of one UTC day: ``{"date", "timezone", "entries": [...]}``."""
         return self._request("GET", f"{API_PREFIX}/logs/{day.isoformat()}")
 
-    def samples(self, run_id: str, after_seq: int = 0, limit: int = 1000) -> dict[str, Any]:
-        """One page: ``{"run_id", "state", "samples", "last_seq", "more"}``."""
+    def samples(
+        self, run_id: str, after_seq: int = 0, limit: int = 1000, wait_s: int = 0
+    ) -> dict[str, Any]:
+        """One page: ``{"run_id", "state", "samples", "last_seq", "more"}``.
+
+        ``wait_s`` > 0 long-polls: with nothing after ``after_seq`` yet and the run staged or
+        running, the agent answers when the next samples are stored or the run changes
+        state, at the latest after ``wait_s`` (the request's timeout grows by as much).
+        """
+        params = {"after": after_seq, "limit": limit}
+        if wait_s:
+            params["wait_s"] = wait_s
         return self._request(
             "GET",
             f"{self._run_path(run_id)}/samples",
-            params={"after": after_seq, "limit": limit},
+            params=params,
+            timeout=self.timeout_s + wait_s,
         )
 
     def iter_samples(
@@ -178,10 +189,14 @@ class AgentClient:
     def _run_path(run_id: str) -> str:
         return f"{API_PREFIX}/runs/{quote(run_id, safe='')}"
 
-    def _request(self, method: str, path: str, **kwargs: Any) -> dict[str, Any]:
+    def _request(
+        self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
+    ) -> dict[str, Any]:
         url = self.base_url + path
         try:
-            response = self._session.request(method, url, timeout=self.timeout_s, **kwargs)
+            response = self._session.request(
+                method, url, timeout=timeout or self.timeout_s, **kwargs
+            )
         except (
             requests.ConnectionError,
             requests.Timeout,

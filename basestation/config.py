@@ -22,6 +22,9 @@ DEFAULT_MIN_FREE_DISK_MB = 200.0
 DEFAULT_RETENTION_DAYS = 90.0
 # Low among real-time priorities (1-99): above every normal thread, below the kernel's own.
 DEFAULT_RT_PRIORITY = 10
+# AGENT_CONTROL_CPU unset: the control loop's thread goes on the last CPU the agent may use,
+# when it may use two or more (the HTTP server's threads keep the others busier).
+AUTO_CPU = -1
 
 
 # How the agent reaches the robot: "radio" is the RFM69 on the Pi's SPI bus; "sim" the same
@@ -56,6 +59,8 @@ class AgentConfig:
     cpu_temp_path: Path = DEFAULT_CPU_TEMP_PATH
     # SCHED_FIFO priority of the control loop's thread (0: normal scheduling).
     rt_priority: int = DEFAULT_RT_PRIORITY
+    # CPU the control loop's thread is pinned to: AUTO_CPU picks one, None pins nothing.
+    control_cpu: int | None = AUTO_CPU
     robot: str = "sim"
     # sim-udp: the loopback ports of this side's emulated chip and of the robot process.
     sim_base_port: int = 47001
@@ -80,6 +85,8 @@ class AgentConfig:
         _check_range("min_free_disk_mb", self.min_free_disk_mb, low=0.0, high=10_000_000.0)
         _check_retention("retention_days", self.retention_days)
         _check_range("rt_priority", self.rt_priority, low=0, high=99)
+        if self.control_cpu is not None:
+            _check_range("control_cpu", self.control_cpu, low=AUTO_CPU, high=4095)
         if self.robot not in ROBOT_KINDS:
             raise ConfigError(f"robot must be one of {', '.join(ROBOT_KINDS)}, not {self.robot!r}")
         for name in ("sim_base_port", "sim_robot_port"):
@@ -102,6 +109,7 @@ class AgentConfig:
             f"resource={self.resource!r}, low_battery_v={self.low_battery_v}, "
             f"min_free_disk_mb={self.min_free_disk_mb}, retention_days={self.retention_days}, "
             f"cpu_temp_path={self.cpu_temp_path!r}, rt_priority={self.rt_priority}, "
+            f"control_cpu={self.control_cpu}, "
             f"robot={self.robot!r}, rail_file={self.rail_file!r})"
         )
 
@@ -122,6 +130,7 @@ class AgentConfig:
             min_free_disk_mb=min_free_mb,
             retention_days=_retention_from_env(env),
             rt_priority=_rt_priority_from_env(env),
+            control_cpu=_control_cpu_from_env(env),
             cpu_temp_path=Path(
                 env.get(f"{ENV_PREFIX}CPU_TEMP_PATH", "").strip() or DEFAULT_CPU_TEMP_PATH
             ),
@@ -244,4 +253,16 @@ def _rt_priority_from_env(env: Mapping[str, str]) -> int:
         return DEFAULT_RT_PRIORITY
     if not raw.isdigit() or not 0 <= int(raw) <= 99:
         raise ConfigError(f"{name}={raw!r} must be an integer from 0 (off) to 99")
+    return int(raw)
+
+
+def _control_cpu_from_env(env: Mapping[str, str]) -> int | None:
+    name = f"{ENV_PREFIX}CONTROL_CPU"
+    raw = env.get(name, "").strip().lower()
+    if not raw:
+        return AUTO_CPU
+    if raw == "none":
+        return None
+    if not raw.isdigit() or int(raw) > 4095:
+        raise ConfigError(f"{name}={raw!r} must be a CPU number (0, 1, ...) or 'none'")
     return int(raw)

@@ -55,6 +55,44 @@ class ControlStats:
     window_s: float = STATS_WINDOW_S
 
 
+@dataclass(frozen=True)
+class Slot:
+    """Where a tick stands on the grid ``start + k * period`` once it wakes."""
+
+    k: int  # the slot it serves
+    lateness_s: float  # its wake-up minus the deadline it waited for
+    missed: int  # slots skipped before it (they get no tick)
+
+
+def slot_deadline(*, start_s: float, period_s: float, k: int) -> float:
+    """Slot ``k``'s deadline: computed from the start, never by adding periods (no drift)."""
+    return start_s + k * period_s
+
+
+def tick_slot(*, start_s: float, period_s: float, k: int, woke_s: float) -> Slot:
+    """The slot a tick that waited for slot ``k`` and woke at ``woke_s`` serves: ``k`` if it is
+    at most one period late; otherwise the slot now current, the missed ones skipped rather
+    than made up with a burst."""
+    lateness_s = woke_s - slot_deadline(start_s=start_s, period_s=period_s, k=k)
+    missed = math.floor(lateness_s / period_s) if lateness_s > period_s else 0
+    return Slot(k=k + missed, lateness_s=lateness_s, missed=missed)
+
+
+def window_of(lateness_ring: list[float], duration_ring: list[float], n: int) -> WindowStats:
+    """The percentiles of the first ``n`` ticks of two rings of per-tick figures."""
+    lateness = sorted(lateness_ring[:n])
+    duration = sorted(duration_ring[:n])
+    return WindowStats(
+        ticks=n,
+        lateness_p50_s=nearest_rank(lateness, 0.50),
+        lateness_p99_s=nearest_rank(lateness, 0.99),
+        lateness_max_s=lateness[-1] if lateness else None,
+        duration_p50_s=nearest_rank(duration, 0.50),
+        duration_p99_s=nearest_rank(duration, 0.99),
+        duration_max_s=duration[-1] if duration else None,
+    )
+
+
 class ControlLoop:
     def __init__(
         self,
@@ -66,21 +104,35 @@ class ControlLoop:
         rt_priority: int = 0,
         urgent: Callable[[float], None] | None = None,
         urgent_at: Callable[[], float | None] | None = None,
+        cpu: int | None = None,
+        after_tick: Callable[[float, float], None] | None = None,
+        wait: Callable[[float], bool] | None = None,
     ) -> None:
         """``rt_priority`` > 0 runs the loop's thread under SCHED_FIFO at that priority
         (needs CAP_SYS_NICE or RLIMIT_RTPRIO, e.g. systemd's LimitRTPRIO=); without the
-        right it logs a warning and runs at normal priority.
+        right it logs a warning and runs at normal priority. ``cpu`` pins the loop's thread
+        to that CPU (where the process may run there; else a warning and no pinning).
+
+        ``after_tick(lateness_s, duration_s)`` runs on this thread after each tick (the
+        control-loop process publishes its state with it).
 
         ``urgent`` runs on this thread, between two ticks, as soon as :meth:`wake` is called:
         an emergency stop goes on the air then, not up to a period later. It also runs at the
         wall-clock instant ``urgent_at()`` names, if that falls between two ticks: a run then
-        starts at its start time, not up to a period later. The grid of ticks does not move."""
+        starts at its start time, not up to a period later. The grid of ticks does not move.
+
+        ``wait(seconds)`` sleeps until then or until woken (True); by default it waits on the
+        loop's own event, which :meth:`wake` and :meth:`stop` set. A test passes a simulated
+        clock's ``monotonic``, ``wall_clock`` and ``wait`` to check the timing exactly."""
         self._tick = tick
         self._urgent = urgent
         self._urgent_at = urgent_at
         self._served_urgent_at: float | None = None
         self.rt_priority = rt_priority
         self.realtime = False
+        self.cpu = cpu
+        self.pinned_cpu: int | None = None
+        self._after_tick = after_tick
         self.hz = hz
         self.period_s = 1.0 / hz
         self._monotonic = monotonic
@@ -88,6 +140,7 @@ class ControlLoop:
         self._stopping = False
         # Set to stop the loop or to ask for an urgent call; the loop's sleep waits on it.
         self._wake = threading.Event()
+        self._wait = wait if wait is not None else self._wake.wait
         self._thread: threading.Thread | None = None
         self.ticks = 0
         self.urgent_calls = 0
@@ -113,7 +166,7 @@ class ControlLoop:
     def stop(self, timeout_s: float = 5.0) -> None:
         self._stopping = True
         self._wake.set()
-        if self._thread is not None:
+        if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
             if self._thread.is_alive():
                 logger.error("control loop did not stop within %.1f s", timeout_s)
@@ -139,20 +192,9 @@ class ControlLoop:
         cached_ticks, cached = self._window_cache
         if cached_ticks == ticks:
             return cached
-        n = min(ticks, self._ring_size)
         # Slicing copies the list in one step under the GIL; a slot written meanwhile is
         # either in this copy or in the next.
-        lateness = sorted(self._lateness_ring[:n])
-        duration = sorted(self._duration_ring[:n])
-        stats = WindowStats(
-            ticks=n,
-            lateness_p50_s=_nearest_rank(lateness, 0.50),
-            lateness_p99_s=_nearest_rank(lateness, 0.99),
-            lateness_max_s=lateness[-1] if lateness else None,
-            duration_p50_s=_nearest_rank(duration, 0.50),
-            duration_p99_s=_nearest_rank(duration, 0.99),
-            duration_max_s=duration[-1] if duration else None,
-        )
+        stats = window_of(self._lateness_ring, self._duration_ring, min(ticks, self._ring_size))
         self._window_cache = (ticks, stats)
         return stats
 
@@ -176,18 +218,37 @@ class ControlLoop:
             return
         self.realtime = True
 
+    def _pin(self) -> None:
+        """Keep the loop's thread on one CPU: no migration between ticks, a warm cache."""
+        if self.cpu is None:
+            return
+        try:
+            # pid 0 is the calling thread here too.
+            os.sched_setaffinity(0, {self.cpu})
+        except (OSError, AttributeError, ValueError) as exc:
+            logger.warning("control loop not pinned to CPU %d (%s)", self.cpu, exc)
+            return
+        self.pinned_cpu = self.cpu
+
     def _run(self) -> None:
         self._become_realtime()
+        self._pin()
+        logger.info(
+            "control loop at %g Hz: %s, %s",
+            self.hz,
+            f"SCHED_FIFO priority {self.rt_priority}" if self.realtime else "normal priority",
+            "not pinned" if self.pinned_cpu is None else f"pinned to CPU {self.pinned_cpu}",
+        )
         start_s = self._monotonic()
         k = 0
         while True:
-            deadline_s = start_s + k * self.period_s
+            deadline_s = slot_deadline(start_s=start_s, period_s=self.period_s, k=k)
             while (delay_s := deadline_s - self._monotonic()) > 0:
                 timed = self._timed_urgent(deadline_s)
                 if timed is not None:
                     delay_s = max(0.0, timed[0] - self._monotonic())
                 # Event.wait doubles as the sleep so that stop() and wake() take effect at once.
-                if self._wake.wait(delay_s):
+                if self._wait(delay_s):
                     self._wake.clear()
                     if self._stopping:
                         return
@@ -200,15 +261,15 @@ class ControlLoop:
             if self._wake.is_set():  # asked for while a tick ran: this tick serves it
                 self._wake.clear()
             woke_s = self._monotonic()
-            lateness_s = woke_s - deadline_s
+            on_grid = tick_slot(start_s=start_s, period_s=self.period_s, k=k, woke_s=woke_s)
+            lateness_s = on_grid.lateness_s
             self.max_lateness_s = max(self.max_lateness_s, lateness_s)
-            if lateness_s > self.period_s:
+            if on_grid.missed:
                 # This tick missed its slot (the previous tick ran long, or the thread was
                 # not scheduled): count it once, and move onto the grid slot now current.
                 self.late_ticks += 1
-                missed = math.floor(lateness_s / self.period_s)
-                self.skipped_ticks += missed
-                k += missed
+                self.skipped_ticks += on_grid.missed
+                k = on_grid.k
             try:
                 self._tick(self._wall_clock())
             except Exception:
@@ -216,10 +277,16 @@ class ControlLoop:
                 self.tick_errors += 1
                 logger.exception("control tick failed")
             slot = self.ticks % self._ring_size
+            duration_s = self._monotonic() - woke_s
             self._lateness_ring[slot] = lateness_s
-            self._duration_ring[slot] = self._monotonic() - woke_s
+            self._duration_ring[slot] = duration_s
             self.ticks += 1
             k += 1
+            if self._after_tick is not None:
+                try:
+                    self._after_tick(lateness_s, duration_s)
+                except Exception:
+                    logger.exception("after-tick call failed")
 
     def _timed_urgent(self, deadline_s: float) -> tuple[float, float] | None:
         """(monotonic, wall-clock) instant of a timed urgent call due before ``deadline_s``."""
@@ -244,7 +311,7 @@ class ControlLoop:
             logger.exception("urgent control call failed")
 
 
-def _nearest_rank(ordered: list[float], fraction: float) -> float | None:
+def nearest_rank(ordered: list[float], fraction: float) -> float | None:
     if not ordered:
         return None
     return ordered[max(0, math.ceil(fraction * len(ordered)) - 1)]

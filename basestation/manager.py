@@ -32,7 +32,7 @@ import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Protocol
 
 from basestation.config import AgentConfig
 from basestation.errors import RunConflict
@@ -304,6 +304,40 @@ def _passed_runs(
     return fail
 
 
+class RunControl(Protocol):
+    """What the API needs of the run manager: the :class:`RunManager` itself when the loop
+    runs in the agent's process (tests), or
+    :class:`basestation.loop_process.LoopProcess` when it runs in its own."""
+
+    @property
+    def snapshot(self) -> AgentSnapshot: ...
+
+    @property
+    def estop(self) -> EstopLatch | None: ...
+
+    @property
+    def rail_length_m(self) -> float: ...
+
+    def manual(self, now_s: float) -> ManualDrive | None: ...
+
+    def notify_runs_changed(self) -> None: ...
+
+    def latch_estop(self, *, now_s: float, reason: str) -> tuple[EstopLatch, str | None]: ...
+
+    def release_estop(self, *, now_s: float) -> bool: ...
+
+    def drive_manually(
+        self,
+        *,
+        now_s: float,
+        user: str,
+        velocity_mps: float,
+        direction: Direction,
+        ttl_s: float,
+        force: bool,
+    ) -> tuple[ManualDrive | None, str | None]: ...
+
+
 class RunManager:
     def __init__(self, *, store: RunStore, robot: Robot, config: AgentConfig) -> None:
         self.store = store
@@ -392,7 +426,7 @@ class RunManager:
         except IndexError:
             return None
 
-    def shutdown(self, now_s: float) -> None:
+    def shutdown(self, now_s: float, reason: str = "agent stopped during run") -> None:
         """Command the robot to zero and close the current run (the agent is stopping)."""
         with self._tick_lock:
             try:
@@ -409,9 +443,7 @@ class RunManager:
             if manual is not None:
                 self.store.manual_session_end(manual.session_id, ended_at_s=now_s)
             if self._active is not None:
-                self._transition(
-                    self._active.id, RUNNING, INTERRUPTED, "agent stopped during run", now_s
-                )
+                self._transition(self._active.id, RUNNING, INTERRUPTED, reason, now_s)
                 self._active = None
             self.writer.flush()
 
@@ -429,9 +461,10 @@ class RunManager:
                 # latch across a restart of the agent.
                 self._estop = latch
                 self._estop_frame_owed = True
+                # The stop frame goes out while the store writes (fsync releases the GIL).
+                self.wake()
                 self.store.set_estop(since_s=now_s, reason=reason)
                 logger.warning("e-stop latched: %s", reason)
-                self.wake()
             manual = self._take_manual(None)
             if manual is not None:
                 self.store.manual_session_end(manual.session_id, ended_at_s=now_s)

@@ -33,6 +33,20 @@ class Telemetry:
     track_m: float  # position along the rail, in [0, rail length); cw increases it
 
 
+@dataclass(frozen=True)
+class RobotLimits:
+    """What a robot confirmed when the agent sent it its limits (docs/protocol.md §2.4).
+
+    ``hard_max_velocity_mps`` is the maximum compiled into the robot's firmware: no limit
+    sent over the radio can go above it. None when the robot's firmware answers with the
+    older config frame, which does not carry it.
+    """
+
+    max_velocity_mps: float  # applied by the robot
+    max_accel_mps2: float  # applied by the robot
+    hard_max_velocity_mps: float | None
+
+
 class RobotLinkError(Exception):
     """No telemetry came back for a command (radio timeout, CRC failure, ...)."""
 

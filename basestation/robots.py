@@ -6,9 +6,13 @@ import logging
 from typing import Any
 
 from basestation.config import AgentConfig, ConfigError
-from basestation.robot import Robot, RobotLinkError, SimpleSimulatedRobot
+from basestation.robot import Robot, RobotLimits, RobotLinkError, SimpleSimulatedRobot
 
 logger = logging.getLogger(__name__)
+
+# A lost config frame or answer is retried this many times before the agent starts without
+# the robot's confirmation (a robot switched off now still has its compiled-in limits).
+CONFIGURE_ATTEMPTS = 3
 
 
 class RadioRobot:
@@ -18,6 +22,8 @@ class RadioRobot:
         self.link = link
         self.radio = radio
         self.spi = spi
+        # What the robot confirmed of the agent's limits at start-up (None: no answer).
+        self.limits: RobotLimits | None = None
 
     def exchange(self, command: Any, now_s: float) -> Any:
         return self.link.exchange(command, now_s)
@@ -32,6 +38,16 @@ class RadioRobot:
             close = getattr(self.spi, "close", None)
             if close is not None:
                 close()
+
+
+def reply_timeout_s(control_hz: float) -> float:
+    """How long a tick waits for the robot's answer: the link's 25 ms, or less at rates above
+    24 Hz so that the command (3 ms on air), the wait and the rest of the tick fit one
+    period. At 50 Hz: 12 ms, for a reply of 5.5 ms on air plus the robot's turnaround
+    (docs/protocol.md §5); a tick whose answer is lost still ends before the next is due."""
+    from basestation.radio.link import DEFAULT_REPLY_TIMEOUT_S
+
+    return min(DEFAULT_REPLY_TIMEOUT_S, 0.6 / control_hz)
 
 
 def build_robot(config: AgentConfig) -> Robot:
@@ -73,13 +89,52 @@ def build_robot(config: AgentConfig) -> Robot:
         radio.begin()
     except RadioError as exc:
         raise ConfigError(f"the robot's radio did not start: {exc}") from exc
-    link = RadioRobotLink(radio, rail=rail)
+    link = RadioRobotLink(radio, rail=rail, reply_timeout_s=reply_timeout_s(config.control_hz))
+    robot = RadioRobot(link, radio, spi)
     try:
-        applied = link.configure(
-            max_velocity_mps=config.max_velocity_mps, accel_mps2=config.max_accel_mps2
+        robot.limits = _configure(link, config)
+    except ConfigError:
+        robot.close()
+        raise
+    return robot
+
+
+def _configure(link: Any, config: AgentConfig) -> RobotLimits | None:
+    """Send the agent's limits to the robot; refuse a limit above the robot's hard maximum."""
+    limits: RobotLimits | None = None
+    for attempt in range(1, CONFIGURE_ATTEMPTS + 1):
+        try:
+            limits = link.configure(
+                max_velocity_mps=config.max_velocity_mps, accel_mps2=config.max_accel_mps2
+            )
+            break
+        except RobotLinkError as exc:
+            if attempt == CONFIGURE_ATTEMPTS:
+                # The robot may be off or out of range now; its compiled-in limits still hold.
+                logger.warning(
+                    "robot did not confirm its limits (%s); it keeps its built-in ones", exc
+                )
+    if limits is None:
+        return None
+    logger.info(
+        "robot limits applied: %.2f m/s, %.2f m/s²; hard maximum %s",
+        limits.max_velocity_mps,
+        limits.max_accel_mps2,
+        "not reported"
+        if limits.hard_max_velocity_mps is None
+        else f"{limits.hard_max_velocity_mps:g} m/s",
+    )
+    check_within_hard_max(config, limits)
+    return limits
+
+
+def check_within_hard_max(config: AgentConfig, limits: RobotLimits) -> None:
+    """``ConfigError`` when the agent's velocity limit is above the robot's hard maximum:
+    runs the agent would accept could never be driven as booked."""
+    hard_max = limits.hard_max_velocity_mps
+    # The wire carries whole mm/s: compare at that resolution.
+    if hard_max is not None and round(config.max_velocity_mps * 1000) > round(hard_max * 1000):
+        raise ConfigError(
+            f"AGENT_MAX_VELOCITY_MPS={config.max_velocity_mps:g} is above the robot's hard "
+            f"maximum {hard_max:g} m/s (AMZ_HARD_MAX_VELOCITY_MM_S in its firmware)"
         )
-        logger.info("robot limits applied: %.2f m/s, %.2f m/s²", *applied)
-    except RobotLinkError as exc:
-        # The robot may be off or out of range now; its own compiled-in limits still hold.
-        logger.warning("robot did not confirm its limits (%s); it keeps its built-in ones", exc)
-    return RadioRobot(link, radio, spi)

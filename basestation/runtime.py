@@ -12,10 +12,11 @@ from pathlib import Path
 from flask import Flask, current_app
 
 from basestation.config import AgentConfig
-from basestation.control import ControlLoop, ControlStats
+from basestation.control import ControlStats
 from basestation.housekeeping import Housekeeper
-from basestation.manager import RunManager
-from basestation.robot import Robot
+from basestation.loop_process import LoopProcess
+from basestation.manager import RunControl, RunManager
+from basestation.robot import Robot, RobotLimits
 from basestation.robots import build_robot
 from basestation.store import RunStore
 from basestation.system import DiskSpace, disk_space
@@ -32,11 +33,19 @@ except PackageNotFoundError:  # running from a source tree that was never instal
 
 @dataclass
 class AgentRuntime:
+    """The agent's parts. Two ways to run the loop:
+
+    - :meth:`open_with_loop_process` (the agent as served): the control loop, the robot and
+      the run manager live in their own process (:mod:`basestation.loop_process`); this
+      process keeps the run store for the API and reaches the loop through ``loop``.
+    - :meth:`open` (tests, tools): the run manager and the robot live here and nothing moves
+      until someone calls ``manager.tick(now_s)``.
+    """
+
     config: AgentConfig
     store: RunStore
-    robot: Robot
-    manager: RunManager
-    control_loop: ControlLoop | None = None
+    in_process_manager: RunManager | None = None
+    loop: LoopProcess | None = None
     housekeeper: Housekeeper | None = None
     # Replaceable so that tests can play a full disk.
     disk_probe: Callable[[Path], DiskSpace | None] = field(default=disk_space)
@@ -51,29 +60,80 @@ class AgentRuntime:
         if robot is None:
             robot = build_robot(config)
         manager = RunManager(store=store, robot=robot, config=config)
-        return cls(config=config, store=store, robot=robot, manager=manager)
+        return cls(config=config, store=store, in_process_manager=manager)
 
-    def start_control_loop(self) -> None:
-        """Start the control loop, the store writer and the store's housekeeping (threads)."""
-        self.manager.writer.start()
-        self.control_loop = ControlLoop(
-            self.manager.tick,
-            hz=self.config.control_hz,
-            rt_priority=self.config.rt_priority,
-            urgent=self.manager.urgent,
-            urgent_at=self.manager.next_start_s,
-        )
-        self.manager.on_wake = self.control_loop.wake
-        self.control_loop.start()
-        self.housekeeper = Housekeeper(self.store, retention_s=self.config.retention_s)
-        self.housekeeper.start()
+    @classmethod
+    def open_with_loop_process(cls, config: AgentConfig) -> AgentRuntime:
+        """Start the control loop's process (it opens the robot; ConfigError when it refuses
+        the configuration), then the store's housekeeping here."""
+        loop = LoopProcess(config)
+        loop.start()
+        try:
+            store = RunStore(config.store_path)
+        except BaseException:
+            loop.close()
+            raise
+        runtime = cls(config=config, store=store, loop=loop)
+        runtime.housekeeper = Housekeeper(store, retention_s=config.retention_s)
+        runtime.housekeeper.start()
+        return runtime
+
+    @property
+    def manager(self) -> RunManager:
+        """The run manager of an agent opened with :meth:`open`."""
+        if self.in_process_manager is None:
+            raise RuntimeError("the run manager lives in the control loop's process")
+        return self.in_process_manager
+
+    @property
+    def robot(self) -> Robot:
+        return self.manager.robot
+
+    @property
+    def control(self) -> RunControl:
+        """The run manager as the API uses it, wherever it lives."""
+        if self.loop is not None:
+            return self.loop
+        return self.manager
+
+    @property
+    def robot_limits(self) -> RobotLimits | None:
+        """What the robot confirmed of the agent's limits at start-up (None: a robot without
+        firmware, such as the simple model, or one that did not answer)."""
+        if self.loop is not None:
+            return self.loop.robot_limits
+        limits = getattr(self.manager.robot, "limits", None)
+        return limits if isinstance(limits, RobotLimits) else None
+
+    def limits_json(self) -> dict[str, object]:
+        """The agent's effective limits, as ``GET /status`` reports them to the portal."""
+        confirmed = self.robot_limits
+        hard_max = None if confirmed is None else confirmed.hard_max_velocity_mps
+        velocity = self.config.max_velocity_mps
+        return {
+            # The start refuses a configured limit above the hard maximum: min() only guards.
+            "max_velocity_mps": velocity if hard_max is None else min(velocity, hard_max),
+            "max_accel_mps2": self.config.max_accel_mps2,
+            "robot_hard_max_velocity_mps": hard_max,
+            "robot_confirmed": confirmed is not None,
+        }
 
     def disk(self) -> DiskSpace | None:
         return self.disk_probe(self.config.data_dir)
 
+    @property
+    def loop_started(self) -> bool:
+        return self.loop is not None
+
+    def loop_healthy(self) -> bool:
+        """False only when a loop was started and is not ticking (or its writer died)."""
+        if self.loop is not None:
+            return self.loop.running
+        return self.manager.writer.alive
+
     def control_stats(self) -> ControlStats:
-        if self.control_loop is not None:
-            return self.control_loop.stats()
+        if self.loop is not None:
+            return self.loop.stats()
         # Driven by hand (tests): the manager still counts its ticks.
         return ControlStats(
             hz=self.config.control_hz,
@@ -86,20 +146,26 @@ class AgentRuntime:
         )
 
     def close(self) -> None:
-        """Stop the loop, command the robot to zero, close the store. Idempotent."""
+        """Stop the loop (robot to zero, current run interrupted), close the store.
+        Idempotent."""
         if self.closed:
             return
         self.closed = True
-        if self.control_loop is not None:
-            self.control_loop.stop()
         if self.housekeeper is not None:
             self.housekeeper.stop()
+        if self.loop is not None:
+            try:
+                self.loop.close()
+            finally:
+                self.store.close()
+            return
+        manager = self.manager
         try:
-            self.manager.shutdown(time.time())
+            manager.shutdown(time.time())
         finally:
-            self.manager.writer.stop()
+            manager.writer.stop()
             self.store.close()
-            close_robot = getattr(self.robot, "close", None)
+            close_robot = getattr(manager.robot, "close", None)
             if close_robot is not None:
                 close_robot()
 

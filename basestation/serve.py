@@ -4,28 +4,54 @@ from __future__ import annotations
 
 import argparse
 import gc
+import json
 import logging
 import signal
 import sys
 import types
 
-from waitress.server import create_server
+from waitress.channel import HTTPChannel
+from waitress.server import BaseWSGIServer, create_server
+from waitress.task import ErrorTask
+from waitress.utilities import Error
 
-from basestation.app import create_app
+from basestation.api.limits import too_large_detail
+from basestation.app import MAX_BODY_BYTES, create_app
 from basestation.config import AgentConfig, ConfigError
 from basestation.runtime import get_runtime
 
 logger = logging.getLogger("basestation.serve")
 
 EXIT_CONFIG_ERROR = 2
-# How long a thread may hold the GIL while another waits for it. Python's default of 5 ms
-# is the whole lateness budget of a control tick: an HTTP thread busy serialising a page of
-# samples would make the waking control loop wait that long. 1 ms costs the HTTP threads a
-# little throughput in switches.
+# How long a thread may hold the GIL while another waits for it. The control loop has its
+# own process (basestation.loop_process); here it bounds how long a `POST /stop` waits behind
+# threads busy serialising pages of samples. 1 ms costs them a little throughput.
 GIL_SWITCH_INTERVAL_S = 0.001
 # waitress buffers a request body before the app sees it; the app refuses anything over
 # 64 KiB anyway, so there is no point in buffering more than this.
 MAX_REQUEST_BODY_BYTES = 1024 * 1024
+
+
+class _JsonErrorTask(ErrorTask):
+    """waitress's own refusals (a body over its buffer, malformed HTTP) in the agent's JSON
+    envelope, like every other answer: a 10 MB body gets the 413 a 70 KB one gets from the
+    application, naming the application's limit, not waitress's plain text."""
+
+    def execute(self) -> None:
+        # The stubs call ``request`` the error; at run time it is the parser that holds it.
+        error: Error = self.request.error  # type: ignore[attr-defined]
+        detail = too_large_detail(MAX_BODY_BYTES) if error.code == 413 else error.body
+        code = str(error.reason).lower().replace(" ", "_")
+        body = json.dumps({"error": code, "detail": detail}).encode()
+        self.status = f"{error.code} {error.reason}"
+        self.response_headers = [("Content-Type", "application/json")]
+        self.set_close_on_finish()
+        self.content_length = len(body)
+        self.write(body)
+
+
+class _JsonErrorChannel(HTTPChannel):
+    error_task_class = _JsonErrorTask
 
 
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -74,13 +100,14 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_CONFIG_ERROR
     sys.setswitchinterval(args.gil_switch_ms / 1000)
     try:
-        # Building the robot reads the rail file and starts the radio: both can be wrong.
+        # The loop's process builds the robot: it reads the rail file and starts the radio,
+        # and both can be wrong.
         app = create_app(config)
     except ConfigError as exc:
         print(f"amazing-agent: configuration error: {exc}", file=sys.stderr)
         return EXIT_CONFIG_ERROR
     # Everything loaded so far lives as long as the process: keep it out of the collector's
-    # full passes, which hold the GIL (and so the control loop) for their whole length.
+    # full passes, which hold the GIL for their whole length.
     gc.collect()
     gc.freeze()
     runtime = get_runtime(app)
@@ -92,6 +119,9 @@ def main(argv: list[str] | None = None) -> int:
             threads=args.threads,
             max_request_body_size=MAX_REQUEST_BODY_BYTES,
         )
+        # One address, so one server (not waitress's multi-socket one).
+        assert isinstance(server, BaseWSGIServer)
+        server.channel_class = _JsonErrorChannel
     except OSError as exc:
         logger.error("cannot listen on %s:%s: %s", args.host, args.port, exc)
         runtime.close()

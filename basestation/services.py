@@ -11,7 +11,7 @@ import re
 
 from basestation.config import AgentConfig
 from basestation.errors import RunConflict, RunNotFound, StorageFull
-from basestation.manager import EstopLatch, ManualDrive, RunManager
+from basestation.manager import EstopLatch, ManualDrive, RunControl
 from basestation.manual import ManualCommand, StopRequest
 from basestation.program import InvalidRunBody, RunSpec, check_run_admissible, parse_run_body
 from basestation.store import ABORTED, CANCELLED, RUNNING, STAGED, RunRecord, RunStore
@@ -33,7 +33,7 @@ def is_valid_run_id(run_id: str) -> bool:
 def run_stage(
     *,
     store: RunStore,
-    manager: RunManager,
+    manager: RunControl,
     config: AgentConfig,
     run_id: str,
     body: object,
@@ -60,7 +60,7 @@ def run_stage(
     return record, created
 
 
-def run_withdraw(*, store: RunStore, manager: RunManager, run_id: str, now_s: float) -> RunRecord:
+def run_withdraw(*, store: RunStore, manager: RunControl, run_id: str, now_s: float) -> RunRecord:
     """Cancel a staged run or abort a running one (the next ticks ramp the robot to zero)."""
     # Two rounds: the control loop may start the run between our read and our write.
     for _ in range(2):
@@ -106,7 +106,7 @@ def _check_disk_room(
 
 
 def manual_drive(
-    *, manager: RunManager, command: ManualCommand, now_s: float
+    *, manager: RunControl, command: ManualCommand, now_s: float
 ) -> tuple[ManualDrive | None, str | None]:
     """Drive the robot by hand (admins); see :meth:`RunManager.drive_manually`."""
     return manager.drive_manually(
@@ -120,7 +120,7 @@ def manual_drive(
 
 
 def estop_latch(
-    *, manager: RunManager, request: StopRequest, now_s: float
+    *, manager: RunControl, request: StopRequest, now_s: float
 ) -> tuple[EstopLatch, str | None]:
     reason = request.reason or "emergency stop through the API"
     if request.user:
@@ -128,7 +128,7 @@ def estop_latch(
     return manager.latch_estop(now_s=now_s, reason=reason)
 
 
-def estop_release(*, manager: RunManager, request: StopRequest, now_s: float) -> bool:
+def estop_release(*, manager: RunControl, request: StopRequest, now_s: float) -> bool:
     if request.user:
         # The latch itself has no owner; the log says who let the robot go again.
         logger.warning("e-stop release requested by %s", request.user)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import sqlite3
 import threading
 import time
@@ -44,6 +45,7 @@ END_STATES: Final = contract.AGENT_END_STATES
 # The samples table's columns after run_id, in the contract's order (by name, never position).
 _SAMPLE_COLUMNS_SQL: Final = ", ".join(SAMPLE_FIELDS)
 _SAMPLE_PLACEHOLDERS: Final = ", ".join("?" for _ in SAMPLE_FIELDS)
+_COLUMN_NAME: Final = re.compile(r"[a-z_]+")
 
 logger = logging.getLogger(__name__)
 
@@ -223,6 +225,11 @@ class RunStore:
         self._connections: list[sqlite3.Connection] = []
         self._connections_lock = threading.Lock()
         self._closed = False
+        # Bumped (and waiters woken) after every commit of samples or of a run's state:
+        # a reader waiting for a run's next samples wakes as soon as they are durable.
+        self._changed = threading.Condition()
+        self._version = 0
+        self.waiting = 0  # readers waiting for a change now
         conn = self._conn()
         # WAL is a property of the file; set once here, every later connection inherits it.
         mode = conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
@@ -290,6 +297,32 @@ class RunStore:
             connections, self._connections = self._connections, []
         for conn in connections:
             conn.close()
+        self._signal()
+
+    # -- waiting for changes -----------------------------------------------------------------
+
+    @property
+    def version(self) -> int:
+        """Moves on after every committed change of samples or run state (see ``wait_changed``)."""
+        return self._version
+
+    def _signal(self) -> None:
+        with self._changed:
+            self._version += 1
+            self._changed.notify_all()
+
+    def wait_changed(self, version: int, timeout_s: float) -> bool:
+        """Wait until something was committed after ``version`` was read (True), the store
+        closed (True) or ``timeout_s`` passed (False). Read ``version`` before looking, then
+        wait: a commit in between is never missed."""
+        with self._changed:
+            self.waiting += 1
+            try:
+                return self._changed.wait_for(
+                    lambda: self._version != version or self._closed, timeout=max(0.0, timeout_s)
+                )
+            finally:
+                self.waiting -= 1
 
     # -- runs --------------------------------------------------------------------------------
 
@@ -332,10 +365,14 @@ class RunStore:
                 )
             admit(spec)
             # Half-open windows [start, end): back-to-back runs do not overlap.
+            overlap, params = overlap_condition(
+                "start_at", "end_at", spec.start_at_s, spec.end_at_s
+            )
             other = tx.execute(
-                "SELECT id, start_at, end_at FROM runs WHERE state IN ('staged', 'running') "
-                "AND start_at < ? AND end_at > ? ORDER BY start_at LIMIT 1",
-                (spec.end_at_s, spec.start_at_s),
+                "SELECT id, start_at, end_at FROM runs "  # noqa: S608 (constant columns)
+                f"WHERE state IN ('staged', 'running') AND {overlap} "
+                "ORDER BY start_at LIMIT 1",
+                params,
             ).fetchone()
             if other is not None:
                 raise RunConflict(
@@ -389,6 +426,7 @@ class RunStore:
                 "WHERE id = ?",
                 (to_state, reason, now_s, started_at_s, ended_at_s, run_id),
             )
+        self._signal()
         _log_state_change(run_id, row["state"], to_state, reason)
         return True
 
@@ -489,18 +527,28 @@ class RunStore:
 
     def usage_between(self, start_s: float, end_s: float) -> list[UsageEntry]:
         """Runs that moved the robot and manual sessions overlapping ``[start_s, end_s)``,
-        ordered by start."""
+        ordered by start.
+
+        Half-open like every period: one that ended exactly at ``start_s`` belongs to the
+        window before, one that starts exactly at ``end_s`` to the next. A run still going
+        (no ``ended_at`` yet) reaches to the end of any window after its start.
+        """
+        run_overlap, run_params = overlap_condition(
+            "started_at", "ended_at", start_s, end_s, open_end=True
+        )
+        session_overlap, session_params = overlap_condition(
+            "started_at", "ended_at", start_s, end_s
+        )
         with self._read() as conn:
             runs = conn.execute(
-                "SELECT id, owner, title, state, started_at, ended_at FROM runs "
-                "WHERE started_at IS NOT NULL AND started_at < ? "
-                "AND (ended_at IS NULL OR ended_at >= ?)",
-                (end_s, start_s),
+                "SELECT id, owner, title, state, started_at, ended_at FROM runs "  # noqa: S608
+                f"WHERE started_at IS NOT NULL AND {run_overlap}",
+                run_params,
             ).fetchall()
             sessions = conn.execute(
-                "SELECT user, started_at, ended_at FROM manual_sessions "
-                "WHERE started_at < ? AND ended_at >= ?",
-                (end_s, start_s),
+                "SELECT user, started_at, ended_at FROM manual_sessions "  # noqa: S608
+                f"WHERE {session_overlap}",
+                session_params,
             ).fetchall()
         entries = [
             UsageEntry(
@@ -608,6 +656,7 @@ class RunStore:
                 f"VALUES (?, {_SAMPLE_PLACEHOLDERS})",
                 [(run_id, *s.values()) for s in samples],
             )
+        self._signal()
         return True
 
     def samples_after(self, run_id: str, after_seq: int, limit: int) -> list[Sample]:
@@ -630,6 +679,25 @@ class RunStore:
             .fetchone()
         )
         return _stats(row)
+
+
+def overlap_condition(
+    start_column: str, end_column: str, start_s: float, end_s: float, *, open_end: bool = False
+) -> tuple[str, tuple[float, float]]:
+    """The SQL condition "the row's ``[start_column, end_column)`` shares an instant with
+    ``[start_s, end_s)``", and its parameters in order.
+
+    The agent's one spelling of the half-open rule every period follows (the portal's is
+    ``bookings/periods.py``): back to back is no overlap. With ``open_end`` a NULL end is a
+    period that has not ended yet. The columns are this module's own names, never input.
+    """
+    for column in (start_column, end_column):
+        if not _COLUMN_NAME.fullmatch(column):
+            raise ValueError(f"not a column name: {column!r}")
+    ends_after = f"{end_column} > ?"
+    if open_end:
+        ends_after = f"({end_column} IS NULL OR {ends_after})"
+    return f"({start_column} < ? AND {ends_after})", (end_s, start_s)
 
 
 _RUN_WITH_STATS = (

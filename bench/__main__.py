@@ -6,18 +6,21 @@ the ones named. The telemetry benchmark runs on a scratch PostgreSQL database
 the agent benchmark needs no database. ``live`` (sample to browser, SSE against polling)
 starts the whole system on such a scratch database and a redis-server of its own. Each
 benchmark compares the system with a baseline measured in the same run on the same machine,
-so the ratios travel between machines.
+so the ratios travel between machines. ``python -m bench --smoke`` runs each at tiny sizes
+(the test suite does the same in ``tests/bench``): it checks that they run, nothing more.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import platform
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 REPO = Path(__file__).resolve().parent.parent
@@ -29,7 +32,9 @@ def _scratch_database() -> tuple[str, str]:
     if not url.startswith(("postgres://", "postgresql://")):
         sys.exit("make bench needs DATABASE_URL pointing at PostgreSQL")
     parts = urlsplit(url)
-    name = (parts.path.lstrip("/") or "amazing") + "_bench"
+    name = parts.path.lstrip("/") or "amazing"
+    # A benchmark run before this one pointed DATABASE_URL at its scratch database already.
+    name = name if name.endswith("_bench") else name + "_bench"
     return urlunsplit(parts._replace(path="/" + name)), name
 
 
@@ -77,37 +82,90 @@ def write_section(key: str, body: str) -> None:
     REPORT.write_text(text)
 
 
+# Every benchmark, in the order ``python -m bench`` runs them.
+BENCHMARKS = ("telemetry", "bookings", "scheduler", "agent", "timing", "live", "scale", "load")
+# Those that measure the portal on a scratch database of their own.
+ON_DATABASE = ("telemetry", "bookings", "scheduler", "live", "scale", "load")
+# Those that start the whole system on it: they are handed its address.
+WHOLE_SYSTEM = ("live", "scale", "load")
+# Sizes small enough to run each benchmark through in seconds, figures meaningless:
+# ``python -m bench --smoke`` and the test suite (``tests/bench``) use them, so that a
+# benchmark the code has moved away from fails the build instead of rotting.
+SMOKE: dict[str, dict[str, Any]] = {
+    "telemetry": {"samples": 600, "repeats": 1},
+    # 16 bookings a node: the refused overlaps (from the 10th hour on) find one.
+    "bookings": {"existing": 24 * 16, "calls": 3},
+    "scheduler": {"calls": 2},
+    "agent": {"duration_s": 1.0, "idle_s": 1.0, "clients": 2},
+    "timing": {"starts": 1, "stops": 2},
+    "live": {"program_s": 3.0, "open_streams": 3, "probes": 3},
+    "scale": {"robots": [1], "program_s": 3.0},
+    "load": {"users": [5], "workers": [1], "duration_s": 3.0},
+}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(prog="python -m bench")
     parser.add_argument(
         "benchmarks",
         nargs="*",
-        help="which to run: telemetry, bookings, scheduler, agent, timing, live (default: all)",
+        help=f"which to run: {', '.join(BENCHMARKS)} (default: all)",
     )
     parser.add_argument("--samples", type=int, default=72_000, help="samples of the long run")
     parser.add_argument(
         "--agent-seconds", type=float, default=60.0, help="length of the agent's load phase"
     )
+    parser.add_argument(
+        "--robots", type=int, nargs="+", default=[1, 4, 8], help="scale: robot counts"
+    )
+    parser.add_argument(
+        "--program-s", type=float, default=30.0, help="scale: each robot's program length"
+    )
     parser.add_argument("--no-report", action="store_true", help="print only")
+    parser.add_argument(
+        "--smoke", action="store_true", help="tiny sizes: check that each runs through (no report)"
+    )
     args = parser.parse_args()
-    known = ["telemetry", "bookings", "scheduler", "agent", "timing", "live"]
     # Checked here: argparse rejects an empty list against ``choices`` with nargs="*".
-    unknown = sorted(set(args.benchmarks) - set(known))
+    unknown = sorted(set(args.benchmarks) - set(BENCHMARKS))
     if unknown:
-        parser.error(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(known)}")
-    which = args.benchmarks or known
-    if "telemetry" in which:
-        _telemetry(args.samples, report=not args.no_report)
-    if "bookings" in which:
-        _bookings(report=not args.no_report)
-    if "scheduler" in which:
-        _scheduler(report=not args.no_report)
-    if "agent" in which:
-        _agent(args.agent_seconds, report=not args.no_report)
-    if "timing" in which:
-        _timing(report=not args.no_report)
-    if "live" in which:
-        _live(report=not args.no_report)
+        parser.error(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(BENCHMARKS)}")
+    chosen = args.benchmarks or BENCHMARKS
+    sizes: dict[str, dict[str, Any]] = {
+        "telemetry": {"samples": args.samples},
+        "agent": {"duration_s": args.agent_seconds, "idle_s": args.agent_seconds},
+        "scale": {"robots": args.robots, "program_s": args.program_s},
+    }
+    for name in BENCHMARKS:
+        if name in chosen:
+            params = SMOKE[name] if args.smoke else sizes.get(name, {})
+            run_benchmark(name, params, report=not (args.no_report or args.smoke))
+
+
+def run_benchmark(name: str, params: dict[str, Any], *, report: bool) -> None:
+    """Run one benchmark (``bench/<name>.py``'s ``run``), print its figures and, with
+    ``report``, write them into docs/performance.md."""
+    module = importlib.import_module(f"bench.{name}")
+    # A benchmark with several rounds of one measurement names the function that runs them.
+    entry = getattr(module, "run_rates", module.run)
+    if name in WHOLE_SYSTEM:
+        url, _ = _scratch_database()
+        params = {"database_url": url, **params}
+    if name in ON_DATABASE:
+        _on_scratch_database(name, lambda: _markdown(entry(**params)), report=report)
+        return
+    stamp = f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {machine()}."
+    results = _markdown(entry(**params))
+    print(stamp)
+    print(results)
+    if report:
+        write_section(name, f"{results}\n\n{stamp}")
+        print(f"written to {REPORT.relative_to(REPO)}")
+
+
+def _markdown(result: object) -> str:
+    """A benchmark's report: its ``run`` returns the markdown, or the markdown and its data."""
+    return str(result[0] if isinstance(result, tuple) else result)
 
 
 def _on_scratch_database(key: str, run: Callable[[], str], *, report: bool) -> None:
@@ -140,68 +198,6 @@ def _on_scratch_database(key: str, run: Callable[[], str], *, report: bool) -> N
     if report:
         write_section(key, f"{results}\n\n{stamp}")
         print(f"written to {REPORT.relative_to(REPO)}")
-
-
-def _telemetry(samples: int, *, report: bool) -> None:
-    def run() -> str:
-        from bench import telemetry
-
-        return telemetry.run(samples=samples)
-
-    _on_scratch_database("telemetry", run, report=report)
-
-
-def _bookings(*, report: bool) -> None:
-    def run() -> str:
-        from bench import bookings
-
-        return bookings.run()
-
-    _on_scratch_database("bookings", run, report=report)
-
-
-def _scheduler(*, report: bool) -> None:
-    def run() -> str:
-        from bench import scheduler
-
-        return scheduler.run()
-
-    _on_scratch_database("scheduler", run, report=report)
-
-
-def _agent(seconds: float, *, report: bool) -> None:
-    from bench import agent
-
-    stamp = f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {machine()}."
-    results = agent.run(duration_s=seconds, idle_s=seconds)
-    print(stamp)
-    print(results)
-    if report:
-        write_section("agent", f"{results}\n\n{stamp}")
-        print(f"written to {REPORT.relative_to(REPO)}")
-
-
-def _timing(*, report: bool) -> None:
-    from bench import timing
-
-    stamp = f"Measured {datetime.now(UTC):%Y-%m-%d %H:%M} UTC on {machine()}."
-    results = timing.run()
-    print(stamp)
-    print(results)
-    if report:
-        write_section("timing", f"{results}\n\n{stamp}")
-        print(f"written to {REPORT.relative_to(REPO)}")
-
-
-def _live(*, report: bool) -> None:
-    url, _ = _scratch_database()
-
-    def run() -> str:
-        from bench import live
-
-        return live.run(database_url=url)
-
-    _on_scratch_database("live", run, report=report)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,13 @@
-"""The agent's control loop under HTTP load (DESIGN §6: ≥ 20 Hz, p99 tick lateness ≤ 5 ms
-while the API is under load; no missed ticks).
+"""The agent's control loop under HTTP load (DESIGN §6: 20 Hz with p99 tick lateness
+≤ 5 ms; 50 Hz with p99 ≤ 2 ms and max ≤ 10 ms; no missed tick, under load).
 
-The real agent runs as ``python -m basestation`` under waitress in a subprocess, with a run
-in progress (a sample stored every tick), while 50 client threads, one ``requests.Session``
-each, hammer ``/status`` and ``/runs/{id}/samples`` on 127.0.0.1. The lateness figures are
-the agent's own, read from ``/status`` (percentiles over the last 60 s of ticks), so the
-load window is exactly as long as the agent's statistics window. An idle phase of the same
-length first gives the same figures without load, on the same machine.
+The real agent runs as ``python -m basestation`` under waitress in a subprocess (its control
+loop in a process of its own), with a run in progress (a sample stored every tick), while 50
+client threads, one ``requests.Session`` each, hammer ``/status`` and
+``/runs/{id}/samples`` on 127.0.0.1. The lateness figures are the agent's own, read from
+``/status``: percentiles over its last 60 s of ticks, read at the end of every 60 s of load
+(a longer load phase reports its worst window), and the tick and missed-tick counters over
+the whole phase. An idle phase first gives the same figures without load.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -30,7 +32,11 @@ import requests
 
 REPO = Path(__file__).resolve().parent.parent
 LISTENING = re.compile(r"listening on http://127\.0\.0\.1:(\d+)")
-TARGET_P99_MS = 5.0
+# DESIGN §6: at 20 Hz (and below) p99 ≤ 5 ms; above 20 Hz, p99 ≤ 2 ms and max ≤ 10 ms.
+TARGET_P99_MS_20HZ = 5.0
+TARGET_P99_MS_50HZ = 2.0
+TARGET_MAX_MS_50HZ = 10.0
+STATS_WINDOW_S = 60.0  # the agent's statistics window (basestation.control)
 RUN_ID = "bench-load"
 
 
@@ -55,6 +61,8 @@ class Phase:
     errors: int = 0
     http_p50_ms: float | None = None
     http_p99_ms: float | None = None
+    windows: int = 1  # statistics windows read over the phase (the worst is reported)
+    window_p99s_ms: tuple[float, ...] = ()
 
 
 def _iso(epoch_s: float) -> str:
@@ -69,13 +77,16 @@ def _percentile(values: list[float], fraction: float) -> float | None:
 
 
 class AgentProcess:
-    def __init__(self, data_dir: Path, token: str, hz: float, threads: int) -> None:
+    def __init__(
+        self, data_dir: Path, token: str, hz: float, threads: int, **extra_env: str
+    ) -> None:
         self.log_path = data_dir / "agent.log"
         env = {k: v for k, v in os.environ.items() if not k.startswith("AGENT_")}
         env.update(
             AGENT_TOKEN=token,
             AGENT_DATA_DIR=str(data_dir / "store"),
             AGENT_CONTROL_HZ=str(hz),
+            **extra_env,
         )
         with self.log_path.open("wb") as log:
             self.process = subprocess.Popen(
@@ -165,8 +176,16 @@ def _phase(
     before: dict[str, Any],
     after: dict[str, Any],
     client_stats: list[ClientStats] | None = None,
+    windows: list[dict[str, Any]] | None = None,
 ) -> Phase:
     b, a = _control(before), _control(after)
+    window = a["window"]
+    if windows:
+        # The worst of the windows read over the phase: p99 and max each at their worst.
+        window = dict(windows[-1])
+        for key in ("lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms", "tick_p99_ms"):
+            values = [w[key] for w in windows if w[key] is not None]
+            window[key] = max(values) if values else None
     latencies = [lat for stats in client_stats or [] for lat in stats.latencies_s]
     p50 = _percentile(latencies, 0.50)
     p99 = _percentile(latencies, 0.99)
@@ -178,11 +197,23 @@ def _phase(
         late_ticks=a["late_ticks"] - b["late_ticks"],
         missed_ticks=a["missed_ticks"] - b["missed_ticks"],
         tick_errors=a["tick_errors"] - b["tick_errors"],
-        window=a["window"],
+        window=window,
+        windows=len(windows) if windows else 1,
+        window_p99s_ms=tuple(
+            w["lateness_p99_ms"] for w in windows or () if w["lateness_p99_ms"] is not None
+        ),
         requests=sum(stats.requests for stats in client_stats or []),
         errors=sum(stats.errors for stats in client_stats or []),
         http_p50_ms=None if p50 is None else p50 * 1000,
         http_p99_ms=None if p99 is None else p99 * 1000,
+    )
+
+
+def run_rates(*, rates: Sequence[float] = (50.0, 20.0), **options: Any) -> str:
+    """The bench at each control rate in turn, same load (``make bench``: 50 Hz, DESIGN §6's
+    target, and 20 Hz, the default, beside it)."""
+    return "## Control loop under HTTP load (agent)\n\n" + "\n\n".join(
+        run(hz=hz, **options) for hz in rates
     )
 
 
@@ -194,10 +225,13 @@ def run(
     hz: float = 20.0,
     threads: int = 8,
     page: int = 1000,
+    control_cpu: str | None = None,
 ) -> str:
+    """``control_cpu`` sets ``AGENT_CONTROL_CPU`` (a CPU, or "none"; None: the default)."""
     token = secrets.token_urlsafe(24)
+    extra = {} if control_cpu is None else {"AGENT_CONTROL_CPU": control_cpu}
     with tempfile.TemporaryDirectory(prefix="amazing-bench-agent-") as scratch:
-        agent = AgentProcess(Path(scratch), token, hz, threads)
+        agent = AgentProcess(Path(scratch), token, hz, threads, **extra)
         try:
             session = requests.Session()
             session.headers["Authorization"] = f"Bearer {token}"
@@ -245,9 +279,18 @@ def run(
             ]
             for worker in workers:
                 worker.start()
+            # One statistics window after another, so that a phase longer than the window
+            # reports on all of its ticks.
+            windows: list[dict[str, Any]] = []
+            read_s = time.monotonic() + min(STATS_WINDOW_S, duration_s)
+            while read_s < until_s - 1.0:
+                time.sleep(max(0.0, read_s - time.monotonic()))
+                windows.append(_control(status())["window"])
+                read_s += STATS_WINDOW_S
             for worker in workers:
                 worker.join(duration_s + 30)
             after = status()
+            windows.append(_control(after)["window"])
             load = _phase(
                 f"{clients} clients on /status and /samples",
                 duration_s,
@@ -255,6 +298,7 @@ def run(
                 before,
                 after,
                 stats,
+                windows,
             )
             run_state = session.get(f"{agent.url}/api/v1/runs/{RUN_ID}", timeout=10).json()
             session.close()
@@ -271,20 +315,33 @@ def _report(
     idle: Phase, load: Phase, *, hz: float, threads: int, page: int, run: dict[str, Any]
 ) -> str:
     w = load.window
+    fast = hz > 20.0
+    target_p99_ms = TARGET_P99_MS_50HZ if fast else TARGET_P99_MS_20HZ
     met = (
         w["lateness_p99_ms"] is not None
-        and w["lateness_p99_ms"] <= TARGET_P99_MS
+        and w["lateness_p99_ms"] <= target_p99_ms
         and load.missed_ticks == 0
+        and (not fast or w["lateness_max_ms"] <= TARGET_MAX_MS_50HZ)
+    )
+    target = f"p99 lateness ≤ {target_p99_ms:g} ms" + (
+        f", max ≤ {TARGET_MAX_MS_50HZ:g} ms" if fast else ""
+    )
+    each = ", ".join(f"{p99:.2f}" for p99 in load.window_p99s_ms)
+    windows = (
+        f"percentiles over its last 60 s of ticks, the worst of {load.windows} windows read "
+        f"one after another under load; p99 of each: {each} ms"
+        if load.windows > 1
+        else "percentiles over its last 60 s of ticks"
     )
     lines = [
-        "## Control loop under HTTP load (agent)",
+        f"### Control loop at {hz:g} Hz under HTTP load (agent)",
         "",
-        f"The real agent (`python -m basestation`, waitress, {threads} threads) at "
-        f"{hz:g} Hz with a run recording a sample every tick; {load.clients} client "
-        f"threads (one `requests.Session` each) alternate `GET /status` and "
-        f"`GET /runs/{{id}}/samples?limit={page}` on 127.0.0.1 for {load.seconds:g} s. "
-        "Lateness = wake-up minus deadline of each tick, from the agent's own `/status` "
-        "(percentiles over its last 60 s of ticks).",
+        f"The real agent (`python -m basestation`, waitress, {threads} threads, the control "
+        f"loop in its own process) at {hz:g} Hz with a run recording a sample every tick; "
+        f"{load.clients} client threads (one `requests.Session` each) alternate "
+        f"`GET /status` and `GET /runs/{{id}}/samples?limit={page}` on 127.0.0.1 for "
+        f"{load.seconds:g} s. Lateness = wake-up minus deadline of each tick, from the "
+        f"agent's own `/status` ({windows}).",
         "",
         "| phase | ticks | lateness p50 | p99 | max | tick work p99 | late | missed | "
         "HTTP req/s | HTTP p50 / p99 |",
@@ -307,7 +364,7 @@ def _report(
     expected = round(load.seconds * hz)
     lines += [
         "",
-        f"Target: p99 lateness ≤ {TARGET_P99_MS:g} ms and no missed tick under load — "
+        f"Target: {target} and no missed tick under load — "
         f"**{'met' if met else 'NOT met'}**. Under load the loop ran {load.ticks} ticks in "
         f"{load.seconds:g} s (≈ {expected} expected); {load.requests} requests were served "
         f"({load.errors} failed). The run stored {run.get('sample_count')} samples, "
@@ -325,8 +382,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--idle", type=float, default=60.0)
     parser.add_argument("--clients", type=int, default=50)
+    parser.add_argument("--hz", type=float, default=50.0)
     args = parser.parse_args(argv)
-    print(run(duration_s=args.duration, idle_s=args.idle, clients=args.clients))
+    print(run(duration_s=args.duration, idle_s=args.idle, clients=args.clients, hz=args.hz))
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ def _seed(existing: int) -> dict[str, Any]:
 
     from bookings.choices import QuotaPeriod, ResourceKind
     from bookings.models import QuotaPolicy, Reservation, ReservationItem, Resource
-    from portal.accounts.models import User
+    from core.accounts.models import User
 
     owners = [User.objects.create_user(username=f"bench{i}") for i in range(50)]
     nodes = [

@@ -1,12 +1,13 @@
 """How soon a sample the agent stored reaches the browser: live push (SSE) against polling.
 
 The whole system runs as in production (``portal.processes``: the agent with its simulated
-robot, the ASGI web server, the Celery workers and beat at their default sweep interval) on a
-scratch PostgreSQL database and a private redis-server. A 30 s run is booked; while it runs,
-three clients watch it as the run page would:
+robot, the ASGI web server, the Celery workers, the collector and beat at their default
+sweep interval) on a scratch PostgreSQL database and a private redis-server. A 30 s run is
+booked; while it runs, three clients watch it as the run page would:
 
 - **SSE**: the run's event stream; a sample counts as received when a ``samples`` event
-  covering its sequence number arrives;
+  covering its sequence number (``first_seq`` to ``last_seq``) arrives, and each sample must
+  be covered by exactly one event;
 - **SSE + read**: the same, once the page's data (``data.json``) read after that event has
   arrived — what the page needs to redraw;
 - **polling**: ``data.json`` read every 2 s, as the run page did before it had a stream; a
@@ -20,6 +21,7 @@ that held a worker thread each would exhaust the pool and stall it.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -69,18 +71,19 @@ class _Children:
         self.procs: list[subprocess.Popen[bytes]] = []
 
     def start(self, name: str, argv: list[str], env: dict[str, str]) -> None:
-        log = (self.log_dir / f"{name}.log").open("wb")
-        self.procs.append(
-            subprocess.Popen(
-                argv,
-                cwd=REPO,
-                env=env,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL,
-                start_new_session=True,
+        # The child writes to its own copy of the file; this process needs none.
+        with (self.log_dir / f"{name}.log").open("wb") as log:
+            self.procs.append(
+                subprocess.Popen(
+                    argv,
+                    cwd=REPO,
+                    env=env,
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    stdin=subprocess.DEVNULL,
+                    start_new_session=True,
+                )
             )
-        )
 
     def stop(self) -> None:
         for proc in reversed(self.procs):
@@ -123,36 +126,69 @@ def _login(web: str, username: str, password: str) -> requests.Session:
 
 @dataclass
 class Watcher:
-    """When each sequence number first reached one client (its clock, epoch seconds)."""
+    """When each sequence number first reached one client (its clock, epoch seconds), and
+    how often it was announced."""
 
     received_at: dict[int, float] = field(default_factory=dict)
+    announced: dict[int, int] = field(default_factory=dict)
     errors: int = 0
 
     def got(self, up_to_seq: int, at_s: float, from_seq: int = 1) -> None:
         for seq in range(from_seq, up_to_seq + 1):
             self.received_at.setdefault(seq, at_s)
 
+    def announce(self, first_seq: int, last_seq: int, at_s: float) -> None:
+        self.got(last_seq, at_s, from_seq=first_seq)
+        for seq in range(first_seq, last_seq + 1):
+            self.announced[seq] = self.announced.get(seq, 0) + 1
+
 
 def _follow_stream(
-    web: str, session: requests.Session, run_id: int, sse: Watcher, read: Watcher, stop: Any
+    web: str,
+    streams: str,
+    session: requests.Session,
+    run_id: int,
+    sse: Watcher,
+    read: Watcher,
+    stop: Any,
 ) -> None:
+    """Read the run's stream; a page-data read follows each event on a thread of its own (as
+    the page redraws without holding the stream up), coalescing events that came meanwhile."""
     data_url = f"{web}/runs/{run_id}/data.json"
-    with session.get(f"{web}/live/runs/{run_id}/", stream=True, timeout=(5, 60)) as response:
-        event = ""
-        for line in response.iter_lines(decode_unicode=True):
-            if stop.is_set():
-                return
-            if line.startswith("event:"):
-                event = line.split(":", 1)[1].strip()
-            elif line.startswith("data:") and event == "samples":
-                at_s = time.time()
-                match = re.search(r'"last_seq":(\d+)', line)
-                if match:
-                    sse.got(int(match.group(1)), at_s)
-                    data = session.get(data_url, timeout=10).json()
-                    read.got(int(data["sample_count"]), time.time())
-            elif line.startswith("data:") and event == "state" and '"live":false' in line:
-                return
+    dirty, done = threading.Event(), threading.Event()
+
+    def redraw() -> None:
+        reader = requests.Session()
+        reader.cookies.update(session.cookies)
+        while not done.is_set() or dirty.is_set():
+            if not dirty.wait(timeout=0.5):
+                continue
+            dirty.clear()
+            data = reader.get(data_url, timeout=10).json()
+            read.got(int(data["sample_count"]), time.time())
+
+    redrawer = threading.Thread(target=redraw)
+    redrawer.start()
+    try:
+        with session.get(
+            f"{streams}/live/runs/{run_id}/", stream=True, timeout=(5, 60)
+        ) as response:
+            event = ""
+            for line in response.iter_lines(decode_unicode=True):
+                if stop.is_set():
+                    return
+                if line.startswith("event:"):
+                    event = line.split(":", 1)[1].strip()
+                elif line.startswith("data:") and event == "samples":
+                    at_s = time.time()
+                    data = json.loads(line.split(":", 1)[1])
+                    sse.announce(int(data["first_seq"]), int(data["last_seq"]), at_s)
+                    dirty.set()
+                elif line.startswith("data:") and event == "state" and '"live":false' in line:
+                    return
+    finally:
+        done.set()
+        redrawer.join(timeout=30)
 
 
 def _poll(web: str, session: requests.Session, run_id: int, polled: Watcher, stop: Any) -> None:
@@ -174,9 +210,9 @@ def _delays(watcher: Watcher, stored_at: dict[int, float]) -> tuple[float, float
     return _percentile(delays, 0.5), _percentile(delays, 0.95), len(delays)
 
 
-def _probe(session: requests.Session, url: str) -> tuple[float, float, int]:
+def _probe(session: requests.Session, url: str, probes: int) -> tuple[float, float, int]:
     timings, errors = [], 0
-    for _ in range(PROBES):
+    for _ in range(probes):
         started = time.perf_counter()
         try:
             ok = session.get(url, timeout=10).status_code == 200
@@ -198,7 +234,14 @@ def _open_streams(web: str, session: requests.Session, count: int) -> list[Any]:
     return responses
 
 
-def run(*, database_url: str, redis_url: str | None = None) -> str:
+def run(
+    *,
+    database_url: str,
+    redis_url: str | None = None,
+    program_s: float = PROGRAM_S,
+    open_streams: int = OPEN_STREAMS,
+    probes: int = PROBES,
+) -> str:
     """Run the benchmark against ``database_url`` (migrated, empty); the report's markdown."""
     import django
     from django.utils import timezone
@@ -206,7 +249,7 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
     os.environ.setdefault("DJANGO_SETTINGS_MODULE", "portal.settings")
     django.setup()
     from bookings.models import Resource
-    from portal.accounts.models import User
+    from core.accounts.models import User
     from portal.experiments.models import Experiment
     from portal.processes import system_processes
     from portal.runs.services.booking import booking_create
@@ -226,7 +269,7 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
             )
             redis_url = f"redis://127.0.0.1:{redis_port}"
         token = secrets.token_urlsafe(24)
-        web_port, agent_port = _free_port(), _free_port()
+        web_port, streams_port, agent_port = _free_port(), _free_port(), _free_port()
         env = dict(os.environ)
         env.update(
             {
@@ -245,6 +288,7 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
         specs = system_processes(
             python=sys.executable,
             portal_port=web_port,
+            streams_port=streams_port,
             agent_port=agent_port,
             var_dir=work / "var",
             access_log=False,
@@ -253,6 +297,7 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
         for spec in specs:
             children.start(spec.name, list(spec.argv), {**env, **spec.env})
         web, agent = f"http://127.0.0.1:{web_port}", f"http://127.0.0.1:{agent_port}"
+        streams_base = f"http://127.0.0.1:{streams_port}"
         _wait("the agent", lambda: requests.get(f"{agent}/healthz", timeout=2).ok, 60)
         _wait("the web server", lambda: requests.get(f"{web}/healthz", timeout=5).ok, 60)
 
@@ -264,14 +309,14 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
         experiment = Experiment.objects.create(
             owner=user,
             title="live bench",
-            segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": PROGRAM_S}],
+            segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": program_s}],
         )
         start = timezone.now() + timedelta(seconds=8)
         reservation = booking_create(
             owner=user,
             resource=robot,
             start_at=start,
-            end_at=start + timedelta(seconds=PROGRAM_S + 5),
+            end_at=start + timedelta(seconds=program_s + 5),
             experiment=experiment,
         )
         run_id = reservation.run.pk
@@ -281,7 +326,7 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
         threads = [
             threading.Thread(
                 target=_follow_stream,
-                args=(web, _login(web, "bench", password), run_id, sse, read, stop),
+                args=(web, streams_base, _login(web, "bench", password), run_id, sse, read, stop),
             ),
             threading.Thread(
                 target=_poll, args=(web, _login(web, "bench", password), run_id, polled, stop)
@@ -290,7 +335,7 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
         for thread in threads:
             thread.start()
         for thread in threads:
-            thread.join(timeout=PROGRAM_S + 120)
+            thread.join(timeout=program_s + 120)
         stop.set()
 
         with AgentClient(agent, token) as client:
@@ -303,13 +348,19 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
             (f"polling every {POLL_S:g} s (before)", polled),
         ):
             p50, p95, count = _delays(watcher, stored_at)
-            rows.append(f"| {name} | {p50:.2f} s | {p95:.2f} s | {count} of {len(stored_at)} |")
+            rows.append(
+                f"| {name} | {p50 * 1000:.0f} ms | {p95 * 1000:.0f} ms "
+                f"| {count} of {len(stored_at)} |"
+            )
+        once = sum(1 for seq in stored_at if sse.announced.get(seq) == 1)
+        twice = sum(1 for seq in stored_at if sse.announced.get(seq, 0) > 1)
+        never = sum(1 for seq in stored_at if seq not in sse.announced)
 
         probe_session = _login(web, "bench", password)
         probe_url = f"{web}/api/v1/resources/"
-        quiet = _probe(probe_session, probe_url)
-        streams = _open_streams(web, _login(web, "bench", password), OPEN_STREAMS)
-        loaded = _probe(probe_session, probe_url)
+        quiet = _probe(probe_session, probe_url, probes)
+        streams = _open_streams(streams_base, _login(web, "bench", password), open_streams)
+        loaded = _probe(probe_session, probe_url, probes)
         for response in streams:
             response.close()
         sweep_s = 2.0
@@ -317,9 +368,10 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
             [
                 "## Live pushes: sample to browser (SSE against polling)",
                 "",
-                f"The whole system (agent with the simulated robot, uvicorn, Celery workers and "
-                f"beat sweeping every {sweep_s:g} s — the default — PostgreSQL, Redis); one "
-                f"{PROGRAM_S:g} s run at 20 Hz ({len(stored_at)} samples). Delay = when the "
+                "The whole system (agent with the simulated robot, uvicorn, Celery workers, "
+                f"the collector, beat sweeping every {sweep_s:g} s — the default — "
+                "PostgreSQL, Redis); one "
+                f"{program_s:g} s run at 20 Hz ({len(stored_at)} samples). Delay = when the "
                 "client had the sample minus the sample's `t` (the agent's clock at the tick "
                 "that recorded it).",
                 "",
@@ -327,11 +379,15 @@ def run(*, database_url: str, redis_url: str | None = None) -> str:
                 "| --- | --- | --- | --- |",
                 *rows,
                 "",
-                "Most of the delay is the collection cadence: the worker pulls a running run's "
-                "new samples at each sweep, so a sample waits up to one sweep interval on the "
-                "base station. A push removes the polling interval on top of it.",
+                f"Over SSE, {once} of {len(stored_at)} samples were announced exactly once "
+                f"({twice} more than once, {never} never). The collector long-polls the agent "
+                "(`GET …/samples?after=SEQ&wait_s=N` answers as soon as the store writer has "
+                "committed the next samples), stores them by the same idempotent ingest as the "
+                "sweep and publishes what it stored after the commit; the sweep stays the "
+                "safety net. Before it, a sample waited up to one sweep (2 s) on the base "
+                "station: p50 1.06 s, p95 1.92 s on 2026-11-24.",
                 "",
-                f"With {OPEN_STREAMS} event streams open, {PROBES} sequential "
+                f"With {open_streams} event streams open, {probes} sequential "
                 f"`GET /api/v1/resources/` took p50 {loaded[0]:.1f} ms / p95 {loaded[1]:.1f} ms "
                 f"({loaded[2]} failed), against p50 {quiet[0]:.1f} ms / p95 {quiet[1]:.1f} ms "
                 f"({quiet[2]} failed) with none open: an open stream waits on Redis in the "

@@ -25,7 +25,7 @@ CALLS = 60
 LISTENING = re.compile(r"listening on (http://127\.0\.0\.1:\d+)")
 
 
-def _start_standin() -> tuple[subprocess.Popen[str], str]:
+def _start_standin() -> tuple[subprocess.Popen[str], str, threading.Thread]:
     standin = subprocess.Popen(
         [sys.executable, "-m", "bookings.scheduler.standin", "--host", "127.0.0.1", "--port", "0"],
         stdout=subprocess.PIPE,
@@ -39,9 +39,12 @@ def _start_standin() -> tuple[subprocess.Popen[str], str]:
         match = LISTENING.search(line)
         if match:
             # Keep reading its log so that its pipe never fills up.
-            threading.Thread(target=standin.stdout.read, daemon=True).start()
-            return standin, match.group(1)
+            reader = threading.Thread(target=standin.stdout.read, daemon=True)
+            reader.start()
+            return standin, match.group(1), reader
     standin.kill()
+    standin.wait()
+    standin.stdout.close()
     raise RuntimeError("the stand-in scheduler did not start")
 
 
@@ -53,12 +56,12 @@ def run(*, calls: int = CALLS) -> str:
 
     from bookings.scheduler.config import SchedulerConfig
     from bookings.services import TestbedSpec, testbed_resources_ensure
-    from portal.accounts.models import User
+    from core.accounts.models import User
     from portal.experiments.models import Experiment
 
     settings.DEBUG = False
     settings.ALLOWED_HOSTS = ["testserver"]
-    standin, url = _start_standin()
+    standin, url, reader = _start_standin()
     try:
         settings.SCHEDULER = replace(SchedulerConfig(base_url=url), read_timeout_s=10.0)
         testbed_resources_ensure(TestbedSpec(agent_url="http://127.0.0.1:1"))
@@ -95,6 +98,9 @@ def run(*, calls: int = CALLS) -> str:
     finally:
         standin.terminate()
         standin.wait(timeout=10)
+        reader.join(timeout=10)  # it reads to the end of the log, then the pipe can close
+        assert standin.stdout is not None
+        standin.stdout.close()
     ratio = statistics.median(nodes_s) / statistics.median(mobile_s)
     out = io.StringIO()
     out.write("## Booking with fixed nodes through the testbed scheduler\n\n")

@@ -1,3 +1,4 @@
+from django import forms
 from django.contrib import admin
 from django.http import HttpRequest
 
@@ -11,6 +12,7 @@ from bookings.models import (
     SchedulerLease,
     SchedulerLink,
 )
+from bookings.rules import resource_limit_problem
 
 
 @admin.register(ResourceGroup)
@@ -18,11 +20,67 @@ class ResourceGroupAdmin(admin.ModelAdmin):
     list_display = ["name", "description"]
 
 
+class ResourceForm(forms.ModelForm):
+    class Meta:
+        model = Resource
+        fields = [
+            "name",
+            "kind",
+            "description",
+            "groups",
+            "agent_url",
+            "agent_token_name",
+            "max_velocity_mps",
+            "max_accel_mps2",
+            "enabled",
+            "requires_approval",
+            "hold_reason",
+            "held_at",
+            "hold_notified_at",
+        ]
+
+    def clean(self) -> dict[str, object]:
+        cleaned = super().clean() or {}
+        # The instance carries the agent's recorded limits; the form, the new own limit.
+        self.instance.max_velocity_mps = cleaned.get("max_velocity_mps")
+        why = resource_limit_problem(self.instance)
+        if why is not None:
+            self.add_error("max_velocity_mps", why)
+        return cleaned
+
+
 @admin.register(Resource)
 class ResourceAdmin(admin.ModelAdmin):
-    list_display = ["name", "kind", "enabled", "requires_approval", "agent_url", "max_velocity_mps"]
+    form = ResourceForm
+    list_display = [
+        "name",
+        "kind",
+        "enabled",
+        "requires_approval",
+        "agent_url",
+        "max_velocity_mps",
+        "agent_max_velocity_mps",
+        "agent_limit_warning",
+    ]
     list_filter = ["kind", "enabled", "requires_approval", "groups"]
     filter_horizontal = ["groups"]
+    readonly_fields = [
+        "agent_limit_warning",
+        "agent_max_velocity_mps",
+        "agent_max_accel_mps2",
+        "robot_hard_max_velocity_mps",
+        "agent_limits_at",
+    ]
+
+    @admin.display(description="Limits")
+    def agent_limit_warning(self, obj: Resource) -> str:
+        if obj.agent_is_stricter:
+            return (
+                f"Its base station allows only {obj.agent_max_velocity_mps:g} m/s, below this "
+                f"resource's {obj.max_velocity_mps:g} m/s: programs are checked against "
+                f"{obj.agent_max_velocity_mps:g} m/s. Lower max velocity to match."
+            )
+        return ""
 
 
 class ReservationItemInline(admin.TabularInline):

@@ -17,8 +17,8 @@ from bookings.choices import QuotaPeriod
 from bookings.models import Blackout, QuotaPolicy, Resource, ResourceGroup
 from bookings.quotas import quota_summary
 from bookings.selectors import external_leases, items_overlapping, resource_free_intervals
-from portal.accounts.models import User
-from portal.api import (
+from core.accounts.models import User
+from core.api import (
     DateTimeInput,
     GreaterThan,
     Pagination,
@@ -27,7 +27,7 @@ from portal.api import (
     valid_input,
     valid_query,
 )
-from portal.audit.services import client_ip
+from core.audit.services import client_ip
 
 MAX_RANGE = timedelta(days=62)
 
@@ -219,11 +219,11 @@ class BlackoutListApi(APIView):
     @extend_schema(parameters=[BlackoutFilter], responses=BlackoutOutput(many=True))
     def get(self, request: Request) -> Response:
         query = valid_query(BlackoutFilter, request.query_params)
-        qs = Blackout.objects.prefetch_related("resources").order_by("start_at", "pk")
-        if "start" in query:
-            qs = qs.filter(end_at__gt=query["start"])
-        if "end" in query:
-            qs = qs.filter(start_at__lt=query["end"])
+        qs = (
+            Blackout.objects.overlapping(query.get("start"), query.get("end"))
+            .prefetch_related("resources")
+            .order_by("start_at", "pk")
+        )
         return paginated_response(
             request=request, view=self, queryset=qs, serializer_class=BlackoutOutput
         )

@@ -17,7 +17,7 @@ from icalendar import Calendar, Event
 from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState
 from bookings.models import Blackout, CalendarFeed, Reservation, Resource
 from bookings.selectors import external_leases
-from portal.accounts.models import User
+from core.accounts.models import User
 
 
 @dataclass(frozen=True)

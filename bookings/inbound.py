@@ -33,9 +33,9 @@ from bookings.choices import BookedVia, ReservationState, ResourceKind
 from bookings.models import Reservation, Resource
 from bookings.rules import QuotaExceeded
 from bookings.services import reservation_cancel, reservation_create, reservation_reschedule
-from portal.accounts.models import User
-from portal.api import request_user
-from portal.errors import Conflict, DomainError, NotAllowed
+from core.accounts.models import User
+from core.api import request_user
+from core.errors import Conflict, DomainError, NotAllowed
 
 DOMAIN = "amazing"
 DEFAULT_STATUSES = ("pending", "accepted", "active")

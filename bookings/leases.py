@@ -4,7 +4,9 @@ The scheduler (``settings.SCHEDULER``; ``bookings/scheduler/`` speaks to it) own
 nodes. A booking that holds any of them holds one lease with all of them, made inside the
 booking (``reservation_create``): the lease first, named after the reservation's public id,
 then the portal's commit; on a failure in between the lease is cancelled at once, and if the
-process died in between, :func:`scheduler_sweep` finds the orphan and cancels it.
+process died in between, :func:`scheduler_sweep` finds the orphan and cancels it — or, sooner,
+the next booking of one of its nodes (:func:`leases_clear_own_orphans`: a client's retry of
+the killed request succeeds at once instead of being refused by its own first attempt).
 
 The sweep also mirrors the leases made elsewhere (they block portal bookings of their nodes,
 ``bookings.rules``), flags portal bookings that a lease appeared over or whose own lease
@@ -40,7 +42,7 @@ from bookings.scheduler import (
     SchedulerUnavailable,
     build_scheduler,
 )
-from portal.errors import Conflict, DomainError
+from core.errors import Conflict, DomainError
 
 logger = logging.getLogger(__name__)
 
@@ -135,18 +137,50 @@ def _not_being_booked(public_id: uuid.UUID) -> bool:
         return bool(cursor.fetchone()[0])
 
 
+def _leases_listed(*, start_at: datetime, end_at: datetime) -> list[Lease]:
+    with scheduler_client() as scheduler:
+        return scheduler.list_leases(window_start=start_at, window_end=end_at)
+
+
 def leases_refresh(*, start_at: datetime, end_at: datetime) -> list[Lease]:
     """The scheduler's leases over ``[start_at, end_at)`` now (before a booking), so that a
     lease made elsewhere a moment ago refuses the booking with its name; mirrored too (a
     refused booking's transaction may take that back: the sweep mirrors them again)."""
     listed_at = timezone.now()
     try:
-        with scheduler_client() as scheduler:
-            leases = scheduler.list_leases(window_start=start_at, window_end=end_at)
+        leases = _leases_listed(start_at=start_at, end_at=end_at)
     except SchedulerError as exc:
         raise _domain_error(exc, "booked") from exc
     _mirror(leases, now=listed_at, window=(start_at, end_at))
     return leases
+
+
+def leases_for_check(*, start_at: datetime, end_at: datetime) -> tuple[list[Lease] | None, str]:
+    """The scheduler's leases over ``[start_at, end_at)``, asked now as booking asks it, for the
+    live check (nothing is mirrored: a check changes nothing).
+
+    When the scheduler cannot be reached: None (the mirror of its last sync speaks instead)
+    and a sentence that says so. One that answers but refuses is the error booking would get.
+    """
+    try:
+        return _leases_listed(start_at=start_at, end_at=end_at), ""
+    except SchedulerUnavailable as exc:
+        logger.warning("scheduler unreachable for a booking check, mirror used: %s", exc)
+        link = SchedulerLink.objects.filter(pk=1).first()
+        synced = link.last_success_at if link is not None else None
+        since = (
+            f"as of {timezone.localtime(synced):%Y-%m-%d %H:%M}"
+            if synced is not None
+            else "as last seen"
+        )
+        return None, (
+            f"The testbed scheduler did not answer: its leases are shown {since}. Booking asks "
+            "it again."
+        )
+    except SchedulerError as exc:
+        raise SchedulerRefused(
+            f"The testbed scheduler refused to list its leases: {exc.message}"
+        ) from exc
 
 
 def lease_take(
@@ -167,6 +201,51 @@ def lease_take(
         raise _domain_error(exc, "booked") from exc
     logger.info("lease %s taken for reservation %s", lease.uuid, public_id)
     return lease
+
+
+def leases_clear_own_orphans(
+    leases: Sequence[Lease],
+    *,
+    resources: Sequence[Resource],
+    start_at: datetime,
+    end_at: datetime,
+    now: datetime,
+) -> list[Lease]:
+    """``leases`` (as listed before a booking) without the portal's own orphans in its way,
+    which are cancelled here: called under the booking's locks.
+
+    A booking killed between its lease and its commit (the web process killed, a client's
+    retry already on its way) leaves its lease on the scheduler. The retry would be refused
+    by that lease until the next sweep; instead, a lease that is the portal's (its name and
+    account), has no booking holding it, and is not being booked (its advisory lock free) is
+    cancelled now, by the same test the sweep applies, and the booking goes on. A lease the
+    scheduler would not cancel stays in the list, and refuses the booking as before.
+    """
+    wanted = {r.name for r in resources}
+    standing = []
+    for lease in leases:
+        in_the_way = (
+            lease.holds_nodes
+            and wanted.intersection(lease.component_names)
+            and lease.overlaps(start=start_at, end=end_at)
+        )
+        if not in_the_way or not _orphan(lease, now=now, booking=True):
+            standing.append(lease)
+            continue
+        try:
+            with scheduler_client() as scheduler:
+                scheduler.cancel_lease(uuid=lease.uuid)
+        except SchedulerError as exc:
+            logger.warning("orphan lease %s (%s) not cancelled: %s", lease.uuid, lease.name, exc)
+            standing.append(lease)
+            continue
+        SchedulerLease.objects.filter(uuid=lease.uuid).update(holds=False, status="cancelled")
+        logger.warning(
+            "orphan lease %s (%s) cancelled: it stood in the way of a new booking",
+            lease.uuid,
+            lease.name,
+        )
+    return standing
 
 
 def lease_record(*, lease: Lease, reservation: Reservation, resources: Sequence[Resource]) -> None:
@@ -263,8 +342,23 @@ def _mirror(leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, d
     ).exclude(uuid__in=seen).update(gone_at=now, holds=False)
 
 
-def _orphan(lease: Lease, *, now: datetime) -> bool:
-    """A lease the portal made whose booking is not (or no longer) holding it."""
+def _writes_one_at_a_time() -> bool:
+    """SQLite whose transactions begin IMMEDIATE (the settings' choice): inside one, no other
+    transaction writes, so no booking is between its lease and its commit."""
+    options = connection.settings_dict.get("OPTIONS", {})
+    return (
+        connection.vendor == "sqlite"
+        and connection.in_atomic_block
+        and options.get("transaction_mode") == "IMMEDIATE"
+    )
+
+
+def _orphan(lease: Lease, *, now: datetime, booking: bool = False) -> bool:
+    """A lease the portal made whose booking is not (or no longer) holding it.
+
+    ``booking``: asked from inside a booking's transaction, which on SQLite excludes every
+    other booking, so that no grace is needed there.
+    """
     public_id = public_id_of(lease.name)
     config = settings.SCHEDULER
     if public_id is None or config is None or lease.account_name != config.account_name:
@@ -278,6 +372,8 @@ def _orphan(lease: Lease, *, now: datetime) -> bool:
         return False
     if connection.vendor == "postgresql":
         return _not_being_booked(public_id)
+    if booking and _writes_one_at_a_time():
+        return True
     first_seen = (
         SchedulerLease.objects.filter(uuid=lease.uuid)
         .values_list("first_seen_at", flat=True)

@@ -19,13 +19,22 @@ HOLD_REASON_MAX_CHARS = 300
 class PeriodQuerySet(models.QuerySet[_Timed]):
     """Rows that hold a half-open period ``[start_at, end_at)``."""
 
-    def overlapping(self, start_at: datetime, end_at: datetime) -> PeriodQuerySet[_Timed]:
+    def overlapping(
+        self, start_at: datetime | None, end_at: datetime | None
+    ) -> PeriodQuerySet[_Timed]:
         """Rows sharing an instant with ``[start_at, end_at)``: back to back is no overlap.
 
-        The one place the portal spells this condition; the PostgreSQL exclusion constraint
-        on reservation items (migration 0002) uses the same half-open ``[)`` ranges.
+        ``None`` leaves the window open on that side (a list filter given only one end).
+        The one place the portal's queries spell this condition, as ``bookings/periods.py``
+        ``overlaps`` spells it in Python; the PostgreSQL exclusion constraint on reservation
+        items (migration 0002) uses the same half-open ``[)`` ranges.
         """
-        return self.filter(start_at__lt=end_at, end_at__gt=start_at)
+        qs = self
+        if end_at is not None:
+            qs = qs.filter(start_at__lt=end_at)
+        if start_at is not None:
+            qs = qs.filter(end_at__gt=start_at)
+        return qs
 
 
 def validate_agent_url(value: str) -> None:
@@ -69,8 +78,20 @@ class Resource(models.Model):
     # a bare host name (a compose service, a name on the testbed's LAN).
     agent_url = models.CharField(max_length=200, blank=True, validators=[validate_agent_url])
     agent_token_name = models.CharField(max_length=64, default="default", blank=True)
-    max_velocity_mps = models.FloatField(null=True, blank=True)
+    max_velocity_mps = models.FloatField(
+        null=True,
+        blank=True,
+        help_text="m/s; never above what the robot's base station allows (shown below once "
+        "its agent has reported it).",
+    )
     max_accel_mps2 = models.FloatField(null=True, blank=True)
+    # What the robot's agent reports in ``GET /status`` (its effective AGENT_MAX_* limits and
+    # the hard maximum compiled into the robot's firmware), recorded by the health sweep.
+    # Each layer is only stricter: firmware ≥ agent ≥ this resource's own limits.
+    agent_max_velocity_mps = models.FloatField(null=True, blank=True, editable=False)
+    agent_max_accel_mps2 = models.FloatField(null=True, blank=True, editable=False)
+    robot_hard_max_velocity_mps = models.FloatField(null=True, blank=True, editable=False)
+    agent_limits_at = models.DateTimeField(null=True, blank=True, editable=False)
     enabled = models.BooleanField(
         default=True, help_text="Off takes the resource out of service: nothing can be booked."
     )
@@ -84,6 +105,10 @@ class Resource(models.Model):
     held_at = models.DateTimeField(null=True, blank=True)
     # When the admins were e-mailed about the hold (once per hold).
     hold_notified_at = models.DateTimeField(null=True, blank=True)
+    # Since when the robot's agent has not answered the health check, over a row of failed
+    # checks; None while it answers. Here, not in the cache, so that a restarted cache does
+    # not start the count again (and an agent out of reach for good is still held).
+    agent_unreachable_since = models.DateTimeField(null=True, blank=True, editable=False)
 
     class Meta:
         ordering = ["kind", "name"]
@@ -101,6 +126,16 @@ class Resource(models.Model):
     @property
     def is_mobile(self) -> bool:
         return self.kind == ResourceKind.MOBILE
+
+    @property
+    def agent_is_stricter(self) -> bool:
+        """The agent reported a lower velocity limit than this resource's own: programs are
+        checked against the agent's, and the resource's limit should be lowered to match."""
+        return (
+            self.agent_max_velocity_mps is not None
+            and self.max_velocity_mps is not None
+            and self.agent_max_velocity_mps < self.max_velocity_mps
+        )
 
     @property
     def in_service(self) -> bool:

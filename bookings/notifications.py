@@ -9,7 +9,7 @@ from django.core.mail import send_mail
 from django.utils import timezone
 
 from bookings.models import Blackout, Reservation
-from portal.accounts.models import User
+from core.accounts.models import User
 
 logger = logging.getLogger(__name__)
 

@@ -20,7 +20,8 @@ from bookings.choices import (
     QuotaPeriod,
 )
 from bookings.models import PeriodQuerySet, QuotaPolicy, Reservation, Resource
-from portal.accounts.models import User
+from bookings.periods import overlap_s, overlaps, within
+from core.accounts.models import User
 
 
 def testbed_zone() -> ZoneInfo:
@@ -57,13 +58,9 @@ def periods_touched(
 ) -> Iterator[tuple[datetime, datetime]]:
     """Every period that shares time with ``[start_at, end_at)``."""
     bounds = period_bounds(period, start_at)
-    while bounds[0] < end_at:
+    while overlaps(*bounds, start_at, end_at):
         yield bounds
         bounds = period_bounds(period, bounds[1])
-
-
-def overlap_s(a_start: datetime, a_end: datetime, b_start: datetime, b_end: datetime) -> float:
-    return max(0.0, (min(a_end, b_end) - max(a_start, b_start)).total_seconds())
 
 
 def policies_for(
@@ -147,7 +144,7 @@ def period_usage(
     count = 0
     for start_at, end_at in qs.values_list("start_at", "end_at"):
         used_s += overlap_s(start_at, end_at, period_start, period_end)
-        if period_start <= start_at < period_end:
+        if within(start_at, period_start, period_end):
             count += 1
     return PeriodUsage(policy, period_start, period_end, used_s / 3600.0, count)
 
@@ -200,7 +197,7 @@ def quota_violations(
                     f"{name} allows {policy.max_hours:g} h per {policy.period}; {label} you have "
                     f"{usage.used_hours:g} h booked and this needs {needed_h:g} h more."
                 )
-            starts_here = period_start <= start_at < period_end
+            starts_here = within(start_at, period_start, period_end)
             if (
                 policy.max_count is not None
                 and starts_here

@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 from bookings.choices import RESERVATION_COUNTED_STATES
 from bookings.models import ReservationItem
-from bookings.quotas import overlap_s
+from bookings.periods import overlap_s
 
 GROUPINGS = ("user", "group", "resource")
 

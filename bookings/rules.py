@@ -1,14 +1,28 @@
-"""Can this booking be made, and if not, why: the one answer for every way of booking.
+"""May this be booked, moved or cancelled, and if not, why: the one answer for every way of
+booking.
 
-:func:`booking_problems` lists what stands in the way of holding some resources for a
-period — the time window, resources out of service, the program that a mobile node would run,
-maintenance windows, other bookings, quota policies — in that order, each as a
-:class:`Problem`. ``reservation_create`` and ``reservation_reschedule`` call it under their
-locks and raise the first problem; the calendar's live check calls it without a lock and
-shows them all. Both therefore say the same thing about the same booking.
+Every refusal is a :class:`Problem` with a code (:data:`PROBLEM_CODES`); a service raises the
+first one (``Problem.as_error``), the calendar's live check shows them all.
 
-:func:`velocity_problem` is the portal's one check of a velocity against a mobile node's
-limit: programs (at booking and, against the fastest robot, when written) and manual drive.
+- :func:`request_problems`: the request itself, before any time is looked at — the resources
+  chosen (at least one, none twice), who may book for someone else, who may override quotas,
+  whose program it is.
+- :func:`booking_problems`: holding some resources for a period — the time window, resources
+  out of service, the program that a mobile node would run, maintenance windows, other
+  bookings, leases on the testbed scheduler, quota policies — in that order.
+  ``reservation_create`` and ``reservation_reschedule`` call it under their locks; the live
+  check calls it without a lock. Both therefore say the same thing about the same booking.
+- :func:`needs_approval`: whether a booking waits for an admin.
+- :func:`move_problems`, :func:`cancel_problems`, :func:`decision_problems`: changing a
+  booking. What only the runs layer knows (its run has left the schedule) comes in as an
+  argument: bookings know nothing of runs.
+
+:func:`velocity_limit` is the portal's one answer to "how fast may this robot go": the
+stricter of the resource's own limit and the one its base-station agent reports (DESIGN.md
+§4: firmware ≥ agent ≥ portal, each layer only stricter), naming which of the two limits.
+:func:`velocity_problem` checks a velocity against it: programs at booking (the booked robot),
+programs when written (:func:`robots_fitting`, every robot the author may book) and manual
+drive. :func:`resource_limit_problem` refuses a resource limit looser than its agent's.
 """
 
 from __future__ import annotations
@@ -16,25 +30,44 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Literal, Protocol
+from typing import Final, Literal, Protocol, get_args
 
 from django.conf import settings
 from django.db.models import F, Q, Value
 from django.utils import timezone
 
-from bookings.choices import ResourceKind
-from bookings.models import Blackout, ReservationItem, Resource, SchedulerLease
+from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState, ResourceKind
+from bookings.leases import public_id_of
+from bookings.models import Blackout, Reservation, ReservationItem, Resource, SchedulerLease
 from bookings.quotas import quota_violations
 from bookings.scheduler import Lease
-from portal.accounts.models import User
-from portal.errors import Conflict, DomainError, InvalidInput
+from core.accounts.models import User
+from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 
 
 class QuotaExceeded(Conflict):
     code = "quota_exceeded"
 
 
-ProblemCode = Literal["window", "out_of_service", "program", "blackout", "booked", "lease", "quota"]
+LimitSource = Literal["portal", "agent"]
+
+ProblemCode = Literal[
+    # the request: resources chosen (400), who may do this (403)
+    "resources",
+    "permission",
+    # the booking, in the order booking_problems finds them
+    "window",
+    "out_of_service",
+    "program",
+    "blackout",
+    "booked",
+    "lease",
+    "quota",
+    # changing a booking: its state (409), a reason it needs (400)
+    "state",
+    "reason",
+]
+PROBLEM_CODES: Final[tuple[ProblemCode, ...]] = get_args(ProblemCode)
 
 
 class Program(Protocol):
@@ -49,7 +82,8 @@ class Program(Protocol):
 
 @dataclass(frozen=True)
 class Problem:
-    """One reason a booking cannot be made. ``overridable``: an admin may book past it."""
+    """One reason a booking cannot be made or changed. ``overridable``: an admin may book past
+    it. ``field`` is the input it is about; empty when it is about the whole request."""
 
     code: ProblemCode
     field: str
@@ -61,9 +95,12 @@ class Problem:
     def as_error(self) -> DomainError:
         if self.code == "quota":
             return QuotaExceeded(self.message, fields={"quota": list(self.messages)})
-        if self.code in ("blackout", "booked", "lease"):
-            return Conflict.on_field(self.field, self.message)
-        return InvalidInput.on_field(self.field, self.message)
+        kind: type[DomainError] = InvalidInput
+        if self.code == "permission":
+            kind = NotAllowed
+        elif self.code in ("blackout", "booked", "lease", "state"):
+            kind = Conflict
+        return kind.on_field(self.field, self.message) if self.field else kind(self.message)
 
     def as_json(self) -> dict[str, object]:
         return {"code": self.code, "field": self.field, "message": self.message}
@@ -78,18 +115,182 @@ def aware_utc(value: datetime, field_name: str) -> datetime:
     return value.astimezone(UTC)
 
 
+@dataclass(frozen=True)
+class VelocityLimit:
+    """How fast a mobile node may go, and which layer says so."""
+
+    resource: str
+    mps: float
+    source: LimitSource
+
+    def describe(self) -> str:
+        if self.source == "agent":
+            return f"{self.mps:g} m/s, the limit its base station reports"
+        return f"{self.mps:g} m/s, the portal's limit for it"
+
+
+def velocity_limit(resource: Resource) -> VelocityLimit | None:
+    """The stricter of the resource's limit and its agent's (None: not a mobile node).
+
+    The agent's is the one recorded by the health sweep from its ``GET /status``; until an
+    agent has reported, the resource's own limit stands alone.
+    """
+    portal = resource.max_velocity_mps
+    if portal is None:
+        return None
+    agent = resource.agent_max_velocity_mps
+    if agent is not None and agent < portal:
+        return VelocityLimit(resource.name, agent, "agent")
+    return VelocityLimit(resource.name, portal, "portal")
+
+
+def may_book_for_others(by: User) -> bool:
+    """Admins, and the accounts that book through the scheduler's vocabulary for others."""
+    return by.is_testbed_admin or by.has_perm("bookings.lease_inbound")
+
+
+def needs_approval(*, resources: Sequence[Resource], by: User) -> bool:
+    """A booking of a resource that requires approval waits for an admin, unless one makes it."""
+    return any(r.requires_approval for r in resources) and not by.is_testbed_admin
+
+
+def request_problems(
+    *,
+    owner: User,
+    by: User,
+    resources: Sequence[Resource],
+    override_reason: str = "",
+    program_owner_id: int | None = None,
+) -> list[Problem]:
+    """What is wrong with ``by`` asking to book ``resources`` for ``owner``, at any time.
+
+    ``override_reason``: the admin's reason to book past quotas. ``program_owner_id``: who
+    wrote the program a mobile node would run, when there is one (only its owner books it).
+    """
+    problems = []
+    if not resources:
+        problems.append(Problem("resources", "resources", "Choose at least one resource."))
+    elif len({r.pk for r in resources}) != len(resources):
+        problems.append(Problem("resources", "resources", "A resource is listed twice."))
+    if by.pk != owner.pk and not may_book_for_others(by):
+        problems.append(Problem("permission", "", "Only admins book for someone else."))
+    if override_reason.strip() and not by.is_testbed_admin:
+        problems.append(
+            Problem("permission", "override_reason", "Only admins can override quotas.")
+        )
+    if program_owner_id is not None and program_owner_id != owner.pk:
+        problems.append(
+            Problem("permission", "experiment", "That experiment belongs to someone else.")
+        )
+    return problems
+
+
+def move_problems(
+    *, reservation: Reservation, by: User, now: datetime, run_started: bool = False
+) -> list[Problem]:
+    """Why ``by`` may not move ``reservation`` now. ``run_started``: its run has left the
+    schedule (staged on its base station, or further), which only the runs layer knows."""
+    if reservation.owner_id != by.pk and not may_book_for_others(by):
+        return [
+            Problem("permission", "", "Only the owner or an admin can change this reservation.")
+        ]
+    if run_started:
+        return [
+            Problem("state", "", "Its run is already on the base station; cancel and book again.")
+        ]
+    if reservation.state not in RESERVATION_ACTIVE_STATES or reservation.start_at <= now:
+        return [Problem("state", "", "Only upcoming reservations can be moved.")]
+    return []
+
+
+def cancel_problems(*, reservation: Reservation, by: User, reason: str) -> list[Problem]:
+    """Why ``by`` may not cancel ``reservation`` (an admin cancelling another's says why)."""
+    if reservation.owner_id != by.pk and not may_book_for_others(by):
+        return [
+            Problem("permission", "", "Only the owner or an admin can cancel this reservation.")
+        ]
+    problems = []
+    if reservation.state not in RESERVATION_ACTIVE_STATES:
+        problems.append(
+            Problem("state", "", f"The reservation is already {reservation.get_state_display()}.")
+        )
+    if by.pk != reservation.owner_id and not reason.strip():
+        problems.append(
+            Problem("reason", "reason", "Say why you cancel someone else's reservation.")
+        )
+    return problems
+
+
+def decision_problems(
+    *, reservation: Reservation, by: User, approve: bool, reason: str
+) -> list[Problem]:
+    """Why ``by`` may not approve (or reject, saying why) ``reservation``."""
+    if not by.is_testbed_admin:
+        return [Problem("permission", "", "Only admins decide on reservations.")]
+    problems = []
+    if not approve and not reason.strip():
+        problems.append(Problem("reason", "reason", "Say why the request is rejected."))
+    if reservation.state != ReservationState.REQUESTED:
+        problems.append(
+            Problem(
+                "state",
+                "",
+                f"The reservation is {reservation.get_state_display()}, not awaiting approval.",
+            )
+        )
+    return problems
+
+
 def velocity_problem(*, resource: Resource, velocity_mps: float) -> str | None:
     """Why ``velocity_mps`` is not allowed on ``resource``; None when it is."""
-    limit = resource.max_velocity_mps
+    limit = velocity_limit(resource)
     if limit is None:
         return f"{resource.name} is not a mobile node: it does not move."
     if velocity_mps < 0:
         return f"velocity {velocity_mps:g} m/s is negative (the direction says which way)."
-    if velocity_mps > limit:
+    if velocity_mps > limit.mps:
         return (
-            f"velocity {velocity_mps:g} m/s exceeds the maximum {limit:g} m/s of {resource.name}."
+            f"velocity {velocity_mps:g} m/s exceeds the maximum of {resource.name}: "
+            f"{limit.describe()}."
         )
     return None
+
+
+@dataclass(frozen=True)
+class Fit:
+    """Whether a program fits one robot: its fastest segment within the robot's limit."""
+
+    limit: VelocityLimit
+    fastest_mps: float
+
+    @property
+    def fits(self) -> bool:
+        return self.fastest_mps <= self.limit.mps
+
+
+def robots_fitting(robots: Sequence[Resource], velocities_mps: Sequence[float]) -> list[Fit]:
+    """For each mobile node of ``robots`` (by name), whether a program with these velocities
+    fits its limit: what an author learns when writing a program, before booking a robot."""
+    fastest_mps = max(velocities_mps, default=0.0)
+    fits = []
+    for robot in sorted(robots, key=lambda r: r.name):
+        limit = velocity_limit(robot)
+        if limit is not None:
+            fits.append(Fit(limit, fastest_mps))
+    return fits
+
+
+def resource_limit_problem(resource: Resource) -> str | None:
+    """Why the resource's velocity limit cannot be saved: looser than its agent's (a program
+    the portal accepted would be refused by the base station). None when it can."""
+    portal, agent = resource.max_velocity_mps, resource.agent_max_velocity_mps
+    if portal is None or agent is None or portal <= agent:
+        return None
+    return (
+        f"{portal:g} m/s is above the {agent:g} m/s that {resource.name}'s base station "
+        f"allows (AGENT_MAX_VELOCITY_MPS): set at most {agent:g} m/s, or raise the base "
+        "station's limit first."
+    )
 
 
 def _window_problems(start_at: datetime, end_at: datetime, now: datetime) -> list[Problem]:
@@ -223,12 +424,21 @@ def _lease_problems(
     wanted = {r.name for r in resources}
     problems = []
     if fresh is not None:
+        # A lease made for a portal booking that still holds it is that booking's items,
+        # found as "booked" already (as in the mirror: ``reservation`` is set on its row).
+        booked = set(
+            Reservation.objects.filter(
+                public_id__in=[p for lease in fresh if (p := public_id_of(lease.name))],
+                state__in=RESERVATION_ACTIVE_STATES,
+            ).values_list("public_id", flat=True)
+        )
         for lease in sorted(fresh, key=lambda x: x.valid_from):
             held = sorted(wanted.intersection(lease.component_names))
             if (
                 lease.holds_nodes
                 and held
                 and lease.uuid != exclude_lease_uuid
+                and public_id_of(lease.name) not in booked
                 and lease.overlaps(start=start_at, end=end_at)
             ):
                 problems.append(

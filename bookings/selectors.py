@@ -6,24 +6,27 @@ from datetime import datetime
 from django.db.models import Q, QuerySet
 
 from bookings.choices import ResourceKind
-from bookings.models import Blackout, Reservation, ReservationItem, Resource, SchedulerLease
-from portal.accounts.models import User
+from bookings.models import (
+    Blackout,
+    PeriodQuerySet,
+    Reservation,
+    ReservationItem,
+    Resource,
+    SchedulerLease,
+)
+from bookings.periods import gaps
+from core.accounts.models import User
 
 
 def resources_bookable() -> QuerySet[Resource]:
     return Resource.objects.filter(enabled=True)
 
 
-def fastest_mobile() -> Resource | None:
-    """The enabled mobile node with the highest velocity limit (None when there is none).
-
-    A program is checked against it when written, before it is booked on a particular node.
-    """
-    return (
-        Resource.objects.filter(kind=ResourceKind.MOBILE, enabled=True)
-        .order_by("-max_velocity_mps", "name")
-        .first()
-    )
+def mobiles_bookable() -> list[Resource]:
+    """The mobile nodes a user may book, by name: every one an admin has not taken out of
+    service (a health-check hold is temporary and counts). A program is checked against each
+    when written; booking checks it again against the one booked."""
+    return list(Resource.objects.filter(kind=ResourceKind.MOBILE, enabled=True).order_by("name"))
 
 
 def items_overlapping(
@@ -54,7 +57,7 @@ def blackouts_overlapping(
     )
 
 
-def reservations_visible(*, user: User) -> QuerySet[Reservation]:
+def reservations_visible(*, user: User) -> PeriodQuerySet[Reservation]:
     qs = Reservation.objects.select_related("owner").prefetch_related("items__resource")
     return qs if user.is_testbed_admin else qs.filter(owner=user)
 
@@ -63,31 +66,19 @@ def resource_free_intervals(
     *, resource: Resource, start_at: datetime, end_at: datetime
 ) -> list[tuple[datetime, datetime]]:
     """The parts of ``[start_at, end_at)`` in which ``resource`` could be booked."""
-    busy = [
-        (max(s, start_at), min(e, end_at))
-        for s, e in items_overlapping(resources=[resource], start_at=start_at, end_at=end_at)
-        .order_by("start_at")
-        .values_list("start_at", "end_at")
-    ]
+    if not resource.in_service:
+        return []
+    busy = list(
+        items_overlapping(resources=[resource], start_at=start_at, end_at=end_at).values_list(
+            "start_at", "end_at"
+        )
+    )
     busy += [
-        (max(b.start_at, start_at), min(b.end_at, end_at))
+        (b.start_at, b.end_at)
         for b in blackouts_overlapping(resources=[resource], start_at=start_at, end_at=end_at)
     ]
-    busy += [
-        (max(lease.start_at, start_at), min(lease.end_at, end_at))
-        for lease in external_leases(start_at, end_at, resource)
-    ]
-    if not resource.in_service:
-        busy = [(start_at, end_at)]
-    free: list[tuple[datetime, datetime]] = []
-    cursor = start_at
-    for s, e in sorted(busy):
-        if s > cursor:
-            free.append((cursor, s))
-        cursor = max(cursor, e)
-    if cursor < end_at:
-        free.append((cursor, end_at))
-    return free
+    busy += [(x.start_at, x.end_at) for x in external_leases(start_at, end_at, resource)]
+    return gaps(busy, start_at, end_at)
 
 
 def external_leases(

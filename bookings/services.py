@@ -1,8 +1,9 @@
-"""Writes for reservations, blackouts and quota policies.
+"""Writes for reservations, blackouts and quota policies, and the live check of a booking.
 
 Every check that guards capacity runs inside one transaction under row locks taken in a
 fixed order (the user, then the resources by id), so concurrent bookings are decided one at
-a time; on PostgreSQL an exclusion constraint backs the overlap check.
+a time; on PostgreSQL an exclusion constraint backs the overlap check. What may be booked,
+moved or cancelled is decided in ``bookings.rules``; these functions raise its first problem.
 """
 
 from __future__ import annotations
@@ -14,14 +15,13 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from functools import partial
-from typing import Any
+from typing import Any, Literal
 
 from django.core.exceptions import ValidationError
 from django.db import IntegrityError, transaction
 from django.utils import timezone
 
 from bookings.choices import (
-    RESERVATION_ACTIVE_STATES,
     BookedVia,
     ReservationState,
     ResourceKind,
@@ -32,6 +32,8 @@ from bookings.leases import (
     lease_record,
     lease_release,
     lease_take,
+    leases_clear_own_orphans,
+    leases_for_check,
     leases_refresh,
     scheduler_client,
     scheduler_enabled,
@@ -45,12 +47,22 @@ from bookings.models import (
     ReservationItem,
     Resource,
 )
-from bookings.rules import Program, aware_utc, booking_problems
+from bookings.rules import (
+    Problem,
+    Program,
+    aware_utc,
+    booking_problems,
+    cancel_problems,
+    decision_problems,
+    move_problems,
+    needs_approval,
+    request_problems,
+)
 from bookings.scheduler import Lease, SchedulerError
 from bookings.tasks import lease_cancel, reservation_notify
-from portal.accounts.models import User
-from portal.audit.services import audit_record
-from portal.errors import Conflict, DomainError, InvalidInput, NotAllowed
+from core.accounts.models import User
+from core.audit.services import audit_record
+from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 
 logger = logging.getLogger(__name__)
 
@@ -66,8 +78,10 @@ def _release_lease_after_commit(reservation: Reservation) -> None:
         transaction.on_commit(partial(lease_cancel.delay, reservation.lease_uuid))
 
 
-def _may_book_for_others(by: User) -> bool:
-    return by.is_testbed_admin or by.has_perm("bookings.lease_inbound")
+def _refuse(problems: Sequence[Problem]) -> None:
+    """Raise the first problem, if there is one."""
+    if problems:
+        raise problems[0].as_error()
 
 
 def _lock(owner: User, resources: Sequence[Resource]) -> list[Resource]:
@@ -119,6 +133,91 @@ def _check(
     raise problem.as_error()
 
 
+@dataclass(frozen=True)
+class BookingCheck:
+    """The live check's answer: every problem, and where the scheduler's leases came from."""
+
+    problems: list[Problem]
+    needs_approval: bool
+    # "scheduler": asked a moment ago, as booking asks it; "mirror": it could not be reached,
+    # and ``notice`` says so; None: not asked (nothing checked is the scheduler's, or the
+    # period is empty).
+    leases_from: Literal["scheduler", "mirror"] | None = None
+    notice: str = ""
+
+    @property
+    def fits(self) -> bool:
+        return not self.problems
+
+
+def reservation_check(
+    *,
+    owner: User,
+    resources: Sequence[Resource],
+    start_at: datetime,
+    end_at: datetime,
+    program: Program | None,
+    by: User | None = None,
+    override_reason: str = "",
+    now: datetime | None = None,
+    exclude_reservation_id: int | None = None,
+    program_owner_id: int | None = None,
+) -> BookingCheck:
+    """Everything that would refuse this booking now, all at once (``reservation_create``
+    raises the first of the same problems under its locks); nothing is written or locked.
+
+    ``exclude_reservation_id``: the booking being moved (itself and its lease excluded).
+    Quota problems are listed even with an ``override_reason`` (the admin sees what is
+    overridden).
+    """
+    now = now or timezone.now()
+    by = by or owner
+    problems = request_problems(
+        owner=owner,
+        by=by,
+        resources=resources,
+        override_reason=override_reason,
+        program_owner_id=program_owner_id,
+    )
+    if any(p.code == "resources" for p in problems):
+        return BookingCheck(problems, needs_approval=False)  # nothing else can be judged
+    start_at = aware_utc(start_at, "start_at")
+    end_at = aware_utc(end_at, "end_at")
+    owned = scheduler_owned(resources)
+    fresh: list[Lease] | None = None
+    leases_from: Literal["scheduler", "mirror"] | None = None
+    notice = ""
+    if owned and start_at < end_at:
+        fresh, notice = leases_for_check(start_at=start_at, end_at=end_at)
+        leases_from = "scheduler" if fresh is not None else "mirror"
+    own_lease_uuid = ""
+    if exclude_reservation_id is not None:
+        own_lease_uuid = (
+            Reservation.objects.filter(pk=exclude_reservation_id)
+            .values_list("lease_uuid", flat=True)
+            .first()
+            or ""
+        )
+    problems += booking_problems(
+        owner=owner,
+        resources=resources,
+        start_at=start_at,
+        end_at=end_at,
+        program=program,
+        now=now,
+        exclude_reservation_id=exclude_reservation_id,
+        scheduler_owned=owned,
+        scheduler_leases=fresh,
+        own_lease_uuid=own_lease_uuid,
+    )
+    return BookingCheck(
+        problems,
+        needs_approval=needs_approval(resources=resources, by=by),
+        leases_from=leases_from,
+        notice=notice,
+    )
+
+
 def reservation_create(
     *,
     owner: User,
@@ -134,15 +233,17 @@ def reservation_create(
     now: datetime | None = None,
     program_required: bool = True,
     booked_via: BookedVia = BookedVia.PORTAL,
+    program_owner_id: int | None = None,
 ) -> Reservation:
     """Book ``resources`` for ``[start_at, end_at)``.
 
     ``program`` is what a mobile node among them will run; it is checked against the node
     (velocity, length) but not stored here — the runs layer books a run and its reservation
-    together by calling this inside its own transaction. ``by`` is who acts (an admin booking
-    for ``owner``; defaults to ``owner``). Only an admin may pass ``override_reason``, which
-    lets the booking past quota rules (never past another booking or a maintenance window)
-    and is recorded in the audit log.
+    together by calling this inside its own transaction, and says who wrote the program
+    (``program_owner_id``). ``by`` is who acts (an admin booking for ``owner``; defaults to
+    ``owner``). Only an admin may pass ``override_reason``, which lets the booking past quota
+    rules (never past another booking or a maintenance window) and is recorded in the audit
+    log. Every refusal is a problem of ``bookings.rules``.
 
     Resources the testbed's scheduler owns are held by one lease there, taken under the
     booking's locks before the reservation is written and named after its public id; any
@@ -152,19 +253,20 @@ def reservation_create(
     now = now or timezone.now()
     by = by or owner
     resources = list(resources or ([resource] if resource is not None else []))
-    if not resources:
-        raise InvalidInput.on_field("resources", "Choose at least one resource.")
-    if len({r.pk for r in resources}) != len(resources):
-        raise InvalidInput.on_field("resources", "A resource is listed twice.")
-    if by.pk != owner.pk and not _may_book_for_others(by):
-        raise NotAllowed("Only admins book for someone else.")
+    _refuse(
+        request_problems(
+            owner=owner,
+            by=by,
+            resources=resources,
+            override_reason=override_reason,
+            program_owner_id=program_owner_id,
+        )
+    )
     override_reason = override_reason.strip()
-    if override_reason and not by.is_testbed_admin:
-        raise NotAllowed.on_field("override_reason", "Only admins can override quotas.")
     start_at = aware_utc(start_at, "start_at")
     end_at = aware_utc(end_at, "end_at")
-    needs_approval = any(r.requires_approval for r in resources) and not by.is_testbed_admin
-    state = ReservationState.REQUESTED if needs_approval else ReservationState.CONFIRMED
+    waits = needs_approval(resources=resources, by=by)
+    state = ReservationState.REQUESTED if waits else ReservationState.CONFIRMED
     owned = scheduler_owned(resources)
     fresh: list[Lease] | None = None
     if owned and start_at < end_at:
@@ -177,6 +279,11 @@ def reservation_create(
     try:
         with transaction.atomic():
             locked = _lock(owner, resources)
+            if fresh is not None:
+                # A retry of a booking killed after its lease finds that lease here.
+                fresh = leases_clear_own_orphans(
+                    fresh, resources=owned, start_at=start_at, end_at=end_at, now=now
+                )
             overridden = _check(
                 owner=owner,
                 resources=locked,
@@ -239,7 +346,7 @@ def reservation_create(
                     reason=override_reason,
                     overridden=overridden,
                 )
-            _notify("requested" if needs_approval else "confirmed", reservation.pk)
+            _notify("requested" if waits else "confirmed", reservation.pk)
     except IntegrityError as exc:
         if lease is not None:
             lease_release(lease_uuid=lease.uuid)
@@ -263,14 +370,16 @@ def reservation_reschedule(
     program: Program | None = None,
     ip: str | None = None,
     now: datetime | None = None,
+    run_started: bool = False,
 ) -> Reservation:
     """Move an upcoming reservation (every check again, itself excluded).
 
-    ``program`` is what its mobile node will run, if it holds one (see reservation_create).
+    ``program`` is what its mobile node will run, if it holds one (see reservation_create);
+    ``run_started``: that run has left the schedule, and the booking may no longer move (the
+    runs layer knows, under its lock on the run).
     """
     now = now or timezone.now()
-    if reservation.owner_id != by.pk and not _may_book_for_others(by):
-        raise NotAllowed("Only the owner or an admin can change this reservation.")
+    _refuse(move_problems(reservation=reservation, by=by, now=now, run_started=run_started))
     start_at = aware_utc(start_at, "start_at")
     end_at = aware_utc(end_at, "end_at")
     fresh: list[Lease] | None = None
@@ -280,8 +389,7 @@ def reservation_reschedule(
     try:
         with transaction.atomic():
             locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
-            if locked.state not in RESERVATION_ACTIVE_STATES or locked.start_at <= now:
-                raise Conflict("Only upcoming reservations can be moved.")
+            _refuse(move_problems(reservation=locked, by=by, now=now, run_started=run_started))
             resources = _lock(locked.owner, list(locked.resources.all()))
             _check(
                 owner=locked.owner,
@@ -335,15 +443,10 @@ def reservation_cancel(
 
     A run booked with it is withdrawn by the runs layer, which calls this in its transaction.
     """
-    if reservation.owner_id != by.pk and not _may_book_for_others(by):
-        raise NotAllowed("Only the owner or an admin can cancel this reservation.")
     with transaction.atomic():
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
-        if locked.state not in RESERVATION_ACTIVE_STATES:
-            raise Conflict(f"The reservation is already {locked.get_state_display()}.")
+        _refuse(cancel_problems(reservation=locked, by=by, reason=reason))
         by_admin = by.pk != locked.owner_id
-        if by_admin and not reason.strip():
-            raise InvalidInput.on_field("reason", "Say why you cancel someone else's reservation.")
         locked.state = ReservationState.CANCELLED
         locked.cancelled_by = by
         locked.cancel_reason = reason
@@ -369,16 +472,10 @@ def reservation_decide(
 
     A rejected reservation frees its resources; its run is withdrawn by the runs layer.
     """
-    if not by.is_testbed_admin:
-        raise NotAllowed("Only admins decide on reservations.")
-    if not approve and not reason.strip():
-        raise InvalidInput.on_field("reason", "Say why the request is rejected.")
+    _refuse(decision_problems(reservation=reservation, by=by, approve=approve, reason=reason))
     with transaction.atomic():
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
-        if locked.state != ReservationState.REQUESTED:
-            raise Conflict(
-                f"The reservation is {locked.get_state_display()}, not awaiting approval."
-            )
+        _refuse(decision_problems(reservation=locked, by=by, approve=approve, reason=reason))
         locked.state = ReservationState.CONFIRMED if approve else ReservationState.REJECTED
         locked.decided_by = by
         locked.decided_at = timezone.now()
@@ -460,6 +557,78 @@ def resource_hold(*, resource_id: int, reason: str) -> bool:
                 reason=reason,
             )
     return bool(held)
+
+
+# The hold of a robot whose base-station agent the portal cannot reach for want of
+# configuration (no token for it): the health check and the demo set-up make it.
+AGENT_NOT_CONFIGURED = "agent not configured"
+
+
+def resource_hold_lift(*, resource_id: int, reason_prefix: str, why: str) -> bool:
+    """Lift a hold the system made for a cause the system knows is gone (a robot's agent
+    configured again); audited. Only a hold whose reason starts with ``reason_prefix``:
+    every other hold stays for an admin to lift. True if a hold was lifted."""
+    with transaction.atomic():
+        locked = Resource.objects.select_for_update().filter(pk=resource_id).first()
+        if locked is None or not locked.hold_reason.startswith(reason_prefix):
+            return False
+        lifted = locked.hold_reason
+        locked.hold_reason, locked.held_at, locked.hold_notified_at = "", None, None
+        locked.save(update_fields=["hold_reason", "held_at", "hold_notified_at"])
+        audit_record(
+            actor=None, action="resource.hold_lifted", target=locked, reason=why, lifted_hold=lifted
+        )
+    return True
+
+
+def resource_agent_unreachable(*, resource_id: int, at: datetime) -> datetime:
+    """Record that the robot's agent did not answer at ``at``; returns since when it has not
+    (``at``, or the first failed check of this row). Written once per row of failures."""
+    Resource.objects.filter(pk=resource_id, agent_unreachable_since__isnull=True).update(
+        agent_unreachable_since=at
+    )
+    since = (
+        Resource.objects.filter(pk=resource_id)
+        .values_list("agent_unreachable_since", flat=True)
+        .first()
+    )
+    return since or at
+
+
+def resource_agent_reachable(*, resource_id: int) -> None:
+    """The robot's agent answered: the next failure starts a new count."""
+    Resource.objects.filter(pk=resource_id, agent_unreachable_since__isnull=False).update(
+        agent_unreachable_since=None
+    )
+
+
+@dataclass(frozen=True)
+class AgentLimits:
+    """A robot's limits as its base-station agent reports them in ``GET /status``."""
+
+    max_velocity_mps: float
+    max_accel_mps2: float
+    robot_hard_max_velocity_mps: float | None
+
+
+def resource_record_agent_limits(*, resource_id: int, limits: AgentLimits) -> bool:
+    """Record what the robot's agent reports of its limits; True when they changed.
+
+    Written only on a change (the health sweep reads every agent every few seconds).
+    Booking reads them: a program is checked against the stricter of the resource's limit
+    and these (``bookings.rules.velocity_limit``).
+    """
+    values = {
+        "agent_max_velocity_mps": limits.max_velocity_mps,
+        "agent_max_accel_mps2": limits.max_accel_mps2,
+        "robot_hard_max_velocity_mps": limits.robot_hard_max_velocity_mps,
+    }
+    unchanged = Resource.objects.filter(pk=resource_id, **values).exists()
+    if unchanged:
+        return False
+    return bool(
+        Resource.objects.filter(pk=resource_id).update(**values, agent_limits_at=timezone.now())
+    )
 
 
 def blackout_create(

@@ -7,7 +7,7 @@ from django.db import transaction
 from django.utils import timezone
 
 from bookings import leases, notifications, reminders
-from portal.audit.once import claim_once, task_once_key
+from core.audit.once import claim_once, task_once_key
 
 MAX_RETRIES = 5
 

@@ -1,10 +1,14 @@
 """``make run``: the whole system on this machine, with the simulated robot.
 
 Prepares the embedded setup (database, demo data, agent token) and then runs the system's
-processes (``portal.processes``: the agent, the web server, the Celery workers and beat; with
-``ROBOTS=2`` a second agent and robot on a second rail) as children, each line of their
-output prefixed with the process's name. Ctrl-C (or SIGTERM) stops every child and its own
-children; if any child dies, the rest are stopped too and the exit code says so.
+processes (``portal.processes``: the agent, the web server, the Celery workers, the collector
+and beat; with ``ROBOTS=2`` a second agent and robot on a second rail) as children, each line
+of their output prefixed with the process's name. Ctrl-C (or SIGTERM) stops every child and
+its own children. A child that dies by itself is started again after a pause that doubles
+with each death (``RESTART_DELAYS_S``), the rest going on serving; one that dies
+``RESTART_LIMIT`` times within ``RESTART_WINDOW_S`` is left stopped and so is everything else,
+with the reason and a non-zero exit code: a fault that comes back at once is a set-up problem
+to read, not to hide.
 """
 
 from __future__ import annotations
@@ -21,10 +25,15 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from portal.processes import SECOND_ROBOT, system_processes
+from core.fleet import SECOND_ROBOT
+from portal.processes import system_processes
 
 BASE_DIR = Path(__file__).resolve().parent.parent
 STOP_GRACE_S = 10.0
+# Pauses before a dead child is started again: 1 s, then doubling, at most 30 s.
+RESTART_DELAYS_S = (1.0, 2.0, 4.0, 8.0, 16.0, 30.0)
+RESTART_LIMIT = 5
+RESTART_WINDOW_S = 600.0
 
 
 @dataclass
@@ -34,6 +43,17 @@ class Child:
     env: dict[str, str] = field(default_factory=dict)
     process: subprocess.Popen[bytes] | None = None
     pump: threading.Thread | None = field(default=None, repr=False)
+    # When it died by itself, most recent last; and when it is due to start again.
+    deaths: list[float] = field(default_factory=list)
+    restart_at: float | None = None
+
+    def died(self, now: float) -> float | None:
+        """Note a death at ``now``; the pause before the next start, or ``None`` when the
+        child has died too often to be started again."""
+        self.deaths = [t for t in self.deaths if now - t < RESTART_WINDOW_S] + [now]
+        if len(self.deaths) > RESTART_LIMIT:
+            return None
+        return RESTART_DELAYS_S[min(len(self.deaths), len(RESTART_DELAYS_S)) - 1]
 
 
 _OUTPUT_LOCK = threading.Lock()
@@ -58,7 +78,12 @@ def _environment(var_dir: Path) -> dict[str, str]:
     env.setdefault("AMAZING_VAR_DIR", str(var_dir))
     env["PYTHONUNBUFFERED"] = "1"
     portal_port = int(env.setdefault("PORTAL_PORT", "8000"))
+    # The live streams on their own port of the same host: the pages open them there.
+    env.setdefault("LIVE_STREAM_PORT", env.setdefault("STREAMS_PORT", str(portal_port + 1)))
     agent_port = int(env.setdefault("AGENT_PORT", "8700"))
+    if "DATABASE_URL" not in env:
+        # SQLite takes one writer at a time: more web processes would only queue on its lock.
+        env.setdefault("WEB_WORKERS", "1")
     env.setdefault("AGENT_URL", f"http://127.0.0.1:{agent_port}")
     env.setdefault("AGENT_DATA_DIR", str(var_dir / "agent"))
     if "AGENT_TOKEN" not in env and "AGENT_TOKEN_FILE" not in env:
@@ -148,15 +173,56 @@ def _start(child: Child, env: dict[str, str]) -> None:
     _say("launch", f"started {child.name} (pid {child.process.pid})")
 
 
+def _watch(children: list[Child], env: dict[str, str]) -> int:
+    """One look at the children: start again those whose pause is over, note those that have
+    died. Non-zero when one has died too often and everything should stop."""
+    now = time.monotonic()
+    for child in children:
+        if child.restart_at is not None:
+            if now >= child.restart_at:
+                child.restart_at = None
+                if child.pump:
+                    child.pump.join(timeout=2)
+                _start(child, env)
+            continue
+        assert child.process is not None
+        code = child.process.poll()
+        if code is None:
+            continue
+        # Whatever the child left behind in its process group (a worker's pool) goes too.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(child.process.pid, signal.SIGKILL)
+        pause_s = child.died(now)
+        if pause_s is None:
+            _say(
+                "launch",
+                f"{child.name} exited with code {code}, its {len(child.deaths)}th exit within "
+                f"{RESTART_WINDOW_S:g} s; not starting it again: stopping the rest",
+            )
+            return 1
+        _say(
+            "launch",
+            f"{child.name} exited with code {code}; starting it again in {pause_s:g} s "
+            f"(exit {len(child.deaths)} of at most {RESTART_LIMIT} within {RESTART_WINDOW_S:g} s)",
+        )
+        child.restart_at = now + pause_s
+    return 0
+
+
 def main() -> int:
     var_dir = Path(os.environ.get("AMAZING_VAR_DIR", BASE_DIR / "var")).resolve()
     var_dir.mkdir(parents=True, exist_ok=True)
     env = _environment(var_dir)
     portal_port = int(env["PORTAL_PORT"])
+    streams_port = int(env["STREAMS_PORT"])
     agent_port = int(env["AGENT_PORT"])
     standin_port = int(env["STANDIN_PORT"]) if env.get("_STANDIN") else None
     second_port = int(env["AGENT_2_PORT"]) if env["ROBOTS"] == "2" else None
-    ports = [("portal", "PORTAL_PORT", portal_port), ("agent", "AGENT_PORT", agent_port)]
+    ports = [
+        ("portal", "PORTAL_PORT", portal_port),
+        ("live streams", "STREAMS_PORT", streams_port),
+        ("agent", "AGENT_PORT", agent_port),
+    ]
     if second_port is not None:
         ports.append(("second agent", "AGENT_2_PORT", second_port))
     if standin_port is not None:
@@ -174,11 +240,19 @@ def main() -> int:
         + (" (the stand-in)" if standin_port is not None else ""),
     )
     _say("launch", f"live updates: {env.get('REDIS_URL') or 'files in ' + str(var_dir / 'live')}")
+    workers = env.get("WEB_WORKERS") or f"{os.cpu_count() or 1} (one per core)"
+    _say(
+        "launch",
+        f"web: {workers} worker process(es) on port {portal_port}"
+        + (" (SQLite takes one writer at a time)" if "DATABASE_URL" not in env else "")
+        + f"; live streams on port {streams_port}",
+    )
     children = [
         Child(spec.name, list(spec.argv), dict(spec.env))
         for spec in system_processes(
             python=sys.executable,
             portal_port=portal_port,
+            streams_port=streams_port,
             agent_port=agent_port,
             var_dir=var_dir,
             access_log=False,  # a line per request would drown everything else
@@ -223,14 +297,9 @@ def main() -> int:
                 f"API docs at http://127.0.0.1:{portal_port}/api/docs/ ; Ctrl-C stops everything",
             )
         while not stopping.is_set():
-            for child in children:
-                assert child.process is not None
-                code = child.process.poll()
-                if code is not None:
-                    _say("launch", f"{child.name} exited with code {code}; stopping the rest")
-                    exit_code = 1
-                    stopping.set()
-                    break
+            exit_code = _watch(children, env)
+            if exit_code:
+                stopping.set()
             stopping.wait(0.5)
     finally:
         _say("launch", "stopping…")

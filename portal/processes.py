@@ -14,14 +14,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from core.fleet import SECOND_ROBOT
+
 DEFAULT_HOST = "127.0.0.1"
 REPO = Path(__file__).resolve().parent.parent
 # Celery queues, each with its own worker: a backlog of mail never delays a run.
 RUNS_QUEUE = "runs"
 MAIL_QUEUE = "mail"
-# The second simulated robot (make run with ROBOTS=2): its resource name, and the rail it
-# drives, beside the first.
-SECOND_ROBOT = "mobile-2"
+# The rail the second simulated robot (make run with ROBOTS=2) drives, beside the first.
 SECOND_RAIL_FILE = REPO / "basestation" / "telemetry" / "second_rail.json"
 
 
@@ -62,18 +62,32 @@ def second_agent_process(
 
 # An open live stream (Server-Sent Events) never ends by itself: on shutdown the server
 # waits this long for requests, then closes the streams (the pages reconnect).
-WEB_GRACEFUL_SHUTDOWN_S = 3
+STREAMS_GRACEFUL_SHUTDOWN_S = 3
 
 
 def web_process(
     *, python: str, port: int, host: str = DEFAULT_HOST, access_log: bool = True
 ) -> ProcessSpec:
-    """The portal behind the ASGI server."""
+    """The pages and the API on the WSGI server (``portal/gunicorn_conf.py``)."""
+    argv = [python, "-m", "gunicorn", "-c", "python:portal.gunicorn_conf"]
+    argv += ["--bind", f"{host}:{port}"]
+    if access_log:
+        argv += ["--access-logfile", "-"]
+    argv.append("portal.wsgi:application")
+    return ProcessSpec("web", tuple(argv))
+
+
+def streams_process(
+    *, python: str, port: int, host: str = DEFAULT_HOST, access_log: bool = True
+) -> ProcessSpec:
+    """The live streams (``/live/``) on the ASGI server: an open stream is a coroutine waiting
+    on the bus, not a thread. The pages reach it on its own port of the same host
+    (``LIVE_STREAM_PORT``) or through a proxy on their own origin."""
     argv = [python, "-m", "uvicorn", "portal.asgi:application", "--host", host]
-    argv += ["--port", str(port), "--timeout-graceful-shutdown", str(WEB_GRACEFUL_SHUTDOWN_S)]
+    argv += ["--port", str(port), "--timeout-graceful-shutdown", str(STREAMS_GRACEFUL_SHUTDOWN_S)]
     if not access_log:
         argv.append("--no-access-log")
-    return ProcessSpec("web", tuple(argv))
+    return ProcessSpec("streams", tuple(argv))
 
 
 def worker_process(
@@ -120,6 +134,12 @@ def mail_worker_process(*, python: str, log_level: str = "INFO") -> ProcessSpec:
     )
 
 
+def collector_process(*, python: str) -> ProcessSpec:
+    """The collector (``portal/runs/collector.py``): follows running runs on their agents and
+    stores each sample as soon as it is stored there, for the live pages."""
+    return ProcessSpec("collector", (python, str(REPO / "manage.py"), "collect_live"))
+
+
 def beat_process(*, python: str, schedule_file: Path, log_level: str = "INFO") -> ProcessSpec:
     """Celery beat, keeping its schedule state in ``schedule_file``."""
     return ProcessSpec(
@@ -156,6 +176,7 @@ def system_processes(
     *,
     python: str,
     portal_port: int,
+    streams_port: int,
     agent_port: int,
     var_dir: Path,
     host: str = DEFAULT_HOST,
@@ -166,8 +187,8 @@ def system_processes(
     standin_test_control: bool = False,
     second_agent_port: int | None = None,
 ) -> list[ProcessSpec]:
-    """The agent, the web server, the Celery workers (runs, mail) and beat, in the order to
-    start them.
+    """The agent, the web server (pages and API), the streams server, the Celery workers
+    (runs, mail), the collector and beat, in the order to start them.
 
     ``python`` runs every process; ``host`` is the address the agents and the web server
     listen on; ``var_dir`` holds local state (beat's schedule, the second agent's store and
@@ -179,8 +200,10 @@ def system_processes(
     processes = [
         agent_process(python=python, port=agent_port, host=host),
         web_process(python=python, port=portal_port, host=host, access_log=access_log),
+        streams_process(python=python, port=streams_port, host=host, access_log=access_log),
         worker_process(python=python, concurrency=worker_concurrency, log_level=log_level),
         mail_worker_process(python=python, log_level=log_level),
+        collector_process(python=python),
         beat_process(
             python=python, schedule_file=var_dir / "celerybeat-schedule", log_level=log_level
         ),

@@ -110,10 +110,10 @@ INSTALLED_APPS = [
     "drf_spectacular",
     # Before allauth, so that our templates override its defaults.
     "portal.web",
-    "portal.accounts",
+    "core.accounts",
     "portal.experiments",
     "portal.runs",
-    "portal.audit",
+    "core.audit",
     "bookings",
     "allauth",
     "allauth.account",
@@ -157,6 +157,16 @@ DATABASES = {
 _db_password = env_secret("DATABASE_PASSWORD")
 if _db_password:
     DATABASES["default"]["PASSWORD"] = _db_password
+# PostgreSQL through psycopg's connection pool (per process): a request borrows a connection
+# instead of opening one (persistent connections leak one per thread under the ASGI server).
+DATABASE_POOL_MAX_SIZE = env.int("DATABASE_POOL_MAX_SIZE", default=10)
+if DATABASES["default"]["ENGINE"] == "django.db.backends.postgresql" and DATABASE_POOL_MAX_SIZE:
+    DATABASES["default"]["CONN_MAX_AGE"] = 0  # the pool keeps the connections
+    DATABASES["default"].setdefault("OPTIONS", {})["pool"] = {
+        "min_size": 1,
+        "max_size": DATABASE_POOL_MAX_SIZE,
+        "timeout": env.float("DATABASE_POOL_TIMEOUT_S", default=10.0),
+    }
 if DATABASES["default"]["ENGINE"] == "django.db.backends.sqlite3":
     # Several processes (web, worker, beat) share the file: wait for locks instead of failing.
     DATABASES["default"].setdefault("OPTIONS", {}).update(
@@ -182,7 +192,7 @@ ACCOUNT_LOGIN_METHODS = {"username", "email"}
 ACCOUNT_SIGNUP_FIELDS = ["email*", "username*", "password1*", "password2*"]
 ACCOUNT_EMAIL_VERIFICATION = env.str("ACCOUNT_EMAIL_VERIFICATION", default="optional")
 ACCOUNT_ALLOW_SIGNUP = env.bool("ACCOUNT_ALLOW_SIGNUP", default=False)
-ACCOUNT_ADAPTER = "portal.accounts.adapter.AccountAdapter"
+ACCOUNT_ADAPTER = "core.accounts.adapter.AccountAdapter"
 ACCOUNT_RATE_LIMITS = False if DEBUG else {"login_failed": "10/m/ip,5/5m/key"}
 
 EMAIL_BACKEND = env.str("EMAIL_BACKEND", default="django.core.mail.backends.console.EmailBackend")
@@ -207,7 +217,7 @@ WHITENOISE_USE_FINDERS = DEBUG
 WHITENOISE_AUTOREFRESH = DEBUG
 
 REDIS_URL = env.str("REDIS_URL", default="")
-# Live pushes to the pages (portal/live.py) go through REDIS_URL's pub/sub; without Redis
+# Live pushes to the pages (core/live.py) go through REDIS_URL's pub/sub; without Redis
 # (make run), through files here that the web process watches.
 LIVE_DIR = VAR_DIR / "live"
 CACHES = {
@@ -223,19 +233,37 @@ CACHES = {
     )
 }
 
-# Celery. The embedded default is kombu's filesystem transport, so ``make run`` needs no broker.
+# How the portal is served (portal/gunicorn_conf.py, portal/processes.py): pages and API on
+# the WSGI server, WEB_WORKERS processes of WEB_THREADS threads (default: a process per core);
+# the live streams on the ASGI server. LIVE_STREAM_PORT: where the pages open their streams
+# when the ASGI server listens on its own port of the same host (make run, tests); empty
+# when a proxy routes /live/ to it on the pages' own origin (docker-compose.yml).
+WEB_WORKERS = env.int("WEB_WORKERS", default=os.cpu_count() or 1)
+WEB_THREADS = env.int("WEB_THREADS", default=8)
+LIVE_STREAM_PORT = env.int("LIVE_STREAM_PORT", default=0) or None
+
+# Celery. The embedded default is a filesystem transport (``portal/embedded_broker.py``: kombu's,
+# with atomic writes and redelivery after a consumer's death), so ``make run`` needs no broker.
 CELERY_BROKER_URL = env.str("CELERY_BROKER_URL", default="filesystem://")
 CELERY_BROKER_TRANSPORT_OPTIONS: dict[str, object] = {}
-if CELERY_BROKER_URL == "filesystem://":
+if CELERY_BROKER_URL.startswith(("redis://", "rediss://")):
+    # kombu's, with a worker that waits out a Redis outage instead of exiting
+    # (``portal/redis_broker.py``).
+    CELERY_BROKER_TRANSPORT = "portal.redis_broker:Transport"
+elif CELERY_BROKER_URL == "filesystem://":
+    CELERY_BROKER_TRANSPORT = "portal.embedded_broker:Transport"
     _broker_dir = VAR_DIR / "broker"
-    for _sub in ("queue", "processed", "control"):
+    for _sub in ("queue", "inflight", "control"):
         (_broker_dir / _sub).mkdir(parents=True, exist_ok=True)
     CELERY_BROKER_TRANSPORT_OPTIONS = {
         "data_folder_in": str(_broker_dir / "queue"),
         "data_folder_out": str(_broker_dir / "queue"),
-        "processed_folder": str(_broker_dir / "processed"),
+        "inflight_folder": str(_broker_dir / "inflight"),
+        "bad_folder": str(_broker_dir / "bad"),
         "control_folder": str(_broker_dir / "control"),
-        "store_processed": False,
+        # An idle worker looks for new messages this often (kombu's default is 1 s): the
+        # sweeps' tasks expire after two sweep intervals.
+        "polling_interval": 0.2,
     }
 # At least once: a task is acknowledged only when it has finished, a worker takes one at a
 # time, and a task whose worker died is delivered again. Every task is safe to run twice.
@@ -277,6 +305,10 @@ RUN_START_GRACE_S = env.float("RUN_START_GRACE_S", default=60.0)
 # before the run is closed with what was collected: ``interrupted`` with the missing
 # ranges, or ``failed`` when nothing came.
 RUN_COLLECT_GRACE_S = env.float("RUN_COLLECT_GRACE_S", default=600.0)
+# The collector (portal/runs/collector.py) looks for runs to follow this often, and each of
+# its long-polls on an agent waits at most this long for the next samples.
+COLLECTOR_SCAN_INTERVAL_S = env.float("COLLECTOR_SCAN_INTERVAL_S", default=0.5)
+COLLECTOR_WAIT_S = env.int("COLLECTOR_WAIT_S", default=10)
 # Robot health: each agent's status is read this often and cached; a robot reporting a
 # latched e-stop, a fault or a battery under the threshold, or an agent unreachable for
 # longer than the threshold, is taken out of booking until an admin returns it.
@@ -295,7 +327,7 @@ CELERY_BEAT_SCHEDULE = {
     },
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
     "idempotency-keys-delete-expired": {
-        "task": "portal.audit.tasks.idempotency_keys_delete_expired",
+        "task": "core.audit.tasks.idempotency_keys_delete_expired",
         "schedule": 3600.0,
     },
 }
@@ -313,7 +345,7 @@ def _throttle_rate(name: str, default: str) -> str | None:
     return rate
 
 
-# API throttles (portal/api.py): anonymous clients per address, authenticated ones per user.
+# API throttles (core/api.py): anonymous clients per address, authenticated ones per user.
 API_THROTTLE_ANON = _throttle_rate("API_THROTTLE_ANON", "60/minute")
 API_THROTTLE_USER = _throttle_rate("API_THROTTLE_USER", "50/second")
 
@@ -325,7 +357,7 @@ REST_FRAMEWORK = {
         "rest_framework.authentication.SessionAuthentication",
     ],
     "DEFAULT_PERMISSION_CLASSES": ["rest_framework.permissions.IsAuthenticated"],
-    "DEFAULT_THROTTLE_CLASSES": ["portal.api.AnonymousThrottle", "portal.api.UserThrottle"],
+    "DEFAULT_THROTTLE_CLASSES": ["core.api.AnonymousThrottle", "core.api.UserThrottle"],
     "DEFAULT_PARSER_CLASSES": ["rest_framework.parsers.JSONParser"],
     "DEFAULT_RENDERER_CLASSES": [
         "rest_framework.renderers.JSONRenderer",
@@ -333,13 +365,13 @@ REST_FRAMEWORK = {
     ],
     # The media type comes from Accept only, never from a ?format= that the schema would list.
     "URL_FORMAT_OVERRIDE": None,
-    "DEFAULT_SCHEMA_CLASS": "portal.openapi.AutoSchema",
-    "DEFAULT_PAGINATION_CLASS": "portal.api.Pagination",
-    "EXCEPTION_HANDLER": "portal.api.exception_handler",
+    "DEFAULT_SCHEMA_CLASS": "core.openapi.AutoSchema",
+    "DEFAULT_PAGINATION_CLASS": "core.api.Pagination",
+    "EXCEPTION_HANDLER": "core.api.exception_handler",
 }
 SPECTACULAR_SETTINGS = {
     "TITLE": "AMazING mobile-node manager API",
-    "DESCRIPTION": "",  # portal.openapi.DESCRIPTION, set by its hook
+    "DESCRIPTION": "",  # core.openapi.DESCRIPTION, set by its hook
     "VERSION": "1",
     "SERVE_INCLUDE_SCHEMA": False,
     "COMPONENT_SPLIT_REQUEST": True,
@@ -352,7 +384,7 @@ SPECTACULAR_SETTINGS = {
     },
     "POSTPROCESSING_HOOKS": [
         "drf_spectacular.hooks.postprocess_schema_enums",
-        "portal.openapi.postprocess_schema",
+        "core.openapi.postprocess_schema",
     ],
     # Swagger UI from the npm package the build installs, never from a CDN.
     "SWAGGER_UI_DIST": "/static/vendor/swagger-ui-dist",

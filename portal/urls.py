@@ -2,7 +2,7 @@ from django.contrib import admin
 from django.urls import include, path, re_path
 from drf_spectacular.views import SpectacularAPIView, SpectacularSwaggerView
 
-from portal.api import api_not_found
+from core.api import api_not_found
 from portal.web.views import healthz
 
 urlpatterns = [
@@ -14,8 +14,8 @@ urlpatterns = [
     path("api/v1/", include("portal.experiments.urls")),
     path("api/v1/", include("portal.runs.urls")),
     path("api/v1/", include("bookings.urls")),
-    path("api/v1/", include("portal.audit.urls")),
-    path("api/v1/", include("portal.accounts.urls")),
+    path("api/v1/", include("core.audit.urls")),
+    path("api/v1/", include("core.accounts.urls")),
     # Last of the API: any other path under /api/ answers a JSON 404, not a page.
     re_path(r"^api/(?P<path>.*)$", api_not_found),
     # The testbed scheduler's own lease vocabulary, for the robot (bookings/inbound.py).

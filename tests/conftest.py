@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 
 import pytest
+from django.core.cache import cache
+from hypothesis import settings as hypothesis_settings
 from rest_framework.test import APIClient
 
 from portal.celery import app as celery_app
@@ -12,6 +14,13 @@ from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactor
 
 # The real-process stack (agent, web, worker, beat) for integration and browser tests.
 pytest_plugins = ["tests.integration.stack", "tests.integration.live"]
+
+# Property tests run real code (SQLite, codecs, the firmware core through ctypes) on a shared
+# machine: how long one example takes says nothing about correctness, so no example has a
+# deadline. Registered here, before any test module is imported, so that every ``@settings``
+# inherits it.
+hypothesis_settings.register_profile("suite", deadline=None)
+hypothesis_settings.load_profile("suite")
 
 
 def pytest_report_header(config: pytest.Config) -> list[str]:
@@ -37,6 +46,21 @@ def pytest_configure(config: pytest.Config) -> None:
             raise pytest.UsageError(f"tests must run on PostgreSQL, got {engine}")
         if not settings.CELERY_BROKER_URL.startswith("redis://"):
             raise pytest.UsageError(f"tests must use Redis, got {settings.CELERY_BROKER_URL}")
+
+
+@pytest.fixture(autouse=True)
+def _fresh_cache(settings, tmp_path):
+    """Each test starts with an empty cache: robot health, throttle counts and heartbeats
+    kept there have no expiry, and a test must not pass or fail by what an earlier one left.
+
+    The Redis database is the test run's own; a cache in files (no Redis configured) is
+    moved to the test's directory instead of emptying the one ``make run`` uses."""
+    if settings.CACHES["default"]["BACKEND"].endswith("RedisCache"):
+        cache.clear()
+    else:
+        settings.CACHES = {
+            "default": {**settings.CACHES["default"], "LOCATION": str(tmp_path / "cache")}
+        }
 
 
 @pytest.fixture(autouse=True)

@@ -6,7 +6,7 @@ import factory
 
 from bookings.choices import ResourceKind
 from bookings.models import Resource
-from portal.accounts.models import User
+from core.accounts.models import User
 from portal.experiments.models import Experiment
 
 

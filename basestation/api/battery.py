@@ -16,7 +16,7 @@ bp = Blueprint("battery", __name__)
 @bp.get("/battery")
 def battery() -> ResponseReturnValue:
     runtime = get_runtime()
-    snapshot = runtime.manager.snapshot
+    snapshot = runtime.control.snapshot
     at_s = snapshot.telemetry_at_s
     threshold_v = runtime.config.low_battery_v
     return jsonify(

@@ -32,7 +32,7 @@ def control() -> ResponseReturnValue:
     runtime = get_runtime()
     command = parse_control_body(json_body(), max_velocity_mps=runtime.config.max_velocity_mps)
     now_s = time.time()
-    drive, aborted = manual_drive(manager=runtime.manager, command=command, now_s=now_s)
+    drive, aborted = manual_drive(manager=runtime.control, command=command, now_s=now_s)
     return jsonify(
         {
             "manual": None if drive is None else drive.to_json_dict(now_s),
@@ -45,7 +45,7 @@ def control() -> ResponseReturnValue:
 def stop() -> ResponseReturnValue:
     runtime = get_runtime()
     request_ = parse_stop_body(json_body(optional=True))
-    latch, aborted = estop_latch(manager=runtime.manager, request=request_, now_s=time.time())
+    latch, aborted = estop_latch(manager=runtime.control, request=request_, now_s=time.time())
     return jsonify({"estop": estop_json(latch), "aborted_run": aborted})
 
 
@@ -53,5 +53,5 @@ def stop() -> ResponseReturnValue:
 def release() -> ResponseReturnValue:
     runtime = get_runtime()
     request_ = parse_stop_body(json_body(optional=True), allowed=RELEASE_FIELDS)
-    was_latched = estop_release(manager=runtime.manager, request=request_, now_s=time.time())
-    return jsonify({"estop": estop_json(runtime.manager.estop), "released": was_latched})
+    was_latched = estop_release(manager=runtime.control, request=request_, now_s=time.time())
+    return jsonify({"estop": estop_json(runtime.control.estop), "released": was_latched})

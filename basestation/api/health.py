@@ -12,8 +12,7 @@ bp = Blueprint("health", __name__)
 @bp.get("/healthz")
 def healthz() -> tuple[Response, int]:
     runtime = get_runtime()
-    loop = runtime.control_loop
-    # Unhealthy only when a loop was started and has died (the robot gets no commands), or
-    # the store writer has (samples are no longer stored).
-    ok = (loop is None or loop.running) and runtime.manager.writer.alive
+    # Unhealthy only when the loop is not ticking (its process died or hangs: the robot gets
+    # no commands), or its store writer has died (samples are no longer stored).
+    ok = runtime.loop_healthy()
     return jsonify({"ok": ok}), 200 if ok else 503

@@ -16,4 +16,9 @@ def refuse_oversized_body() -> None:
     limit = current_app.config["MAX_CONTENT_LENGTH"]
     length = request.content_length
     if limit is not None and length is not None and length > limit:
-        raise RequestEntityTooLarge(f"The body is larger than {limit} bytes.")
+        raise RequestEntityTooLarge(too_large_detail(limit))
+
+
+def too_large_detail(limit_bytes: int) -> str:
+    """What a 413 says, here and from the HTTP server in front (``basestation.serve``)."""
+    return f"The body is larger than {limit_bytes} bytes."

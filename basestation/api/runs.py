@@ -18,12 +18,18 @@ from basestation.errors import RunNotFound
 from basestation.program import FieldErrors
 from basestation.runtime import get_runtime
 from basestation.services import is_valid_run_id, run_stage, run_withdraw
-from basestation.store import RUN_STATES, RunRecord, Sample, SampleStats
+from basestation.store import RUN_STATES, RUNNING, STAGED, RunRecord, RunStore, Sample, SampleStats
 
 bp = Blueprint("runs", __name__)
 
 DEFAULT_PAGE = 1000
 MAX_PAGE = 5000
+# A request for a running run's samples may wait this long for the next ones (long-poll):
+# the portal's collector follows a run with one such request at a time, and each holds one
+# HTTP thread of the agent while it waits.
+MAX_WAIT_S = 30
+# Waiting is only worth it while samples can still come.
+_WAITABLE_STATES = (STAGED, RUNNING)
 # The CSV page has the contract's columns, in its order.
 SAMPLE_CSV_COLUMNS = SAMPLE_FIELDS
 _UNSIGNED = re.compile(r"[0-9]{1,15}")
@@ -35,7 +41,7 @@ def _run_json(record: RunRecord, stats: SampleStats | None = None) -> dict[str, 
     if stats is None:
         stats = runtime.store.sample_stats(record.id)
     # The samples' ``track_m`` wraps at this length: whoever analyses them needs it.
-    return {**record.to_json_dict(stats), "rail_length_m": runtime.manager.rail_length_m}
+    return {**record.to_json_dict(stats), "rail_length_m": runtime.control.rail_length_m}
 
 
 @bp.get("/runs")
@@ -53,7 +59,7 @@ def put_run(run_id: str) -> ResponseReturnValue:
     body = json_body()
     record, created = run_stage(
         store=runtime.store,
-        manager=runtime.manager,
+        manager=runtime.control,
         config=runtime.config,
         run_id=run_id,
         body=body,
@@ -79,7 +85,7 @@ def get_run(run_id: str) -> ResponseReturnValue:
 def delete_run(run_id: str) -> ResponseReturnValue:
     runtime = get_runtime()
     record = run_withdraw(
-        store=runtime.store, manager=runtime.manager, run_id=run_id, now_s=time.time()
+        store=runtime.store, manager=runtime.control, run_id=run_id, now_s=time.time()
     )
     return jsonify(_run_json(record))
 
@@ -93,12 +99,12 @@ def get_samples(run_id: str) -> ResponseReturnValue:
     errors: FieldErrors = {}
     after_seq = _int_arg("after", 0, low=0, high=None, errors=errors)
     limit = _int_arg("limit", DEFAULT_PAGE, low=1, high=MAX_PAGE, errors=errors)
+    wait_s = _int_arg("wait_s", 0, low=0, high=MAX_WAIT_S, errors=errors)
     if errors:
         return invalid_response(errors)
-    # One row more than asked tells whether another page follows.
-    samples = store.samples_after(run_id, after_seq, limit + 1)
+    record, samples = _samples_or_wait(store, record, after_seq, limit + 1, wait_s)
     more = len(samples) > limit
-    samples = samples[:limit]
+    samples = samples[:limit]  # one row more than asked tells whether another page follows
     # With an empty page last_seq stays at `after`, so `after=last_seq` always continues.
     last_seq = samples[-1].seq if samples else after_seq
 
@@ -120,6 +126,32 @@ def get_samples(run_id: str) -> ResponseReturnValue:
         )
     response.vary.add("Accept")
     return response
+
+
+# How often a long-poll looks at the store again while it waits (see _samples_or_wait).
+CROSS_PROCESS_LOOK_S = 0.05
+
+
+def _samples_or_wait(
+    store: RunStore, record: RunRecord, after_seq: int, limit: int, wait_s: int
+) -> tuple[RunRecord, list[Sample]]:
+    """The samples after ``after_seq``; if there are none yet and the run may still record
+    some, wait up to ``wait_s`` for the store to commit the next ones (or the run's end), so
+    a follower hears of a sample as soon as it is durable, without polling."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        # The version before looking: a commit after the look ends the wait below at once.
+        version = store.version
+        # The state before the samples: the writer commits a run's last samples before its
+        # end, so a page that says "ended" holds every sample still to come.
+        record = store.get_run(record.id) or record
+        samples = store.samples_after(record.id, after_seq, limit)
+        remaining_s = deadline - time.monotonic()
+        if samples or record.state not in _WAITABLE_STATES or remaining_s <= 0:
+            return record, samples
+        # The store's writer may live in another process (the control loop's): its commits
+        # wake no waiter here, so the wait is cut into short slices that look again.
+        store.wait_changed(version, min(remaining_s, CROSS_PROCESS_LOOK_S))
 
 
 def _page_json(run_id: str, state: str, samples: list[Sample], last_seq: int, more: bool) -> str:

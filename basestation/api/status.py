@@ -10,6 +10,7 @@ from flask.typing import ResponseReturnValue
 
 from basestation.api.control import estop_json
 from basestation.control import ControlStats
+from basestation.loop_process import LoopProcess
 from basestation.runtime import AGENT_VERSION, get_runtime
 from basestation.system import clock_synchronized, cpu_temp_c
 
@@ -42,10 +43,16 @@ def _ms(value_s: float | None) -> float | None:
     return None if value_s is None else round(value_s * 1000.0, 3)
 
 
-def control_json(control: ControlStats) -> dict[str, Any]:
+def control_json(control: ControlStats, loop: LoopProcess | None = None) -> dict[str, Any]:
     window = control.window
     return {
         "hz": control.hz,
+        # The loop's own process (None when the manager is ticked by hand), how often it was
+        # started again after dying, and the scheduling it got (docs/basestation.md).
+        "pid": None if loop is None else loop.pid,
+        "restarts": 0 if loop is None else loop.restarts,
+        "sched_fifo": loop is not None and loop.realtime,
+        "cpu": None if loop is None else loop.pinned_cpu,
         "running": control.running,
         "ticks": control.ticks,
         "late_ticks": control.late_ticks,
@@ -69,7 +76,7 @@ def control_json(control: ControlStats) -> dict[str, Any]:
 def status() -> ResponseReturnValue:
     runtime = get_runtime()
     now_s = time.time()
-    manager = runtime.manager
+    manager = runtime.control
     snapshot = manager.snapshot
     telemetry = snapshot.telemetry
     robot: dict[str, Any] = {"velocity_mps": None, "direction": None, "track_m": None}
@@ -102,6 +109,7 @@ def status() -> ResponseReturnValue:
                 "low": snapshot.battery_low,
             },
             "robot": robot,
+            "limits": runtime.limits_json(),
             "link": {
                 "state": "up" if age_s is not None and age_s <= LINK_DOWN_AFTER_S else "down",
                 "age_s": age_s,
@@ -116,9 +124,9 @@ def status() -> ResponseReturnValue:
                 "disk_free_bytes": None if disk is None else disk.free_bytes,
                 "disk_total_bytes": None if disk is None else disk.total_bytes,
             },
-            "control": control_json(control),
+            "control": control_json(control, runtime.loop),
             "faults": faults(
-                loop_started=runtime.control_loop is not None,
+                loop_started=runtime.loop_started,
                 control=control,
                 link_age_s=age_s,
             ),

@@ -10,6 +10,7 @@ from basestation.protocol.frames import (
     ACCEL_LIMIT_MM_S2,
     COMMAND_FLAGS_DEFINED,
     COMMAND_FRAME_SIZE,
+    CONFIG_ACK_FRAME_SIZE,
     CONFIG_FRAME_SIZE,
     HEADER_SIZE,
     LAT_LIMIT_E7,
@@ -19,6 +20,7 @@ from basestation.protocol.frames import (
     VELOCITY_LIMIT_MM_S,
     CommandFlag,
     CommandFrame,
+    ConfigAckFrame,
     ConfigFrame,
     Direction,
     FixQuality,
@@ -34,11 +36,13 @@ _HEADER: Final = struct.Struct("<BBBBBB")  # len, to, from, ctl, version, type
 _COMMAND: Final = struct.Struct("<HHBBH")  # seq, velocity, direction, flags, ttl
 _TELEMETRY: Final = struct.Struct("<HHIHBHiiBBBb")
 _CONFIG: Final = struct.Struct("<HHH")  # seq, max velocity, acceleration
+_CONFIG_ACK: Final = struct.Struct("<HHHH")  # seq, max velocity, acceleration, hard max velocity
 
 _FRAME_SIZE: Final[dict[int, int]] = {
     FrameType.COMMAND: COMMAND_FRAME_SIZE,
     FrameType.TELEMETRY: TELEMETRY_FRAME_SIZE,
     FrameType.CONFIG: CONFIG_FRAME_SIZE,
+    FrameType.CONFIG_ACK: CONFIG_ACK_FRAME_SIZE,
 }
 _DIRECTIONS: Final = frozenset(int(d) for d in Direction)
 _FIX_QUALITIES: Final = frozenset(int(q) for q in FixQuality)
@@ -46,6 +50,7 @@ _FIX_QUALITIES: Final = frozenset(int(q) for q in FixQuality)
 assert HEADER_SIZE + _COMMAND.size == COMMAND_FRAME_SIZE
 assert HEADER_SIZE + _TELEMETRY.size == TELEMETRY_FRAME_SIZE
 assert HEADER_SIZE + _CONFIG.size == CONFIG_FRAME_SIZE
+assert HEADER_SIZE + _CONFIG_ACK.size == CONFIG_ACK_FRAME_SIZE
 
 
 # --- field checks shared by encoder and decoder ---------------------------------------------
@@ -155,11 +160,25 @@ def encode_config(frame: ConfigFrame) -> bytes:
     return header + _CONFIG.pack(frame.seq, frame.max_velocity_mm_s, frame.accel_mm_s2)
 
 
+def encode_config_ack(frame: ConfigAckFrame) -> bytes:
+    _check_u16("seq", frame.seq)
+    _check_velocity(frame.max_velocity_mm_s, "max_velocity_mm_s")
+    _check_accel(frame.accel_mm_s2)
+    _check_velocity(frame.hard_max_velocity_mm_s, "hard_max_velocity_mm_s")
+    header = _header(FrameType.CONFIG_ACK, CONFIG_ACK_FRAME_SIZE, frame.to_node, frame.from_node)
+    body = _CONFIG_ACK.pack(
+        frame.seq, frame.max_velocity_mm_s, frame.accel_mm_s2, frame.hard_max_velocity_mm_s
+    )
+    return header + body
+
+
 def encode_frame(frame: Frame) -> bytes:
     if isinstance(frame, CommandFrame):
         return encode_command(frame)
     if isinstance(frame, TelemetryFrame):
         return encode_telemetry(frame)
+    if isinstance(frame, ConfigAckFrame):
+        return encode_config_ack(frame)
     return encode_config(frame)
 
 
@@ -254,6 +273,21 @@ def _decode_config_body(raw: bytes, to_node: int, from_node: int) -> ConfigFrame
     )
 
 
+def _decode_config_ack_body(raw: bytes, to_node: int, from_node: int) -> ConfigAckFrame:
+    seq, max_velocity_mm_s, accel_mm_s2, hard_max_mm_s = _CONFIG_ACK.unpack_from(raw, HEADER_SIZE)
+    _check_velocity(max_velocity_mm_s, "max_velocity_mm_s")
+    _check_accel(accel_mm_s2)
+    _check_velocity(hard_max_mm_s, "hard_max_velocity_mm_s")
+    return ConfigAckFrame(
+        seq=seq,
+        max_velocity_mm_s=max_velocity_mm_s,
+        accel_mm_s2=accel_mm_s2,
+        hard_max_velocity_mm_s=hard_max_mm_s,
+        to_node=to_node,
+        from_node=from_node,
+    )
+
+
 def decode_frame(data: Buffer) -> Frame:
     """Decode any version-1 frame; raise :class:`FrameError` for anything else."""
     raw = bytes(data)
@@ -262,6 +296,8 @@ def decode_frame(data: Buffer) -> Frame:
         return _decode_command_body(raw, to_node, from_node)
     if frame_type is FrameType.TELEMETRY:
         return _decode_telemetry_body(raw, to_node, from_node)
+    if frame_type is FrameType.CONFIG_ACK:
+        return _decode_config_ack_body(raw, to_node, from_node)
     return _decode_config_body(raw, to_node, from_node)
 
 
@@ -278,6 +314,14 @@ def decode_telemetry(data: Buffer) -> TelemetryFrame:
     frame = decode_frame(data)
     if not isinstance(frame, TelemetryFrame):
         raise FrameError("unknown_type", "expected a telemetry frame")
+    return frame
+
+
+def decode_config_ack(data: Buffer) -> ConfigAckFrame:
+    """Decode a config acknowledgement; a valid frame of another type is ``unknown_type``."""
+    frame = decode_frame(data)
+    if not isinstance(frame, ConfigAckFrame):
+        raise FrameError("unknown_type", "expected a config acknowledgement")
     return frame
 
 

@@ -16,6 +16,7 @@ HEADER_SIZE: Final = 6
 COMMAND_FRAME_SIZE: Final = 14
 TELEMETRY_FRAME_SIZE: Final = 31
 CONFIG_FRAME_SIZE: Final = 12
+CONFIG_ACK_FRAME_SIZE: Final = 14
 MAX_FRAME_SIZE: Final = 66
 
 #: The wire limit for a commanded or configured speed; the robot clamps further.
@@ -31,6 +32,7 @@ class FrameType(enum.IntEnum):
     COMMAND = 1
     TELEMETRY = 2
     CONFIG = 3
+    CONFIG_ACK = 4
 
 
 class Direction(enum.IntEnum):
@@ -130,4 +132,20 @@ class ConfigFrame:
     from_node: int = BASESTATION_NODE
 
 
-Frame = CommandFrame | TelemetryFrame | ConfigFrame
+@dataclass(frozen=True, slots=True)
+class ConfigAckFrame:
+    """Robot → BS: the limits the robot applied and the hard maximum compiled into it.
+
+    ``hard_max_velocity_mm_s`` bounds every limit a config frame can set: the agent refuses
+    to run with a configured limit above it (docs/protocol.md §2.4).
+    """
+
+    seq: int
+    max_velocity_mm_s: int
+    accel_mm_s2: int
+    hard_max_velocity_mm_s: int
+    to_node: int = BASESTATION_NODE
+    from_node: int = ROBOT_NODE
+
+
+Frame = CommandFrame | TelemetryFrame | ConfigFrame | ConfigAckFrame

@@ -27,6 +27,7 @@ from basestation.protocol import (
     VELOCITY_LIMIT_MM_S,
     CommandFlag,
     CommandFrame,
+    ConfigAckFrame,
     ConfigFrame,
     Direction,
     FixQuality,
@@ -38,7 +39,7 @@ from basestation.protocol import (
     encode_config,
 )
 from basestation.radio.rfm69 import RadioError
-from basestation.robot import Command, RobotLinkError, Telemetry
+from basestation.robot import Command, RobotLimits, RobotLinkError, Telemetry
 from basestation.telemetry.gps import DEFAULT_STALE_AFTER_S, GpsTracker
 from basestation.telemetry.rail import Rail
 
@@ -214,10 +215,16 @@ class RadioRobotLink:
         in its EEPROM across a restart). A released robot moves only on a later command."""
         self._release_pending = True
 
-    def configure(self, *, max_velocity_mps: float, accel_mps2: float) -> tuple[float, float]:
-        """Send the run's limits in a config frame; return the limits the robot applied
-        (within its compiled-in hard limits). Raises :class:`RobotLinkError` without an
-        answer."""
+    def configure(self, *, max_velocity_mps: float, accel_mps2: float) -> RobotLimits:
+        """Send these limits in a config frame; return what the robot confirmed.
+
+        The agent calls it once, at start-up, with its own ``AGENT_MAX_*`` limits (a run's
+        lower limits need no config frame: the agent never commands faster than the run
+        allows). The robot applies them within its compiled-in hard limits and answers with
+        a config acknowledgement that carries its hard maximum too; a robot whose firmware
+        predates the acknowledgement answers with a config frame (no hard maximum). Raises
+        :class:`RobotLinkError` without an answer.
+        """
         frame = ConfigFrame(
             seq=self._take_seq(),
             max_velocity_mm_s=_mm(max_velocity_mps, VELOCITY_LIMIT_MM_S),
@@ -238,8 +245,18 @@ class RadioRobotLink:
             if decoded is None:
                 continue
             reply, _ = decoded
+            if isinstance(reply, ConfigAckFrame) and reply.seq == frame.seq:
+                return RobotLimits(
+                    max_velocity_mps=reply.max_velocity_mm_s / 1000.0,
+                    max_accel_mps2=reply.accel_mm_s2 / 1000.0,
+                    hard_max_velocity_mps=reply.hard_max_velocity_mm_s / 1000.0,
+                )
             if isinstance(reply, ConfigFrame) and reply.seq == frame.seq:
-                return reply.max_velocity_mm_s / 1000.0, reply.accel_mm_s2 / 1000.0
+                return RobotLimits(
+                    max_velocity_mps=reply.max_velocity_mm_s / 1000.0,
+                    max_accel_mps2=reply.accel_mm_s2 / 1000.0,
+                    hard_max_velocity_mps=None,
+                )
         raise RobotLinkError(f"no answer to config {frame.seq}")
 
     def stats(self, now_s: float) -> LinkStats:
@@ -311,7 +328,7 @@ class RadioRobotLink:
 
     def _receive_for_us(
         self, timeout_s: float
-    ) -> tuple[TelemetryFrame | ConfigFrame | CommandFrame, float] | None:
+    ) -> tuple[TelemetryFrame | ConfigFrame | ConfigAckFrame | CommandFrame, float] | None:
         try:
             received = self.radio.receive(timeout_s)
         except RadioError as exc:

@@ -1,6 +1,6 @@
 """The robot's firmware core, loaded from ``libamazing_robot.so`` through ctypes.
 
-The structs mirror ``firmware/capi/amazing_robot.h`` (ABI version 1) field for field; the
+The structs mirror ``firmware/capi/amazing_robot.h`` (ABI version 2) field for field; the
 library is built by ``make -C firmware shared`` (g++ only). Nothing here re-implements robot
 logic: :class:`FirmwareRobot` is a thin, typed handle on the C API so that the simulator runs
 the same control code as the Arduino.
@@ -23,7 +23,7 @@ FIRMWARE_DIR: Final = REPO_DIR / "firmware"
 DEFAULT_LIBRARY: Final = FIRMWARE_DIR / "host" / "build" / "libamazing_robot.so"
 #: Overrides the library's path (an installed agent has no firmware tree to build from).
 LIBRARY_ENV: Final = "AMZ_ROBOT_LIBRARY"
-ABI_VERSION: Final = 1
+ABI_VERSION: Final = 2
 #: The RFM69 FIFO: no frame, in or out, is longer.
 MAX_FRAME_SIZE: Final = 66
 
@@ -73,12 +73,24 @@ class AmzConfig(ctypes.Structure):
     ]
 
 
+class AmzConfigAck(ctypes.Structure):
+    _fields_ = [
+        ("to_node", ctypes.c_uint8),
+        ("from_node", ctypes.c_uint8),
+        ("seq", ctypes.c_uint16),
+        ("max_velocity_mm_s", ctypes.c_uint16),
+        ("accel_mm_s2", ctypes.c_uint16),
+        ("hard_max_velocity_mm_s", ctypes.c_uint16),
+    ]
+
+
 class AmzFrame(ctypes.Structure):
     _fields_ = [
         ("type", ctypes.c_uint8),
         ("command", AmzCommand),
         ("telemetry", AmzTelemetry),
         ("config", AmzConfig),
+        ("config_ack", AmzConfigAck),
     ]
 
 

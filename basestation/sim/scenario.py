@@ -18,6 +18,7 @@ from typing import Final, Literal
 from basestation.protocol import (
     CommandFlag,
     CommandFrame,
+    ConfigAckFrame,
     ConfigFrame,
     Direction,
     FrameError,
@@ -49,7 +50,7 @@ class Bench:
     clock: FakeClock
     base: FrameRadio
     telemetry: list[tuple[float, TelemetryFrame]]
-    configs: list[ConfigFrame]
+    configs: list[ConfigAckFrame]  # the robot's answers to config frames
     seq: int = 0
 
     @classmethod
@@ -71,7 +72,7 @@ class Bench:
         )
         robot = SimulatedRobot(config, channel=channel, trace_interval_s=trace_interval_s)
         telemetry: list[tuple[float, TelemetryFrame]] = []
-        configs: list[ConfigFrame] = []
+        configs: list[ConfigAckFrame] = []
 
         def on_frame(end_s: float, data: bytes, rssi_dbm: float) -> None:
             try:
@@ -80,7 +81,7 @@ class Bench:
                 return
             if isinstance(frame, TelemetryFrame):
                 telemetry.append((end_s, frame))
-            elif isinstance(frame, ConfigFrame):
+            elif isinstance(frame, ConfigAckFrame):
                 configs.append(frame)
 
         radio = replace(config.radio, node=config.radio.base_node, base_node=config.radio.node)
@@ -146,13 +147,16 @@ class Bench:
         direction: Direction = Direction.CW,
         *,
         flags: CommandFlag = NO_FLAGS,
+        tick_s: float = TICK_S,
+        ttl_ms: int = 500,
     ) -> None:
-        """One command per tick for ``duration_s`` (``velocity_mps`` None: send nothing)."""
-        ticks = max(0, round(duration_s / TICK_S))
+        """One command per tick for ``duration_s`` (``velocity_mps`` None: send nothing);
+        ``tick_s`` is the agent's control period (0.02 at 50 Hz)."""
+        ticks = max(0, round(duration_s / tick_s))
         for _ in range(ticks):
             if velocity_mps is not None:
-                self.send_command(velocity_mps, direction, flags=flags)
-            self.advance(TICK_S)
+                self.send_command(velocity_mps, direction, flags=flags, ttl_ms=ttl_ms)
+            self.advance(tick_s)
 
     def trace_since(self, time_s: float) -> list[TraceSample]:
         return [s for s in self.robot.trace if s.time_s >= time_s]

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Protocol
 
+from bookings.periods import overlaps
+
 
 class LeaseStatus(enum.StrEnum):
     """A lease's life: ``pending → accepted → active → past``, or ``cancelled``.
@@ -74,10 +76,11 @@ class Lease:
         return self.status.holds_nodes and bool(self.component_names)
 
     def overlaps(self, *, start: datetime | None, end: datetime | None) -> bool:
-        """Half-open: a lease that ends exactly when the window starts does not overlap."""
-        return (end is None or self.valid_from < end) and (
-            start is None or self.valid_until > start
-        )
+        """Half-open: a lease that ends exactly when the window starts does not overlap.
+
+        ``None`` leaves the window open on that side.
+        """
+        return overlaps(self.valid_from, self.valid_until, start, end)
 
 
 class SchedulerError(Exception):

@@ -71,6 +71,12 @@ amz::ConfigFrame to_core(const amz_config& c) {
   return f;
 }
 
+amz::ConfigAckFrame to_core(const amz_config_ack& a) {
+  amz::ConfigAckFrame f = {a.to_node,           a.from_node,   a.seq,
+                           a.max_velocity_mm_s, a.accel_mm_s2, a.hard_max_velocity_mm_s};
+  return f;
+}
+
 int encoded(amz::FrameError e, size_t written) {
   return e == amz::FRAME_OK ? static_cast<int>(written) : -static_cast<int>(e);
 }
@@ -186,6 +192,13 @@ int amz_encode_config(const amz_config* frame, uint8_t* out, size_t cap) {
   return encoded(e, written);
 }
 
+int amz_encode_config_ack(const amz_config_ack* frame, uint8_t* out, size_t cap) {
+  if (frame == 0) return -AMZ_ERR_BUFFER_TOO_SMALL;
+  size_t written = 0;
+  const amz::FrameError e = amz::encode_config_ack(to_core(*frame), out, cap, &written);
+  return encoded(e, written);
+}
+
 int amz_decode_frame(const uint8_t* data, size_t len, amz_frame* out) {
   amz::Frame f;
   const amz::FrameError e = amz::decode_frame(data, len, &f);
@@ -213,6 +226,11 @@ int amz_decode_frame(const uint8_t* data, size_t len, amz_frame* out) {
     r.satellites = t.satellites;
     r.status = t.status;
     r.rssi_dbm = t.rssi_dbm;
+  } else if (f.type == amz::FRAME_CONFIG_ACK) {
+    const amz::ConfigAckFrame& a = f.config_ack;
+    amz_config_ack r = {a.to_node,           a.from_node,   a.seq,
+                        a.max_velocity_mm_s, a.accel_mm_s2, a.hard_max_velocity_mm_s};
+    out->config_ack = r;
   } else {
     const amz::ConfigFrame& c = f.config;
     amz_config r = {c.to_node, c.from_node, c.seq, c.max_velocity_mm_s, c.accel_mm_s2};

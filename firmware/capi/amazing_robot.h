@@ -12,7 +12,7 @@
 extern "C" {
 #endif
 
-#define AMZ_ABI_VERSION 1u
+#define AMZ_ABI_VERSION 2u
 
 /* Error kinds (docs/protocol.md §3); amz_frame_error_name() gives the shared names. */
 enum {
@@ -96,11 +96,22 @@ typedef struct amz_config {
   uint16_t accel_mm_s2;
 } amz_config;
 
+/* Robot -> BS: the limits applied and the compiled-in hard maximum. */
+typedef struct amz_config_ack {
+  uint8_t to_node;
+  uint8_t from_node;
+  uint16_t seq;
+  uint16_t max_velocity_mm_s;
+  uint16_t accel_mm_s2;
+  uint16_t hard_max_velocity_mm_s;
+} amz_config_ack;
+
 typedef struct amz_frame {
-  uint8_t type; /* 1 command, 2 telemetry, 3 config: selects the member that is valid */
+  uint8_t type; /* 1 command, 2 telemetry, 3 config, 4 config_ack: the member that is valid */
   amz_command command;
   amz_telemetry telemetry;
   amz_config config;
+  amz_config_ack config_ack;
 } amz_frame;
 
 typedef struct amz_gga_fix {
@@ -139,6 +150,7 @@ uint16_t amz_robot_battery_10mv(const amz_robot* robot);
 int amz_encode_command(const amz_command* frame, uint8_t* out, size_t cap);
 int amz_encode_telemetry(const amz_telemetry* frame, uint8_t* out, size_t cap);
 int amz_encode_config(const amz_config* frame, uint8_t* out, size_t cap);
+int amz_encode_config_ack(const amz_config_ack* frame, uint8_t* out, size_t cap);
 /* AMZ_OK or an AMZ_ERR_* kind; on AMZ_OK out->type says which member holds the frame. */
 int amz_decode_frame(const uint8_t* data, size_t len, amz_frame* out);
 const char* amz_frame_error_name(int kind);

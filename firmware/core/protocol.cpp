@@ -73,6 +73,13 @@ FrameError check_config(const ConfigFrame& f) {
   return e;
 }
 
+FrameError check_config_ack(const ConfigAckFrame& f) {
+  FrameError e = check_velocity(f.max_velocity_mm_s);
+  if (e == FRAME_OK) e = check_accel(f.accel_mm_s2);
+  if (e == FRAME_OK) e = check_velocity(f.hard_max_velocity_mm_s);
+  return e;
+}
+
 uint8_t frame_size(uint8_t type) {
   switch (type) {
     case FRAME_COMMAND:
@@ -81,6 +88,8 @@ uint8_t frame_size(uint8_t type) {
       return kTelemetryFrameSize;
     case FRAME_CONFIG:
       return kConfigFrameSize;
+    case FRAME_CONFIG_ACK:
+      return kConfigAckFrameSize;
     default:
       return 0;
   }
@@ -138,6 +147,15 @@ FrameError decode_frame(const uint8_t* data, size_t len, Frame* out) {
     t.status = p[23];
     t.rssi_dbm = static_cast<int8_t>(p[24]);
     e = check_telemetry(t);
+  } else if (type == FRAME_CONFIG_ACK) {
+    ConfigAckFrame& a = f.config_ack;
+    a.to_node = data[1];
+    a.from_node = data[2];
+    a.seq = get_u16(p);
+    a.max_velocity_mm_s = get_u16(p + 2);
+    a.accel_mm_s2 = get_u16(p + 4);
+    a.hard_max_velocity_mm_s = get_u16(p + 6);
+    e = check_config_ack(a);
   } else {
     ConfigFrame& c = f.config;
     c.to_node = data[1];
@@ -202,6 +220,21 @@ FrameError encode_config(const ConfigFrame& f, uint8_t* out, size_t cap, size_t*
   return FRAME_OK;
 }
 
+FrameError encode_config_ack(const ConfigAckFrame& f, uint8_t* out, size_t cap,
+                             size_t* written) {
+  const FrameError e = check_config_ack(f);
+  if (e != FRAME_OK) return e;
+  if (out == 0 || cap < kConfigAckFrameSize) return ERR_BUFFER_TOO_SMALL;
+  put_header(out, FRAME_CONFIG_ACK, f.to_node, f.from_node);
+  uint8_t* p = out + kHeaderSize;
+  put_u16(p, f.seq);
+  put_u16(p + 2, f.max_velocity_mm_s);
+  put_u16(p + 4, f.accel_mm_s2);
+  put_u16(p + 6, f.hard_max_velocity_mm_s);
+  if (written != 0) *written = kConfigAckFrameSize;
+  return FRAME_OK;
+}
+
 FrameError encode_frame(const Frame& f, uint8_t* out, size_t cap, size_t* written) {
   switch (f.type) {
     case FRAME_COMMAND:
@@ -210,6 +243,8 @@ FrameError encode_frame(const Frame& f, uint8_t* out, size_t cap, size_t* writte
       return encode_telemetry(f.telemetry, out, cap, written);
     case FRAME_CONFIG:
       return encode_config(f.config, out, cap, written);
+    case FRAME_CONFIG_ACK:
+      return encode_config_ack(f.config_ack, out, cap, written);
     default:
       return ERR_UNKNOWN_TYPE;
   }

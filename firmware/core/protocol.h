@@ -13,6 +13,7 @@ const uint8_t kHeaderSize = 6;
 const uint8_t kCommandFrameSize = 14;
 const uint8_t kTelemetryFrameSize = 31;
 const uint8_t kConfigFrameSize = 12;
+const uint8_t kConfigAckFrameSize = 14;
 const uint8_t kMaxFrameSize = 66;  // the RFM69 FIFO
 
 const uint16_t kVelocityLimitMmS = 10000;  // wire limit; the robot clamps further
@@ -22,7 +23,7 @@ const int32_t kLonLimitE7 = 1800000000L;
 
 const uint8_t kBroadcastNode = 255;
 
-enum FrameType { FRAME_COMMAND = 1, FRAME_TELEMETRY = 2, FRAME_CONFIG = 3 };
+enum FrameType { FRAME_COMMAND = 1, FRAME_TELEMETRY = 2, FRAME_CONFIG = 3, FRAME_CONFIG_ACK = 4 };
 
 enum Direction { DIR_CCW = 0, DIR_CW = 1 };
 
@@ -98,12 +99,23 @@ struct ConfigFrame {
   uint16_t accel_mm_s2;
 };
 
+// Robot -> BS: the answer to a config frame, with the compiled-in hard maximum.
+struct ConfigAckFrame {
+  uint8_t to_node;
+  uint8_t from_node;
+  uint16_t seq;
+  uint16_t max_velocity_mm_s;
+  uint16_t accel_mm_s2;
+  uint16_t hard_max_velocity_mm_s;
+};
+
 struct Frame {
   uint8_t type;  // FrameType; selects the member of the union
   union {
     CommandFrame command;
     TelemetryFrame telemetry;
     ConfigFrame config;
+    ConfigAckFrame config_ack;
   };
 };
 
@@ -116,6 +128,8 @@ FrameError encode_command(const CommandFrame& frame, uint8_t* out, size_t cap, s
 FrameError encode_telemetry(const TelemetryFrame& frame, uint8_t* out, size_t cap,
                             size_t* written);
 FrameError encode_config(const ConfigFrame& frame, uint8_t* out, size_t cap, size_t* written);
+FrameError encode_config_ack(const ConfigAckFrame& frame, uint8_t* out, size_t cap,
+                             size_t* written);
 FrameError encode_frame(const Frame& frame, uint8_t* out, size_t cap, size_t* written);
 
 // "too_short", "length_mismatch", ...; "unknown" for a value outside the enum.

@@ -96,16 +96,19 @@ size_t RobotApp::handle_frame(uint32_t now_ms, const uint8_t* data, size_t len, 
     if (accel < config_.accel_min_mm_s2) accel = config_.accel_min_mm_s2;
     if (accel > config_.accel_max_mm_s2) accel = config_.accel_max_mm_s2;
     motion_.set_limits(max_v, accel);
-    ConfigFrame answer;
+    // The acknowledgement carries the hard maximum too: the base station refuses to run
+    // with a configured limit this robot would never reach.
+    ConfigAckFrame answer;
     answer.to_node = request.from_node;
     answer.from_node = config_.node;
     answer.seq = request.seq;
     answer.max_velocity_mm_s = max_v;
     answer.accel_mm_s2 = accel;
-    if (encode_config(answer, reply, reply_cap, &written) != FRAME_OK) return 0;
+    answer.hard_max_velocity_mm_s = config_.hard_max_velocity_mm_s;
+    if (encode_config_ack(answer, reply, reply_cap, &written) != FRAME_OK) return 0;
     return written;
   }
-  return 0;  // telemetry is not for the robot
+  return 0;  // telemetry and acknowledgements are not for the robot
 }
 
 MotionOutput RobotApp::step(uint32_t now_ms) { return motion_.step(now_ms); }

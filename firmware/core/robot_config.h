@@ -38,8 +38,10 @@
 #ifndef AMZ_DEAD_MAN_MS
 #define AMZ_DEAD_MAN_MS 500
 #endif
+// Longer than the drive's lag: the simulator showed the body still rolling at 32 mm/s when
+// the pin flipped after 250 ms (and overshooting the ramp after); at 700 ms it is at rest.
 #ifndef AMZ_REVERSE_DWELL_MS
-#define AMZ_REVERSE_DWELL_MS 250
+#define AMZ_REVERSE_DWELL_MS 700
 #endif
 // Motor drive: duty AMZ_DUTY_MAX gives AMZ_FULL_SCALE_MM_S (the thesis: close to 30 km/h).
 #ifndef AMZ_FULL_SCALE_MM_S

@@ -43,8 +43,21 @@ FIELDS: dict[str, dict[str, str]] = {
         "max_velocity_mm_s": "uint16_t",
         "accel_mm_s2": "uint16_t",
     },
+    "config_ack": {
+        "to_node": "uint8_t",
+        "from_node": "uint8_t",
+        "seq": "uint16_t",
+        "max_velocity_mm_s": "uint16_t",
+        "accel_mm_s2": "uint16_t",
+        "hard_max_velocity_mm_s": "uint16_t",
+    },
 }
-FRAME_TYPE = {"command": "FRAME_COMMAND", "telemetry": "FRAME_TELEMETRY", "config": "FRAME_CONFIG"}
+FRAME_TYPE = {
+    "command": "FRAME_COMMAND",
+    "telemetry": "FRAME_TELEMETRY",
+    "config": "FRAME_CONFIG",
+    "config_ack": "FRAME_CONFIG_ACK",
+}
 ERRORS = {
     "too_short",
     "length_mismatch",

@@ -29,6 +29,12 @@ bool same_config(const ConfigFrame& a, const ConfigFrame& b) {
          a.max_velocity_mm_s == b.max_velocity_mm_s && a.accel_mm_s2 == b.accel_mm_s2;
 }
 
+bool same_config_ack(const ConfigAckFrame& a, const ConfigAckFrame& b) {
+  return a.to_node == b.to_node && a.from_node == b.from_node && a.seq == b.seq &&
+         a.max_velocity_mm_s == b.max_velocity_mm_s && a.accel_mm_s2 == b.accel_mm_s2 &&
+         a.hard_max_velocity_mm_s == b.hard_max_velocity_mm_s;
+}
+
 bool same_frame(const Frame& a, const Frame& b) {
   if (a.type != b.type) return false;
   switch (a.type) {
@@ -38,6 +44,8 @@ bool same_frame(const Frame& a, const Frame& b) {
       return same_telemetry(a.telemetry, b.telemetry);
     case FRAME_CONFIG:
       return same_config(a.config, b.config);
+    case FRAME_CONFIG_ACK:
+      return same_config_ack(a.config_ack, b.config_ack);
     default:
       return false;
   }
@@ -71,18 +79,19 @@ void run_malformed(void* context) {
   CHECK_MSG(strcmp(frame_error_name(error), v.error) == 0, frame_error_name(error));
 }
 
-char g_names[256][96];
+// One name per vector, however many the file holds (+1: an array may not be empty).
+char g_names[vectors::kValidCount + vectors::kMalformedCount + 1][96];
 
 }  // namespace
 
 void register_vector_tests() {
   size_t n = 0;
-  for (size_t i = 0; i < vectors::kValidCount && n < 256; ++i, ++n) {
+  for (size_t i = 0; i < vectors::kValidCount; ++i, ++n) {
     snprintf(g_names[n], sizeof g_names[n], "vector_valid_%s", vectors::kValid[i].name);
     harness::register_test(g_names[n], &run_valid,
                            const_cast<vectors::Valid*>(&vectors::kValid[i]));
   }
-  for (size_t i = 0; i < vectors::kMalformedCount && n < 256; ++i, ++n) {
+  for (size_t i = 0; i < vectors::kMalformedCount; ++i, ++n) {
     snprintf(g_names[n], sizeof g_names[n], "vector_malformed_%s", vectors::kMalformed[i].name);
     harness::register_test(g_names[n], &run_malformed,
                            const_cast<vectors::Malformed*>(&vectors::kMalformed[i]));
@@ -123,6 +132,8 @@ TEST(encoder_refuses_fields_the_decoder_would_reject) {
   CHECK_EQ(encode_command(c, out, sizeof out, &written), ERR_RESERVED_BITS);
   ConfigFrame k = {2, 1, 5, 1000, 0};
   CHECK_EQ(encode_config(k, out, sizeof out, &written), ERR_OUT_OF_RANGE);
+  ConfigAckFrame a = {1, 2, 5, 1000, 250, 10001};
+  CHECK_EQ(encode_config_ack(a, out, sizeof out, &written), ERR_OUT_OF_RANGE);
   TelemetryFrame t;
   memset(&t, 0, sizeof t);
   t.fix_quality = 3;

@@ -81,6 +81,52 @@ TEST(command_is_answered_with_telemetry_echoing_its_seq) {
   CHECK_EQ(later.status & 0x02, 0);
 }
 
+TEST(default_reverse_dwell_outlasts_the_drive_lag) {
+  amz_robot_config c;
+  amz_robot_default_config(&c);
+  CHECK_EQ(c.reverse_dwell_ms, 700);
+  // A reversal at the default config: zero, then 700 ms at zero before the other way.
+  Robot robot;
+  uint32_t now = 0;
+  for (; now <= 3000; now += 20) {
+    robot.step(now);
+    robot.command(now, 500, 1);
+  }
+  uint32_t zero_since = 0;
+  bool reversed = false;
+  for (; now <= 9000 && !reversed; now += 20) {
+    const amz_motion_output out = robot.step(now);
+    robot.command(now, 500, 0);
+    if (out.velocity_mm_s == 0 && zero_since == 0) zero_since = now;
+    if (out.velocity_mm_s < 0) {
+      reversed = true;
+      CHECK(zero_since != 0);
+      CHECK(now - zero_since >= 700);
+      CHECK(now - zero_since <= 700 + 40);
+    }
+  }
+  CHECK(reversed);
+}
+
+TEST(commands_at_50_hz_are_each_answered_and_never_trip_the_dead_man) {
+  // The agent's fastest rate: a command every 20 ms for 10 s, the motion stepped every ms.
+  Robot robot;
+  uint16_t answered = 0;
+  for (uint32_t now = 0; now <= 10000; ++now) {
+    const amz_motion_output out = robot.step(now);
+    if (now % 20 == 0) {
+      CHECK_EQ(robot.command(now, 1000, 1, 0, 100), 31);
+      const amz_telemetry t = robot.telemetry();
+      CHECK_EQ(t.echo_seq, robot.seq);
+      CHECK(!(t.status & 0x02));  // never the dead-man
+      CHECK(!(t.status & 0x04));  // nor a command's time-to-live
+      ++answered;
+    }
+    if (now >= 5000) CHECK_EQ(out.velocity_mm_s, 1000);  // at speed, held
+  }
+  CHECK_EQ(answered, 501);
+}
+
 TEST(frames_for_others_or_malformed_are_not_answered) {
   Robot robot;
   CHECK_EQ(robot.command(0, 500, 1, 0, 500, 3, 1), 0);    // another robot
@@ -131,15 +177,16 @@ TEST(config_is_applied_within_the_hard_limits_and_answered) {
   uint8_t reply[66];
   const size_t n =
       amz_robot_handle_frame(robot.r, 0, frame, static_cast<size_t>(len), -50, reply, sizeof reply);
-  CHECK_EQ(n, 12);
+  CHECK_EQ(n, 14);
   amz_frame f;
   CHECK_EQ(amz_decode_frame(reply, n, &f), AMZ_OK);
-  CHECK_EQ(f.type, 3);
-  CHECK_EQ(f.config.seq, 77);
-  CHECK_EQ(f.config.to_node, 1);
-  CHECK_EQ(f.config.from_node, 2);
-  CHECK_EQ(f.config.max_velocity_mm_s, 4000);  // the hard maximum
-  CHECK_EQ(f.config.accel_mm_s2, 50);          // raised to the hard minimum
+  CHECK_EQ(f.type, 4);  // a config acknowledgement
+  CHECK_EQ(f.config_ack.seq, 77);
+  CHECK_EQ(f.config_ack.to_node, 1);
+  CHECK_EQ(f.config_ack.from_node, 2);
+  CHECK_EQ(f.config_ack.max_velocity_mm_s, 4000);  // the hard maximum
+  CHECK_EQ(f.config_ack.accel_mm_s2, 50);          // raised to the hard minimum
+  CHECK_EQ(f.config_ack.hard_max_velocity_mm_s, 4000);  // reported, whatever was asked
   // The new limit holds: a 9 m/s command ends at 4 m/s.
   uint32_t now = 0;
   for (; now <= 120000; now += 20) {

@@ -1,18 +1,20 @@
 from __future__ import annotations
 
 from django.shortcuts import get_object_or_404
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS, MAX_PROGRAM_S, MAX_SEGMENTS, MAX_TITLE_CHARS
-from portal.api import GreaterThan, Pagination, paginated_response, request_user, valid_input
+from bookings.models import Resource
+from bookings.selectors import mobiles_bookable
+from core.api import GreaterThan, Pagination, paginated_response, request_user, valid_input
+from core.openapi import ClosedSerializer
 from portal.experiments.models import Experiment
-from portal.experiments.selectors import experiments_visible
+from portal.experiments.selectors import experiment_fits, experiments_visible
 from portal.experiments.services import experiment_create, experiment_update
-from portal.openapi import ClosedSerializer
 
 
 class SegmentOutput(serializers.Serializer):
@@ -26,8 +28,9 @@ class SegmentInput(ClosedSerializer):
 
     velocity_mps = serializers.FloatField(
         min_value=0,
-        help_text="m/s, at most the max_velocity_mps of the robot it will run on "
-        "(checked against the fastest robot when written, and the booked one at booking).",
+        help_text="m/s, at most the limit of the robot it will run on: the stricter of the "
+        "portal's max_velocity_mps and the one its base station reports. When written, the "
+        "program must fit at least one robot you may book; booking checks the booked one.",
     )
     direction = serializers.ChoiceField(
         choices=DIRECTIONS, help_text="cw increases the position along the rail."
@@ -35,14 +38,57 @@ class SegmentInput(ClosedSerializer):
     duration_s = serializers.FloatField(max_value=MAX_PROGRAM_S, validators=[GreaterThan(0)])
 
 
+class RobotFitOutput(serializers.Serializer):
+    """Whether the program fits one robot the author may book."""
+
+    name = serializers.CharField()
+    fits = serializers.BooleanField()
+    max_velocity_mps = serializers.FloatField(help_text="The robot's limit, m/s.")
+    limited_by = serializers.ChoiceField(
+        choices=["portal", "agent"],
+        help_text="Whose limit it is: the portal's for the resource, or the lower one its "
+        "base station (agent) reports.",
+    )
+
+
 class ExperimentOutput(serializers.ModelSerializer):
     segments = SegmentOutput(many=True)
     duration_s = serializers.FloatField(read_only=True)
     owner = serializers.CharField(source="owner.username")
+    robots = serializers.SerializerMethodField(
+        help_text="Each robot you may book, and whether this program fits its limit."
+    )
+
+    _robots: list[Resource] | None = None
 
     class Meta:
         model = Experiment
-        fields = ["id", "title", "segments", "duration_s", "owner", "created_at", "updated_at"]
+        fields = [
+            "id",
+            "title",
+            "segments",
+            "duration_s",
+            "owner",
+            "robots",
+            "created_at",
+            "updated_at",
+        ]
+
+    @extend_schema_field(RobotFitOutput(many=True))
+    def get_robots(self, experiment: Experiment) -> list[dict[str, object]]:
+        # A page of experiments shares one serializer: the robots are read once for it.
+        if self._robots is None:
+            self._robots = mobiles_bookable()
+        fits = experiment_fits(experiment, self._robots)
+        return [
+            {
+                "name": fit.limit.resource,
+                "fits": fit.fits,
+                "max_velocity_mps": fit.limit.mps,
+                "limited_by": fit.limit.source,
+            }
+            for fit in fits
+        ]
 
 
 class ExperimentInput(serializers.Serializer):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from basestation.contract import (
@@ -14,18 +14,20 @@ from basestation.contract import (
     SEGMENT_FIELDS,
 )
 from bookings.models import Resource
-from bookings.rules import velocity_problem
-from bookings.selectors import fastest_mobile
-from portal.accounts.models import User
-from portal.errors import InvalidInput
+from bookings.rules import robots_fitting
+from bookings.selectors import mobiles_bookable
+from core.accounts.models import User
+from core.errors import InvalidInput
 from portal.experiments.models import Experiment
 
 
-def segments_validate(segments: Any, *, robot: Resource | None) -> list[dict[str, Any]]:
+def segments_validate(segments: Any, *, robots: Sequence[Resource] = ()) -> list[dict[str, Any]]:
     """A clean copy of a program, or ``InvalidInput`` naming the segment and field at fault.
 
-    Velocities are checked against ``robot`` (``bookings.rules.velocity_problem``, the
-    portal's one velocity check); with no robot, only that they are numbers ≥ 0.
+    With ``robots`` (the ones the author may book), the program must fit at least one of
+    them (``bookings.rules.robots_fitting``: each robot's stricter of the portal's and its
+    agent's limit); a segment faster than all of them is refused, naming each limit. With no
+    robot, velocities need only be numbers ≥ 0.
     """
     if not isinstance(segments, list) or not segments:
         raise InvalidInput.on_field("segments", "An experiment needs at least one segment.")
@@ -53,16 +55,14 @@ def segments_validate(segments: Any, *, robot: Resource | None) -> list[dict[str
         direction = raw["direction"]
         if velocity is None or velocity < 0:
             errors.append(f"Segment {i}: velocity must be a number ≥ 0 m/s.")
-        elif robot is not None:
-            why = velocity_problem(resource=robot, velocity_mps=velocity)
-            if why is not None:
-                errors.append(f"Segment {i}: {why}")
         if direction not in DIRECTIONS:
             errors.append(f"Segment {i}: direction must be 'cw' or 'ccw'.")
         if duration is None or duration <= 0:
             errors.append(f"Segment {i}: duration must be a number > 0 s.")
         if not errors:
             clean.append({"velocity_mps": velocity, "direction": direction, "duration_s": duration})
+    if not errors:
+        errors = _too_fast(clean, robots)
     if errors:
         raise InvalidInput(errors[0], fields={"segments": errors})
     total_s = sum(s["duration_s"] for s in clean)
@@ -71,6 +71,21 @@ def segments_validate(segments: Any, *, robot: Resource | None) -> list[dict[str
             "segments", f"The program lasts {total_s:g} s; at most {MAX_PROGRAM_S:g} s."
         )
     return clean
+
+
+def _too_fast(clean: list[dict[str, Any]], robots: Sequence[Resource]) -> list[str]:
+    """A message per segment faster than every robot, when the program fits none."""
+    fits = robots_fitting(robots, [s["velocity_mps"] for s in clean])
+    if not fits or any(fit.fits for fit in fits):
+        return []
+    fastest_mps = max(fit.limit.mps for fit in fits)
+    limits = "; ".join(f"{fit.limit.resource}: {fit.limit.describe()}" for fit in fits)
+    return [
+        f"Segment {i}: velocity {s['velocity_mps']:g} m/s is faster than every robot you may "
+        f"book ({limits})."
+        for i, s in enumerate(clean, start=1)
+        if s["velocity_mps"] > fastest_mps
+    ]
 
 
 def _number(value: Any) -> float | None:
@@ -92,12 +107,12 @@ def _title_validate(title: Any) -> str:
 
 
 def experiment_create(*, owner: User, title: str, segments: Any) -> Experiment:
-    """A new program, its velocities checked against the fastest robot (booking checks
-    them again against the robot it books)."""
+    """A new program that fits at least one robot its author may book (booking checks it
+    again against the robot it books)."""
     experiment = Experiment(
         owner=owner,
         title=_title_validate(title),
-        segments=segments_validate(segments, robot=fastest_mobile()),
+        segments=segments_validate(segments, robots=mobiles_bookable()),
     )
     experiment.full_clean()
     experiment.save()
@@ -106,7 +121,7 @@ def experiment_create(*, owner: User, title: str, segments: Any) -> Experiment:
 
 def experiment_update(*, experiment: Experiment, title: str, segments: Any) -> Experiment:
     experiment.title = _title_validate(title)
-    experiment.segments = segments_validate(segments, robot=fastest_mobile())
+    experiment.segments = segments_validate(segments, robots=mobiles_bookable())
     experiment.full_clean()
     experiment.save()
     return experiment

@@ -12,7 +12,7 @@ from django.contrib.admin.helpers import ActionForm
 from django.db.models import QuerySet
 from django.http import HttpRequest
 
-from portal.errors import DomainError
+from core.errors import DomainError
 from portal.runs.models import Run, RunEvent
 from portal.runs.services.booking import booking_cancel
 from portal.runs.services.transitions import run_give_up

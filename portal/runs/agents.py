@@ -8,14 +8,26 @@ from django.core.exceptions import ImproperlyConfigured
 from basestation.client import AgentClient
 from bookings.models import Resource
 
+# The name of AGENT_TOKEN among AGENT_TOKENS (a name, not a secret).
+DEFAULT_TOKEN_NAME = "default"  # noqa: S105
+
+
+class AgentNotConfigured(ImproperlyConfigured):
+    """The portal has no way to reach this robot's agent (no URL, or no token for it)."""
+
+    def __init__(self, resource: Resource, why: str) -> None:
+        super().__init__(f"resource {resource.name} {why}")
+        self.why = why
+
 
 def agent_client_for(resource: Resource) -> AgentClient:
     if not resource.agent_url:
-        raise ImproperlyConfigured(f"resource {resource.name} has no agent URL")
-    token = settings.AGENT_TOKENS.get(resource.agent_token_name or "default")
+        raise AgentNotConfigured(resource, "has no agent URL")
+    named = resource.agent_token_name or DEFAULT_TOKEN_NAME
+    token = settings.AGENT_TOKENS.get(named)
     if not token:
-        raise ImproperlyConfigured(
-            f"resource {resource.name} names agent token {resource.agent_token_name!r}, "
-            "which is not configured (AGENT_TOKEN)"
+        setting = "AGENT_TOKEN" if named == DEFAULT_TOKEN_NAME else "AGENT_TOKENS"
+        raise AgentNotConfigured(
+            resource, f"names agent token {named!r}, which is not configured ({setting})"
         )
     return AgentClient(resource.agent_url, token, timeout_s=settings.AGENT_TIMEOUT_S)

@@ -19,7 +19,7 @@ from django.utils import timezone
 
 from bookings.choices import ReservationState
 from bookings.models import Resource
-from portal.accounts.models import User
+from core.accounts.models import User
 from portal.runs.models import Run
 from portal.runs.states import RunState
 

@@ -15,7 +15,7 @@ from django.conf import settings
 from django.utils import timezone
 
 from basestation.client import AgentError
-from portal.health import SWEEP, heartbeat_record
+from core.health import SWEEP, heartbeat_record
 from portal.runs import notifications
 from portal.runs.services import collection, health, staging
 

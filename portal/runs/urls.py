@@ -13,6 +13,11 @@ urlpatterns = [
     path("runs/<int:pk>/analysis/", runs.RunAnalysisApi.as_view(), name="api-run-analysis"),
     path("reservations/", reservations.ReservationListApi.as_view(), name="api-reservations"),
     path(
+        "reservations/check/",
+        reservations.BookingCheckApi.as_view(),
+        name="api-reservations-check",
+    ),
+    path(
         "reservations/<int:pk>/",
         reservations.ReservationDetailApi.as_view(),
         name="api-reservation",
@@ -22,7 +27,8 @@ urlpatterns = [
         reservations.ReservationDecisionApi.as_view(),
         name="api-reservation-decision",
     ),
-    path("quota/check/", reservations.BookingCheckApi.as_view(), name="api-quota-check"),
+    # The check's first name, for one release (deprecated in the schema).
+    path("quota/check/", reservations.QuotaCheckApi.as_view(), name="api-quota-check"),
     path("resources/<slug:name>/robot/", robot.RobotStatusApi.as_view(), name="api-robot"),
     path(
         "resources/<slug:name>/robot/control/",

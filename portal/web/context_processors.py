@@ -7,11 +7,14 @@ from django.http import HttpRequest
 
 from bookings.choices import ResourceKind
 from bookings.models import Resource
-from portal.health import scheduler_status_or_unknown
+from core.health import scheduler_status_or_unknown
 
 
 def testbed(request: HttpRequest) -> dict[str, Any]:
-    context: dict[str, Any] = {"TESTBED_TIME_ZONE": settings.TIME_ZONE}
+    context: dict[str, Any] = {
+        "TESTBED_TIME_ZONE": settings.TIME_ZONE,
+        "LIVE_STREAM_PORT": settings.LIVE_STREAM_PORT,
+    }
     user = getattr(request, "user", None)
     if user is not None and user.is_authenticated and user.is_staff:
         # Admins get a console link per robot.

@@ -8,7 +8,7 @@ from django.utils import timezone
 
 from bookings.models import Resource
 from bookings.selectors import resources_bookable
-from portal.accounts.models import User
+from core.accounts.models import User
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
 

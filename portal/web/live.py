@@ -1,7 +1,7 @@
 """Server-Sent Events for the pages: a run, a robot's console, the calendar.
 
 Async views on the ASGI server: an open stream is a coroutine waiting on the bus
-(``portal.live``), not a worker thread, so a page left open costs the portal nothing while
+(``core.live``), not a worker thread, so a page left open costs the portal nothing while
 nothing happens. Each stream:
 
 - starts with ``retry:`` (how soon the browser reconnects) and an ``open`` event;
@@ -17,18 +17,23 @@ are never needed.
 
 from __future__ import annotations
 
+import functools
 import json
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable, Coroutine
 from typing import Any
+from urllib.parse import urlsplit
 
 from django.core.handlers.asgi import ASGIRequest
 from django.http import HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
 from django.http.response import HttpResponseBase
+from django.utils.cache import patch_vary_headers
 
 from bookings.models import Resource
-from portal.live import CALENDAR, LiveUnavailable, robot_channel, run_channel, subscribe
+from core.live import CALENDAR, LiveUnavailable, robot_channel, run_channel, subscribe
 from portal.runs.selectors import runs_visible
+
+StreamView = Callable[..., Coroutine[Any, Any, HttpResponseBase]]
 
 KEEPALIVE_S = 15.0
 STREAM_MAX_S = 600.0
@@ -78,11 +83,32 @@ def _no_stream() -> HttpResponseBase:
     return HttpResponse(status=204)
 
 
+def _same_host(view: StreamView) -> StreamView:
+    """Let the pages of this host follow a stream served on another port of it (the ASGI
+    server beside the WSGI one: ``LIVE_STREAM_PORT``). A browser sends the session cookie to
+    another port of the same host only for a credentialed request, and reads the answer only if
+    it names the page's origin; any other origin gets no such header and reads nothing."""
+
+    @functools.wraps(view)
+    async def wrapped(request: HttpRequest, *args: Any, **kwargs: Any) -> HttpResponseBase:
+        response = await view(request, *args, **kwargs)
+        origin = request.headers.get("Origin", "")
+        host = request.get_host().rsplit(":", 1)[0].strip("[]")
+        if origin and urlsplit(origin).hostname == host:
+            response["Access-Control-Allow-Origin"] = origin
+            response["Access-Control-Allow-Credentials"] = "true"
+        patch_vary_headers(response, ("Origin",))
+        return response
+
+    return wrapped
+
+
 def _denied() -> HttpResponseBase:
     # A stream gets no login redirect: the page that opened it handles 403 by polling.
     return JsonResponse({"error": "forbidden", "detail": "Log in to follow this."}, status=403)
 
 
+@_same_host
 async def run_stream(request: HttpRequest, pk: int) -> HttpResponseBase:
     """State changes and new samples of one run the user may see."""
     if not isinstance(request, ASGIRequest):
@@ -95,6 +121,7 @@ async def run_stream(request: HttpRequest, pk: int) -> HttpResponseBase:
     return await _stream([run_channel(pk)])
 
 
+@_same_host
 async def robot_stream(request: HttpRequest, name: str) -> HttpResponseBase:
     """A robot's status as the health check reads it, and its hold (admins)."""
     if not isinstance(request, ASGIRequest):
@@ -107,6 +134,7 @@ async def robot_stream(request: HttpRequest, name: str) -> HttpResponseBase:
     return await _stream([robot_channel(name)])
 
 
+@_same_host
 async def calendar_stream(request: HttpRequest) -> HttpResponseBase:
     """Bookings and maintenance changed (the calendar reads them again), robots held."""
     if not isinstance(request, ASGIRequest):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from portal.live import CALENDAR, hold_publish, publish_on_commit
+from core.live import CALENDAR, hold_publish, publish_on_commit
 
 CALENDAR_MODELS = ("bookings.Reservation", "bookings.Blackout")
 

@@ -30,14 +30,15 @@ from bookings.leases import scheduler_link_status, scheduler_overview
 from bookings.models import CalendarFeed, Reservation, Resource
 from bookings.quotas import quota_summary
 from bookings.reports import GROUPINGS, usage_hours
+from bookings.rules import velocity_limit
 from bookings.selectors import resources_bookable
-from portal.accounts.models import User
-from portal.audit.services import client_ip
-from portal.errors import DomainError
-from portal.experiments.selectors import experiments_visible
+from core.accounts.models import User
+from core.audit.services import client_ip
+from core.errors import DomainError
+from core.health import health
+from portal.experiments.selectors import experiment_fits, experiments_visible, fits_summary
 from portal.experiments.services import experiment_create, experiment_update
-from portal.health import health
-from portal.runs.downloads import is_asgi, samples_csv_response, samples_json_response
+from portal.runs.downloads import samples_csv_response, samples_json_response
 from portal.runs.models import Run
 from portal.runs.selectors import (
     reservations_with_runs_visible,
@@ -54,7 +55,7 @@ from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
 @never_cache
 def healthz(request: HttpRequest) -> JsonResponse:
-    """Liveness for supervisors and monitoring: no login, no internals (``portal/health.py``)."""
+    """Liveness for supervisors and monitoring: no login, no internals (``core/health.py``)."""
     ok, body = health()
     if body["database"] == "ok":
         # Reported, not judged: the portal works (without fixed nodes) while it is down.
@@ -120,7 +121,8 @@ def experiment_edit(request: HttpRequest, pk: int | None = None) -> HttpResponse
             except DomainError as exc:
                 _form_error(form, exc)
             else:
-                messages.success(request, f"Experiment “{experiment.title}” saved.")
+                fits = fits_summary(experiment_fits(experiment))
+                messages.success(request, f"Experiment “{experiment.title}” saved. {fits}".strip())
                 return redirect("home")
         rows = form.segment_rows
     else:
@@ -235,13 +237,13 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
 @login_required
 def run_json(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
-    return samples_json_response(run, asynchronous=is_asgi(request))
+    return samples_json_response(request, run)
 
 
 @login_required
 def run_csv(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
-    return samples_csv_response(run, asynchronous=is_asgi(request))
+    return samples_csv_response(request, run)
 
 
 # --- Calendar, feeds, approvals, usage ---------------------------------------------------
@@ -381,7 +383,10 @@ def ical_resource(request: HttpRequest, token: str, name: str) -> HttpResponse:
 @admin_required
 def robot_console(request: HttpRequest, name: str) -> HttpResponse:
     resource = get_object_or_404(Resource, name=name, kind="mobile")
-    return render(request, "web/robot.html", {"resource": resource})
+    # Manual drive obeys the same limit as programs: the stricter of the portal's and the agent's.
+    return render(
+        request, "web/robot.html", {"resource": resource, "limit": velocity_limit(resource)}
+    )
 
 
 @admin_required

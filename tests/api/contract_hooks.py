@@ -32,7 +32,8 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     ("DELETE", "/api/v1/reservations/{id}/"): frozenset({"reason"}),
     # a rejection says why
     ("POST", "/api/v1/reservations/{id}/decision/"): frozenset({"reason"}),
-    ("POST", "/api/v1/quota/check/"): frozenset({"resources"}),
+    ("POST", "/api/v1/reservations/check/"): frozenset({"resources"}),
+    ("POST", "/api/v1/quota/check/"): frozenset({"resources"}),  # its deprecated name
     # resource names; the window's end after its start; some resources, or all of them
     ("POST", "/api/v1/blackouts/"): frozenset({"resources", "end_at"}),
     # users, groups and resources by name; a limit in hours or count needs a period
@@ -42,7 +43,7 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     ("PATCH", "/api/v1/quota-policies/{id}/"): frozenset(
         {"user", "group", "resource", "resource_group", "period"}
     ),
-    # velocities within the fastest robot's limit; the program's total length
+    # velocities within the limit of a robot the author may book; the program's total length
     ("POST", "/api/v1/experiments/"): frozenset({"segments"}),
     ("PUT", "/api/v1/experiments/{id}/"): frozenset({"segments"}),
     # the position must be on this run's rail

@@ -7,12 +7,12 @@ from __future__ import annotations
 from datetime import timedelta
 
 import pytest
-from django.core.cache import cache
+import redis
 from django.utils import timezone
 from rest_framework.authtoken.models import Token
 from rest_framework.test import APIClient
 
-from portal.audit.services import audit_record
+from core.audit.services import audit_record
 from portal.runs.services.booking import booking_create
 from tests.factories import ExperimentFactory
 
@@ -42,6 +42,23 @@ def test_a_method_an_endpoint_lacks_is_a_json_405_with_allow(api):
     assert response.status_code == 405
     assert response["Allow"] == "GET, HEAD, OPTIONS"
     _is_envelope(response.json(), "method_not_allowed")
+
+
+@pytest.mark.parametrize("idempotency_key", [None, "big-body-1"])
+def test_a_body_over_the_limit_is_a_json_413_naming_the_limit(api, settings, idempotency_key):
+    settings.DATA_UPLOAD_MAX_MEMORY_SIZE = 1_000_000
+    body = b'{"title": "' + b"x" * (10 * 2**20) + b'", "segments": []}'
+    headers = {"HTTP_X_IDEMPOTENCY_KEY": idempotency_key} if idempotency_key else {}
+    response = api.generic(
+        "POST", "/api/v1/reservations/", body, content_type="application/json", **headers
+    )
+    assert response.status_code == 413
+    assert response["Content-Type"] == "application/json"
+    _is_envelope(response.json(), "request_entity_too_large")
+    assert "1000000 bytes" in response.json()["detail"]
+    # Under the limit the same endpoint reads the body (and finds it wanting).
+    small = api.generic("POST", "/api/v1/reservations/", b"{}", content_type="application/json")
+    assert small.status_code == 400
 
 
 def test_missing_or_refused_credentials_get_401_and_how_to_authenticate(owner):
@@ -106,7 +123,7 @@ def test_a_json_body_must_have_the_schemas_types_and_keys(api, mobile, body, fie
 def test_names_with_nul_characters_are_refused_not_looked_up(api, mobile):
     start = timezone.now() + timedelta(hours=1)
     response = api.post(
-        "/api/v1/quota/check/",
+        "/api/v1/reservations/check/",
         {
             "resources": ["mobile\x00"],
             "start_at": start.isoformat(),
@@ -169,7 +186,6 @@ def test_lists_come_in_pages_that_a_client_follows_to_the_end(api, owner):
 
 def test_an_authenticated_client_over_its_rate_gets_429_with_retry_after(settings, owner):
     settings.API_THROTTLE_USER = "3/minute"
-    cache.delete(f"throttle_user_{owner.pk}")
     client = APIClient()
     client.force_authenticate(owner)
     assert [client.get("/api/v1/runs/").status_code for _ in range(3)] == [200] * 3
@@ -179,10 +195,46 @@ def test_an_authenticated_client_over_its_rate_gets_429_with_retry_after(setting
     _is_envelope(refused.json(), "throttled")
 
 
+def test_a_throttle_costs_one_round_trip_to_redis_and_counts_each_user_apart(
+    settings, owner, other, monkeypatch
+):
+    """A request's throttle is one INCR with its EXPIRE in one pipeline: one round trip, not
+    a read of a list of timestamps and a write of it back."""
+    settings.API_THROTTLE_USER = "1000/minute"
+    sent: list[bytes] = []
+    real_send = redis.connection.Connection.send_packed_command
+
+    def send(connection, command, check_health=True):
+        sent.append(b"".join(command) if isinstance(command, list | tuple) else command)
+        return real_send(connection, command, check_health)
+
+    monkeypatch.setattr(redis.connection.Connection, "send_packed_command", send)
+    client = APIClient()
+    client.force_authenticate(owner)
+    assert client.get("/api/v1/runs/").status_code == 200
+    assert len(sent) == 1, sent
+    assert b"INCR" in sent[0]
+    assert b"EXPIRE" in sent[0]
+    sent.clear()
+    client.force_authenticate(other)
+    assert client.get("/api/v1/runs/").status_code == 200
+    monkeypatch.undo()
+    counters = sorted(redis.Redis.from_url(settings.REDIS_URL).scan_iter("*throttle_user_*"))
+    assert len(counters) == 2  # one counter a user
+
+
+def test_a_throttle_counts_without_redis_too(settings, owner):
+    """``make run`` has no Redis: the counter goes through the cache API."""
+    settings.CACHES = {"default": {"BACKEND": "django.core.cache.backends.locmem.LocMemCache"}}
+    settings.API_THROTTLE_USER = "2/minute"
+    client = APIClient()
+    client.force_authenticate(owner)
+    assert [client.get("/api/v1/runs/").status_code for _ in range(3)] == [200, 200, 429]
+
+
 def test_refused_credentials_count_against_the_anonymous_rate(settings):
     settings.API_THROTTLE_ANON = "2/minute"
     address = "192.0.2.41"
-    cache.delete(f"throttle_anon_{address}")
     client = APIClient(REMOTE_ADDR=address, HTTP_AUTHORIZATION="Token guessed")
     assert [client.get("/api/v1/runs/").status_code for _ in range(2)] == [401, 401]
     refused = client.get("/api/v1/runs/")
@@ -271,6 +323,8 @@ def test_the_schema_states_auth_throttling_and_errors_for_every_operation(schema
         assert responses["429"]["headers"]["Retry-After"]["required"] is True
         if "{" in path:
             assert "404" in responses, where
+        if "requestBody" in operation:
+            assert responses["413"]["content"]["application/json"]["schema"] == envelope, where
         if "requestBody" in operation or any(
             p["in"] == "query" for p in operation.get("parameters", [])
         ):

@@ -1,10 +1,12 @@
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
-from basestation.config import AgentConfig, ConfigError
+from basestation.config import AUTO_CPU, AgentConfig, ConfigError
+from basestation.loop_process import pick_cpu
 
 TOKEN = "a-long-enough-token"
 
@@ -125,11 +127,29 @@ def test_it_refuses_a_token_with_spaces() -> None:
         ("AGENT_RETENTION_DAYS", "-1"),
         ("AGENT_RETENTION_DAYS", "forever"),
         ("AGENT_RETENTION_DAYS", "inf"),
+        ("AGENT_CONTROL_CPU", "-1"),
+        ("AGENT_CONTROL_CPU", "last"),
+        ("AGENT_CONTROL_CPU", "5000"),
     ],
 )
 def test_it_names_the_variable_holding_a_bad_value(variable: str, value: str) -> None:
     with pytest.raises(ConfigError, match=variable):
         AgentConfig.from_env({"AGENT_TOKEN": TOKEN, variable: value})
+
+
+@pytest.mark.parametrize(
+    ("value", "expected"), [("", AUTO_CPU), ("none", None), ("NONE", None), ("1", 1)]
+)
+def test_it_reads_the_control_loops_cpu(value: str, expected: int | None) -> None:
+    config = AgentConfig.from_env({"AGENT_TOKEN": TOKEN, "AGENT_CONTROL_CPU": value})
+    assert config.control_cpu == expected
+
+
+def test_the_loop_is_pinned_to_the_last_allowed_cpu_or_as_asked() -> None:
+    allowed = sorted(os.sched_getaffinity(0))
+    assert pick_cpu(AUTO_CPU) == (allowed[-1] if len(allowed) >= 2 else None)
+    assert pick_cpu(None) is None
+    assert pick_cpu(0) == 0
 
 
 def test_it_never_shows_the_token_in_its_repr() -> None:

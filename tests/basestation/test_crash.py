@@ -17,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import requests
 
+from basestation.app import MAX_BODY_BYTES
 from basestation.client import AgentClient
 from tests.basestation.conftest import TOKEN, run_body
 from tests.basestation.processes import REPO_ROOT, Agent, start_agent
@@ -56,16 +58,18 @@ def test_a_killed_agent_keeps_every_served_sample_exactly_once_and_marks_the_run
         _wait_for(lambda: client.get_run("crash")["sample_count"] >= 30)
         # Read while the agent writes: whatever it has served must survive the kill.
         served = list(client.iter_samples("crash", 0, limit=7))
-        agent.process.kill()  # SIGKILL: no clean-up of any kind
+        agent.process.kill()  # SIGKILL: no clean-up of any kind in the agent's process
         agent.process.wait(10)
     assert len(served) >= 30
+    # Its control loop's process, orphaned, stops the robot and ends the run.
+    _wait_for(lambda: "run crash: running -> interrupted (agent died during run)" in agent.log())
 
     restarted = start_agent(data_dir, log_path, AGENT_TOKEN=TOKEN)
     agents.append(restarted)
     with AgentClient(restarted.url, TOKEN) as client:
         run = client.get_run("crash")
         assert run["state"] == "interrupted"
-        assert run["reason"] == "agent restarted during run"
+        assert run["reason"] == "agent died during run"
         assert run["ended_at"] is not None
         stored = list(client.iter_samples("crash", 0, limit=11))
         seqs = [sample["seq"] for sample in stored]
@@ -78,7 +82,6 @@ def test_a_killed_agent_keeps_every_served_sample_exactly_once_and_marks_the_run
         status = client.status()
         assert status["current_run"] is None
         assert status["robot"]["commanded_velocity_mps"] == 0.0
-    assert "run crash: running -> interrupted (agent restarted during run)" in restarted.log()
 
 
 def test_the_real_server_refuses_traversal_and_oversized_bodies(
@@ -112,6 +115,21 @@ def test_the_real_server_refuses_traversal_and_oversized_bodies(
     response.read()
     connection.close()
     assert response.status == 413
+    # Over the HTTP server's own buffer too: the same JSON 413, naming the agent's limit. The
+    # server answers as soon as it has the headers and closes; requests reads that answer.
+    for size in (200_000, 10 * 2**20):
+        refused = requests.post(
+            f"{agent.url}/api/v1/stop",
+            data=b'{"reason": "' + b"x" * size + b'"}',
+            headers={**auth, "Content-Type": "application/json"},
+            timeout=10,
+        )
+        assert refused.status_code == 413, size
+        assert refused.headers["Content-Type"] == "application/json"
+        assert refused.json() == {
+            "error": "request_entity_too_large",
+            "detail": f"The body is larger than {MAX_BODY_BYTES} bytes.",
+        }
     with AgentClient(agent.url, TOKEN) as client:
         assert client.status()["estop"]["latched"] is False
 

@@ -14,6 +14,7 @@ from basestation.protocol import (
     FRAME_ERROR_KINDS,
     CommandFlag,
     CommandFrame,
+    ConfigAckFrame,
     ConfigFrame,
     Direction,
     FixQuality,
@@ -23,20 +24,25 @@ from basestation.protocol import (
     TelemetryStatus,
     decode_command,
     decode_config,
+    decode_config_ack,
     decode_frame,
     decode_telemetry,
     encode_command,
     encode_config,
+    encode_config_ack,
     encode_frame,
     encode_telemetry,
 )
 
 VECTORS_PATH = Path(__file__).resolve().parents[1] / "vectors" / "protocol.json"
 VECTORS: dict[str, Any] = json.loads(VECTORS_PATH.read_text(encoding="utf-8"))
-FRAME_CLASS: dict[str, type[CommandFrame] | type[TelemetryFrame] | type[ConfigFrame]] = {
+FRAME_CLASS: dict[
+    str, type[CommandFrame] | type[TelemetryFrame] | type[ConfigFrame] | type[ConfigAckFrame]
+] = {
     "command": CommandFrame,
     "telemetry": TelemetryFrame,
     "config": ConfigFrame,
+    "config_ack": ConfigAckFrame,
 }
 
 
@@ -84,6 +90,8 @@ def test_typed_decoders_reject_a_valid_frame_of_another_type() -> None:
     assert caught.value.kind == "unknown_type"
     with pytest.raises(FrameError):
         decode_config(data)
+    with pytest.raises(FrameError):
+        decode_config_ack(data)
     assert decode_telemetry(data).seq == telemetry["fields"]["seq"]
 
 
@@ -110,6 +118,13 @@ def test_it_refuses_to_encode_what_it_would_refuse_to_decode() -> None:
     assert caught.value.kind == "reserved_bits"
     with pytest.raises(FrameError) as caught:
         encode_config(ConfigFrame(seq=1, max_velocity_mm_s=100, accel_mm_s2=0))
+    assert caught.value.kind == "out_of_range"
+    with pytest.raises(FrameError) as caught:
+        encode_config_ack(
+            ConfigAckFrame(
+                seq=1, max_velocity_mm_s=100, accel_mm_s2=1, hard_max_velocity_mm_s=10_001
+            )
+        )
     assert caught.value.kind == "out_of_range"
     with pytest.raises(FrameError) as caught:
         encode_command(CommandFrame(seq=65_536, velocity_mm_s=0, direction=Direction.CW))
@@ -156,9 +171,18 @@ configs = st.builds(
     to_node=u8,
     from_node=u8,
 )
+config_acks = st.builds(
+    ConfigAckFrame,
+    seq=u16,
+    max_velocity_mm_s=st.integers(0, 10_000),
+    accel_mm_s2=st.integers(1, 10_000),
+    hard_max_velocity_mm_s=st.integers(0, 10_000),
+    to_node=u8,
+    from_node=u8,
+)
 
 
-@given(st.one_of(commands, telemetries, configs))
+@given(st.one_of(commands, telemetries, configs, config_acks))
 def test_every_valid_frame_survives_a_round_trip(frame: Frame) -> None:
     data = encode_frame(frame)
 

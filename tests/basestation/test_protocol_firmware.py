@@ -40,7 +40,7 @@ VECTORS: dict[str, Any] = json.loads(
 )
 
 
-MEMBER = {1: "command", 2: "telemetry", 3: "config"}
+MEMBER = {1: "command", 2: "telemetry", 3: "config", 4: "config_ack"}
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +124,12 @@ def test_python_and_firmware_decoders_agree_on_any_bytes(
 @settings(max_examples=300)
 @given(
     header=st.sampled_from(
-        [bytes([13, 2, 1, 0, 1, 1]), bytes([30, 1, 2, 0, 1, 2]), bytes([11, 2, 1, 0, 1, 3])]
+        [
+            bytes([13, 2, 1, 0, 1, 1]),
+            bytes([30, 1, 2, 0, 1, 2]),
+            bytes([11, 2, 1, 0, 1, 3]),
+            bytes([13, 1, 2, 0, 1, 4]),
+        ]
     ),
     body=st.binary(min_size=25, max_size=25),
 )

@@ -6,9 +6,11 @@ import json
 import time
 from pathlib import Path
 
-from basestation.config import AgentConfig
-from basestation.robot import Command
-from basestation.robots import build_robot
+import pytest
+
+from basestation.config import AgentConfig, ConfigError
+from basestation.robot import Command, RobotLimits
+from basestation.robots import build_robot, reply_timeout_s
 from basestation.telemetry.rail import Rail
 
 CENTRE = {"lat": 40.634172, "lon": -8.660015}
@@ -51,3 +53,41 @@ def test_the_simulated_robot_drives_the_agents_rail_file(tmp_path: Path) -> None
         close = getattr(robot, "close", None)
         if close is not None:
             close()
+
+
+def test_the_simulated_firmware_confirms_the_agents_limits_and_reports_its_hard_maximum(
+    tmp_path: Path,
+) -> None:
+    robot = build_robot(
+        AgentConfig(token="t" * 32, data_dir=tmp_path, robot="sim", max_velocity_mps=1.5)
+    )
+    try:
+        assert getattr(robot, "limits", None) == RobotLimits(
+            max_velocity_mps=1.5, max_accel_mps2=1.0, hard_max_velocity_mps=4.0
+        )
+    finally:
+        getattr(robot, "close", lambda: None)()
+
+
+@pytest.mark.parametrize(("hz", "timeout_ms"), [(20.0, 25.0), (50.0, 12.0)])
+def test_the_reply_timeout_fits_the_control_period(
+    tmp_path: Path, hz: float, timeout_ms: float
+) -> None:
+    assert reply_timeout_s(hz) * 1000 == pytest.approx(timeout_ms)
+    # Command on air, the wait, and a few ms for the rest of the tick: within one period.
+    assert 3.02 + timeout_ms + 3.0 < 1000 / hz
+    robot = build_robot(AgentConfig(token="t" * 32, data_dir=tmp_path, robot="sim", control_hz=hz))
+    try:
+        link = getattr(robot, "link", None)
+        assert link is not None
+        assert link.reply_timeout_s == pytest.approx(timeout_ms / 1000)
+    finally:
+        getattr(robot, "close", lambda: None)()
+
+
+def test_an_agent_limit_above_the_simulated_firmwares_hard_maximum_is_refused(
+    tmp_path: Path,
+) -> None:
+    config = AgentConfig(token="t" * 32, data_dir=tmp_path, robot="sim", max_velocity_mps=4.5)
+    with pytest.raises(ConfigError, match=r"=4.5 is above the robot's hard maximum 4 m/s"):
+        build_robot(config)

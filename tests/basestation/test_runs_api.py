@@ -5,12 +5,14 @@ from __future__ import annotations
 import csv
 import io
 import json
+import threading
 import time
 from collections.abc import Callable
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
 import pytest
+from flask import Flask
 from flask.testing import FlaskClient
 
 from basestation.runtime import AgentRuntime
@@ -587,6 +589,9 @@ def test_it_writes_an_empty_segment_in_csv_after_the_program(
         ("limit=5001", "limit"),
         ("limit=", "limit"),
         ("limit=1e3", "limit"),
+        ("wait_s=31", "wait_s"),
+        ("wait_s=-1", "wait_s"),
+        ("wait_s=0.5", "wait_s"),
     ],
 )
 def test_it_rejects_bad_paging_values(
@@ -605,6 +610,88 @@ def test_it_accepts_the_largest_page(
     assert response.status_code == 200
     assert response.json is not None
     assert len(response.json["samples"]) == 60
+
+
+def _get_in_thread(app_client: FlaskClient, url: str, auth: dict[str, str]) -> Any:
+    """Start ``GET url`` on a thread of its own; ``.join()`` then ``.result`` (json, seconds)."""
+
+    class Request(threading.Thread):
+        result: tuple[Any, float] | None = None
+
+        def run(self) -> None:
+            started = time.monotonic()
+            response = app_client.get(url, headers=auth)
+            assert response.status_code == 200
+            self.result = (response.json, time.monotonic() - started)
+
+    request = Request()
+    request.start()
+    return request
+
+
+def test_a_long_poll_answers_with_the_next_sample_as_soon_as_it_is_stored(
+    app: Flask, auth: dict[str, str], runtime: AgentRuntime, drive: Drive, soon: float
+) -> None:
+    client = app.test_client()
+    _put(client, auth, "run-1", run_body(soon))
+    next_s = drive(soon, soon + 1.0)
+    request = _get_in_thread(
+        app.test_client(), "/api/v1/runs/run-1/samples?after=20&wait_s=20", auth
+    )
+    # Wait until it waits (or has answered), then store the next sample: one tick.
+    deadline = time.monotonic() + 10
+    while runtime.store.waiting == 0 and request.is_alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    drive(next_s, next_s + 0.01)
+    request.join(timeout=15)
+    assert request.result is not None
+    page, elapsed_s = request.result
+    assert [s["seq"] for s in page["samples"]] == [21]
+    assert page["state"] == "running"
+    assert elapsed_s < 10  # woken by the commit, not by its 20 s deadline
+
+
+def test_a_long_poll_on_a_run_that_ended_answers_at_once_with_its_state(
+    client: FlaskClient, auth: dict[str, str], runtime: AgentRuntime, drive: Drive, soon: float
+) -> None:
+    _put(client, auth, "run-1", run_body(soon))
+    drive(soon, soon + 1.0)
+    client.delete("/api/v1/runs/run-1", headers=auth)
+    started = time.monotonic()
+    page = client.get("/api/v1/runs/run-1/samples?after=20&wait_s=30", headers=auth).json
+    assert time.monotonic() - started < 5
+    assert page is not None
+    assert (page["state"], page["samples"], page["last_seq"]) == ("aborted", [], 20)
+
+
+def test_a_long_poll_wakes_when_the_run_ends_without_another_sample(
+    app: Flask, auth: dict[str, str], runtime: AgentRuntime, drive: Drive, soon: float
+) -> None:
+    client = app.test_client()
+    _put(client, auth, "run-1", run_body(soon))
+    drive(soon, soon + 1.0)
+    request = _get_in_thread(
+        app.test_client(), "/api/v1/runs/run-1/samples?after=20&wait_s=20", auth
+    )
+    deadline = time.monotonic() + 10
+    while runtime.store.waiting == 0 and request.is_alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    client.delete("/api/v1/runs/run-1", headers=auth)
+    request.join(timeout=15)
+    assert request.result is not None
+    page, elapsed_s = request.result
+    assert (page["state"], page["samples"]) == ("aborted", [])
+    assert elapsed_s < 10
+
+
+def test_a_long_poll_with_nothing_new_answers_an_empty_page_at_its_deadline(
+    client: FlaskClient, auth: dict[str, str], sixty_samples: str
+) -> None:
+    started = time.monotonic()
+    page = client.get(f"/api/v1/runs/{sixty_samples}/samples?after=60&wait_s=1", headers=auth)
+    assert time.monotonic() - started >= 1.0
+    assert page.json is not None
+    assert (page.json["samples"], page.json["last_seq"], page.json["more"]) == ([], 60, False)
 
 
 # -- status ----------------------------------------------------------------------------------------

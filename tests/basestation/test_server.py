@@ -31,9 +31,11 @@ def test_the_real_agent_runs_a_short_program_and_stops_cleanly(agent_process: Ag
     with AgentClient(agent_process.url, TOKEN, timeout_s=5.0) as agent:
         assert agent.healthz() == {"ok": True}
         start_s = time.time() + 1.0
+        # The ccw segment outlasts the reversal: ramp to zero, then the firmware's 700 ms
+        # dwell at zero before the robot may drive the other way.
         segments = [
             {"velocity_mps": 0.4, "direction": "cw", "duration_s": 1.0},
-            {"velocity_mps": 0.4, "direction": "ccw", "duration_s": 1.0},
+            {"velocity_mps": 0.4, "direction": "ccw", "duration_s": 1.5},
         ]
         staged = agent.put_run("e2e", run_body(start_s, window_s=4.0, segments=segments))
         assert staged["state"] == "staged"
@@ -49,9 +51,9 @@ def test_the_real_agent_runs_a_short_program_and_stops_cleanly(agent_process: Ag
         samples = list(agent.iter_samples("e2e", 0, limit=25))
         assert [s["seq"] for s in samples] == list(range(1, len(samples) + 1))
         assert run["sample_count"] == len(samples) == run["last_seq"]
-        # 2 s of program and ~0.4 s of braking at 20 Hz is ~48 ticks; a busy machine skips
+        # 2.5 s of program and ~0.4 s of braking at 20 Hz is ~58 ticks; a busy machine skips
         # some (a late tick skips its missed slots), never adds any.
-        assert 30 <= len(samples) <= 52
+        assert 36 <= len(samples) <= 62
         assert all(start_s <= s["t"] < start_s + 4.0 for s in samples)
         assert {s["direction"] for s in samples} == {"cw", "ccw"}
 
@@ -94,4 +96,24 @@ def test_a_bad_rail_file_stops_the_agent_with_one_clear_line(tmp_path: Path) -> 
     )  # fmt: skip
     assert result.returncode == 2
     assert "configuration error: AGENT_RAIL_FILE: points: needs 3 to 500 points" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_a_limit_above_the_robots_hard_maximum_stops_the_agent_with_one_clear_line(
+    tmp_path: Path,
+) -> None:
+    # The simulated robot runs the firmware core, compiled with a 4 m/s hard maximum.
+    env = agent_env(
+        tmp_path / "data", AGENT_TOKEN=TOKEN, AGENT_ROBOT="sim", AGENT_MAX_VELOCITY_MPS="5"
+    )
+    result = subprocess.run(
+        [sys.executable, "-m", "basestation", "--port", "0"],
+        cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 2
+    errors = [line for line in result.stderr.splitlines() if "configuration error" in line]
+    assert errors == [
+        "amazing-agent: configuration error: AGENT_MAX_VELOCITY_MPS=5 is above the robot's "
+        "hard maximum 4 m/s (AMZ_HARD_MAX_VELOCITY_MM_S in its firmware)"
+    ]
     assert "Traceback" not in result.stderr

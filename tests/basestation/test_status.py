@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -10,12 +11,13 @@ import pytest
 from flask import Flask
 from flask.testing import FlaskClient
 
+from basestation import system
 from basestation.api.status import LINK_FAULT_AFTER_S, faults
 from basestation.app import create_app
 from basestation.config import AgentConfig
 from basestation.control import ControlStats
 from basestation.runtime import get_runtime
-from basestation.system import clock_synchronized, cpu_temp_c
+from basestation.system import _TIME_ERROR, cpu_temp_c
 from tests.basestation.conftest import RecordingRobot
 
 
@@ -58,15 +60,35 @@ def test_an_unreadable_thermal_zone_reads_as_null(tmp_path: Path, content: str) 
     assert cpu_temp_c(path) is None
 
 
-def test_status_reports_the_clock_and_whether_it_is_synchronised(
-    client: FlaskClient, auth: dict[str, str]
+@pytest.mark.parametrize(
+    ("adjtimex_state", "reported"),
+    [(0, True), (1, True), (_TIME_ERROR, False), (-1, None)],  # TIME_OK, TIME_INS, ..., failed
+)
+def test_status_reports_the_clock_and_whether_the_kernel_says_it_is_synchronised(
+    client: FlaskClient,
+    auth: dict[str, str],
+    monkeypatch: pytest.MonkeyPatch,
+    adjtimex_state: int,
+    reported: bool | None,
 ) -> None:
+    # The kernel's answer is faked (this machine may or may not run an NTP daemon): the API
+    # must report what adjtimex(2) says, not what this machine happens to be.
+    monkeypatch.setattr(system._clock, "_adjtimex", lambda buffer: adjtimex_state)
+    before_s = time.time()
+    status = client.get("/api/v1/status", headers=auth).json
+    after_s = time.time()
+    assert status is not None
+    assert before_s <= status["clock"] <= after_s
+    assert status["clock_synchronized"] is reported
+
+
+def test_without_adjtimex_the_clock_sync_state_is_unknown(
+    client: FlaskClient, auth: dict[str, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(system._clock, "_adjtimex", None)
     status = client.get("/api/v1/status", headers=auth).json
     assert status is not None
-    assert isinstance(status["clock"], float)
-    # This machine may or may not run an NTP daemon; the field is a boolean or unknown.
-    assert status["clock_synchronized"] in (True, False, None)
-    assert status["clock_synchronized"] == clock_synchronized()
+    assert status["clock_synchronized"] is None
 
 
 def test_status_reports_battery_estop_manual_and_the_control_window(

@@ -144,3 +144,47 @@ def test_it_marks_a_run_left_running_as_interrupted_on_restart_and_keeps_its_sam
         assert third.store.sample_stats("run-1").count == 50
     finally:
         third.close()
+
+
+def _ran(store: RunStore, run_id: str, started_s: float, ended_s: float | None) -> None:
+    """A run that moved the robot from ``started_s`` until ``ended_s`` (None: still moving)."""
+    spec = parse_run_body(run_body(started_s, owner=run_id))
+    store.stage_run(run_id, spec, now_s=started_s - 60, admit=lambda _: None)
+    assert store.transition(
+        run_id, from_states=["staged"], to_state="running", reason="started", now_s=started_s
+    )
+    if ended_s is not None:
+        assert store.transition(
+            run_id, from_states=["running"], to_state="completed", reason="done", now_s=ended_s
+        )
+
+
+def test_usage_is_half_open_at_both_ends_of_the_window(store: RunStore) -> None:
+    # The window [T0 + 100, T0 + 200): what ends at its start or starts at its end is not in it.
+    start_s, end_s = T0 + 100, T0 + 200
+    _ran(store, "ended-at-start", T0 + 80, start_s)
+    _ran(store, "inside", T0 + 140, T0 + 145)
+    _ran(store, "started-at-end", end_s, None)
+    _ran(store, "still-running", T0 + 180, None)
+    for user, started_s, until_s in [
+        ("ended-at-start", T0 + 90, start_s),
+        ("across-start", T0 + 95, T0 + 101),
+        ("started-at-end", end_s, end_s + 5),
+    ]:
+        store.manual_session_open(user=user, started_at_s=started_s, until_s=until_s)
+
+    entries = store.usage_between(start_s, end_s)
+    assert [(e.kind, e.user) for e in entries] == [
+        ("manual", "across-start"),
+        ("run", "inside"),
+        ("run", "still-running"),
+    ]
+    # What touches the window's ends belongs to the window on the other side.
+    assert {e.user for e in store.usage_between(start_s - 100, start_s)} == {
+        "ended-at-start",
+        "across-start",
+    }
+    assert {e.user for e in store.usage_between(end_s, end_s + 100)} == {
+        "started-at-end",
+        "still-running",
+    }

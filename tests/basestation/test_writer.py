@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from basestation import writer as writer_module
 from basestation.program import parse_run_body
 from basestation.runtime import AgentRuntime
 from basestation.store import RunStore, Sample
@@ -48,7 +49,42 @@ def test_it_applies_samples_and_transitions_in_the_order_queued(store: RunStore)
     assert record is not None
     assert record.state == "completed"
     assert refused == ["r"]
-    assert 1 <= writer.batches <= 300
+
+
+def test_samples_queued_while_it_writes_go_in_one_transaction(store: RunStore) -> None:
+    writer = StoreWriter(store, capacity=1000, on_refused=lambda _: None)
+    writer.start()
+    entered, release = threading.Event(), threading.Event()
+
+    def slow_operation() -> None:  # a commit that takes a while, as on a loaded SD card
+        entered.set()
+        release.wait(10)
+
+    writer.submit(slow_operation)
+    assert entered.wait(10)
+    for seq in range(1, 301):  # 15 s of ticks pile up behind it
+        writer.append("r", _sample(seq))
+    release.set()
+    writer.stop()
+    assert [s.seq for s in store.samples_after("r", 0, 1000)] == list(range(1, 301))
+    assert writer.batches == 1  # one commit for the backlog, not 300
+
+
+def test_a_batch_holds_at_most_max_batch_samples(
+    store: RunStore, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(writer_module, "MAX_BATCH", 100)
+    writer = StoreWriter(store, capacity=1000, on_refused=lambda _: None)
+    writer.start()
+    entered, release = threading.Event(), threading.Event()
+    writer.submit(lambda: (entered.set(), release.wait(10)))
+    assert entered.wait(10)
+    for seq in range(1, 251):
+        writer.append("r", _sample(seq))
+    release.set()
+    writer.stop()
+    assert [s.seq for s in store.samples_after("r", 0, 1000)] == list(range(1, 251))
+    assert writer.batches == 3  # 100 + 100 + 50
 
 
 def test_it_writes_inline_until_started(store: RunStore) -> None:

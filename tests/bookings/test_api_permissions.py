@@ -169,7 +169,14 @@ def _requests(world):
         ("busy", "get", "/api/v1/reservations/busy/", window, (401, 200, 200, 200)),
         ("quota", "get", "/api/v1/quota/", None, (401, 200, 200, 200)),
         (
-            "quota check",
+            "booking check",
+            "post",
+            "/api/v1/reservations/check/",
+            {"resources": ["node-05"], **slot},
+            (401, 200, 200, 200),
+        ),
+        (
+            "booking check, deprecated path",
             "post",
             "/api/v1/quota/check/",
             {"resources": ["node-05"], **slot},

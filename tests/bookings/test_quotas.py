@@ -17,8 +17,8 @@ from bookings.models import QuotaPolicy, ResourceGroup
 from bookings.quotas import period_bounds, policies_for, quota_summary
 from bookings.rules import QuotaExceeded
 from bookings.services import reservation_cancel, reservation_create
-from portal.audit.models import AuditEvent
-from portal.errors import NotAllowed
+from core.audit.models import AuditEvent
+from core.errors import NotAllowed
 from tests.factories import FixedResourceFactory
 
 pytestmark = pytest.mark.django_db

@@ -13,8 +13,8 @@ from datetime import datetime, time, timedelta
 from django.utils import timezone
 from bookings.models import QuotaPolicy, Resource
 from bookings.services import blackout_create, reservation_cancel, reservation_create
-from portal.accounts.models import User
-from portal.errors import Conflict
+from core.accounts.models import User
+from core.errors import Conflict
 
 node = Resource.objects.create(name="node-01", kind="fixed")
 alice = User.objects.create_user("alice")

@@ -14,8 +14,8 @@ from bookings.models import Reservation
 from bookings.reminders import reservations_due_for_reminder
 from bookings.services import blackout_create
 from bookings.tasks import reservations_remind
-from portal.audit.models import AuditEvent
-from portal.errors import Conflict, InvalidInput, NotAllowed
+from core.audit.models import AuditEvent
+from core.errors import Conflict, InvalidInput, NotAllowed
 from portal.runs.services.booking import (
     booking_cancel,
     booking_create,
@@ -243,7 +243,7 @@ def test_an_idempotency_key_replays_the_answer_instead_of_booking_twice(owner, c
 
 
 def test_a_concurrent_duplicate_with_the_same_key_gets_409(owner, client_for):
-    from portal.audit.models import IdempotencyKey
+    from core.audit.models import IdempotencyKey
 
     node = FixedResourceFactory()
     start, end = _slot()
@@ -318,7 +318,7 @@ def test_the_quota_endpoints_show_usage_and_check_a_booking(owner, admin_user, c
     assert AuditEvent.objects.filter(action="quota.create").count() == 1
     start, end = _slot(length_h=2)
     check = client_for(owner).post(
-        "/api/v1/quota/check/",
+        "/api/v1/reservations/check/",
         {"resources": [node.name], "start_at": start.isoformat(), "end_at": end.isoformat()},
         format="json",
     )

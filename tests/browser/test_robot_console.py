@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import expect
 
-from portal.audit.models import AuditEvent
+from core.audit.models import AuditEvent
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
 

@@ -171,9 +171,17 @@ def test_a_campaign_step_by_step_calls_only_what_the_schema_describes(portal, ca
     assert by_id[next_run]["start_at"] == by_id[run]["end_at"]
     assert amazing("runs", "--quiet").stdout.split() == [str(next_run), str(run)]
 
-    # Taken: the same slot again is refused.
+    # Taken: the same slot again is refused; the check says so first, and books nothing.
+    before = amazing("runs", "--quiet").stdout.split()
+    checked = amazing("book", "--experiment", str(experiment["id"]), "--after", str(run), "--check")
+    assert checked.exit_code == 3, (checked.stdout, checked.stderr)
+    assert checked.stdout.startswith("booked: mobile-1 is already booked from ")
     taken = amazing("book", "--experiment", str(experiment["id"]), "--after", str(run))
     assert "already booked" in _one_line_error(taken, 3)
+    free = amazing("book", "--experiment", str(experiment["id"]), "--check", "--json")
+    assert free.exit_code == 0, free.stderr
+    assert json.loads(free.stdout)["fits"] is True
+    assert amazing("runs", "--quiet").stdout.split() == before
 
     assert amazing("cancel", str(next_run)).exit_code == 0
     watched = amazing("watch", str(next_run), "--interval", "0.2")
@@ -213,7 +221,7 @@ def test_watch_follows_a_run_to_its_end_and_download_streams_every_sample(portal
         ("invalid YAML", 2, "not valid YAML at line 4"),
         ("invalid JSON", 2, "not valid JSON"),
         ("schema-invalid", 2, "segments.0: 'duration_s' is a required property"),
-        ("over-limit velocity", 2, "velocity 5 m/s exceeds the maximum 2 m/s of mobile-1"),
+        ("over-limit velocity", 2, "velocity 5 m/s is faster than every robot you may book"),
         ("no token", 3, "no token: run `amazing login` or set AMAZING_TOKEN"),
         ("portal down", 5, "cannot reach the portal at http://127.0.0.1:9"),
         ("unknown run", 4, "No Run matches the given query."),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -11,6 +12,8 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from email import message_from_bytes, policy
+from email.message import EmailMessage
 from pathlib import Path
 
 import requests
@@ -50,9 +53,17 @@ class Proc:
     def output(self, last: int = 60) -> str:
         return "\n".join(f"{self.name}| {line}" for line in self.lines[-last:])
 
-    def wait_for_line(self, predicate: Callable[[str], bool], timeout_s: float) -> str:
+    def mark(self) -> int:
+        """Where the output stands now: pass it as ``since`` to read only what comes after."""
+        return len(self.lines)
+
+    def wait_for_line(
+        self, predicate: Callable[[str], bool], timeout_s: float, *, since: int = 0
+    ) -> str:
+        """The first line from ``since`` on (0: from the process's start) that ``predicate``
+        accepts, waiting up to ``timeout_s`` for it."""
         deadline = time.monotonic() + timeout_s
-        seen = 0
+        seen = since
         while time.monotonic() < deadline:
             while seen < len(self.lines):
                 line = self.lines[seen]
@@ -63,6 +74,20 @@ class Proc:
                 break
             time.sleep(0.1)
         raise AssertionError(f"{self.name}: expected line not seen\n{self.output()}")
+
+    def wait_for_mail(
+        self, predicate: Callable[[EmailMessage], bool], timeout_s: float, *, since: int
+    ) -> EmailMessage:
+        """The first e-mail printed from line ``since`` on (take it with :meth:`mark` before
+        the action that sends it) that ``predicate`` accepts, waiting up to ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            for message in printed_mails(self.lines[since:]):
+                if predicate(message):
+                    return message
+            if time.monotonic() > deadline or self.popen.poll() is not None:
+                raise AssertionError(f"{self.name}: expected e-mail not seen\n{self.output()}")
+            time.sleep(0.1)
 
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 15) -> int:
         if self.popen.poll() is None:
@@ -77,6 +102,42 @@ class Proc:
         if self.popen.stdout is not None:
             self.popen.stdout.close()
         return self.popen.returncode
+
+
+# Django's console e-mail backend prints each message, then a line of 79 dashes. A Celery
+# worker logs what its tasks print: each write is a log record, its first line prefixed.
+MAIL_SEPARATOR = "-" * 79
+LOG_RECORD = re.compile(r"^\[\d{4}-\d\d-\d\d [\d:,]+: \w+/[^\]]+\] ")
+
+
+def _parsed_mail(lines: list[str]) -> EmailMessage:
+    # As bytes: the body is 8-bit UTF-8, which the parser decodes by its charset only so.
+    raw = ("\n".join(lines) + "\n").encode()
+    message = message_from_bytes(raw, policy=policy.default)
+    assert isinstance(message, EmailMessage)
+    # A long subject is folded onto the next lines; unfolded, it keeps a leading space.
+    subject = message["Subject"]
+    if subject is not None:
+        message.replace_header("Subject", str(subject).strip())
+    return message
+
+
+def printed_mails(lines: list[str]) -> list[EmailMessage]:
+    """The complete e-mails the console backend printed in ``lines``, parsed one by one (the
+    subject decoded). A message ends at its separator or at the next log record: one printed
+    by another thread in between never merges into it."""
+    found: list[EmailMessage] = []
+    block: list[str] | None = None
+    for line in lines:
+        starts_record = LOG_RECORD.match(line) is not None
+        if block is not None and (line.endswith(MAIL_SEPARATOR) or starts_record):
+            found.append(_parsed_mail(block))
+            block = None
+        if block is not None:
+            block.append(line)
+        elif (at := line.find("Content-Type: ")) >= 0 and (starts_record or at == 0):
+            block = [line[at:]]
+    return found
 
 
 def wait_http(url: str, timeout_s: float, procs: list[Proc]) -> None:

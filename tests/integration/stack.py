@@ -70,6 +70,7 @@ class Stack:
         self.env = env
         self.procs: dict[str, Proc] = {}
         self.web = ""
+        self.streams = ""
         self.agent_url = ""
         self.token = ""
         self.agent: AgentClient | None = None
@@ -103,10 +104,14 @@ class Stack:
             wait_http(f"{url}/healthz", timeout_s, running)
         elif name == "web":
             wait_http(f"{self.web}/accounts/login/", timeout_s, running)
+        elif name == "streams":
+            wait_http(f"{self.streams}/healthz", timeout_s, running)
         elif name == "broker":
             wait_http(f"{self.standin}/resources/nodes", timeout_s, running)
         elif name in ("worker", "mail"):
             self.procs[name].wait_for_line(lambda line: "ready." in line, timeout_s)
+        elif name == "collector":
+            self.procs[name].wait_for_line(lambda line: "collector ready" in line, timeout_s)
 
     def output(self, last: int = 80) -> str:
         return "\n".join(p.output(last) for p in self.procs.values())
@@ -133,7 +138,7 @@ def running_stack(
     redis.Redis.from_url(broker_url).flushdb()
 
     token = secrets.token_urlsafe(24)
-    agent_port, web_port = free_port(), free_port()
+    agent_port, web_port, streams_port = free_port(), free_port(), free_port()
     second_port = free_port() if second_robot else None
     var_dir.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
@@ -147,6 +152,10 @@ def running_stack(
             "AMAZING_VAR_DIR": str(var_dir),
             "RUN_SWEEP_INTERVAL_S": "0.5",
             "PYTHONUNBUFFERED": "1",
+            "LIVE_STREAM_PORT": str(streams_port),
+            # Two small web processes: the tests' stack shares two cores with the rest.
+            "WEB_WORKERS": "2",
+            "WEB_THREADS": "4",
         }
     )
     env.pop("AGENT_TOKEN_FILE", None)
@@ -165,6 +174,7 @@ def running_stack(
     specs = system_processes(
         python=python(),
         portal_port=web_port,
+        streams_port=streams_port,
         agent_port=agent_port,
         var_dir=var_dir,
         second_agent_port=second_port,
@@ -173,6 +183,7 @@ def running_stack(
     )
     stack = Stack(specs, env)
     stack.web = f"http://127.0.0.1:{web_port}"
+    stack.streams = f"http://127.0.0.1:{streams_port}"
     stack.agent_url = f"http://127.0.0.1:{agent_port}"
     stack.token = token
     stack.agent = AgentClient(stack.agent_url, token)

@@ -33,9 +33,29 @@ def _json(session: requests.Session, url: str, launcher: Proc) -> dict:
         raise AssertionError(f"{url}: {exc}\n{launcher.output(200)}") from exc
 
 
+def _wait_ended(session: requests.Session, data_url: str, launcher: Proc) -> dict:
+    """The run page's data once the run is no longer live (60 s at most)."""
+    deadline = time.monotonic() + 60
+    data: dict = {}
+    while time.monotonic() < deadline:
+        data = _json(session, data_url, launcher)
+        if not data["live"]:
+            break
+        time.sleep(0.5)
+    return data
+
+
+def _pid_of(launcher: Proc, name: str) -> int:
+    """The pid the launcher last started ``name`` with."""
+    started = [s for s in launcher.lines if f"started {name} (pid " in s]
+    assert started, f"{name} was never started\n{launcher.output()}"
+    return int(started[-1].rsplit("(pid ", 1)[1].rstrip(")"))
+
+
 def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
     var_dir = tmp_path / "var"
     portal_port, agent_port, standin_port = free_port(), free_port(), free_port()
+    streams_port = free_port()
     env = {
         k: v
         for k, v in os.environ.items()
@@ -54,6 +74,7 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         {
             "AMAZING_VAR_DIR": str(var_dir),
             "PORTAL_PORT": str(portal_port),
+            "STREAMS_PORT": str(streams_port),
             "AGENT_PORT": str(agent_port),
             "STANDIN_PORT": str(standin_port),
             "RUN_SWEEP_INTERVAL_S": "0.5",
@@ -112,13 +133,7 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         assert "/runs/" in booked.url, booked.text[:3000]
         data_url = booked.url.rstrip("/") + "/data.json"
 
-        deadline = time.monotonic() + 60
-        data = {}
-        while time.monotonic() < deadline:
-            data = _json(session, data_url, launcher)
-            if not data["live"]:
-                break
-            time.sleep(0.5)
+        data = _wait_ended(session, data_url, launcher)
         assert data["state"] == "completed", (
             f"{data.get('state')}: {data.get('reason')}\n{launcher.output(120)}"
         )
@@ -149,6 +164,36 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             f"http://127.0.0.1:{standin_port}/resources/leases", timeout=10
         ).json()["resource_response"]["resources"]
         assert [[c["name"] for c in lease["components"]] for lease in leases] == [["node-01"]]
+
+        # A child that dies is started again; the rest go on serving meanwhile.
+        worker_pid = _pid_of(launcher, "worker")
+        since = launcher.mark()
+        os.killpg(worker_pid, signal.SIGKILL)
+        launcher.wait_for_line(
+            lambda s: "worker exited with code -9; starting it again" in s, 30, since=since
+        )
+        assert requests.get(f"{web}/healthz", timeout=10).status_code == 200
+        launcher.wait_for_line(lambda s: "started worker (pid" in s, 30, since=since)
+        assert _pid_of(launcher, "worker") != worker_pid
+        launcher.wait_for_line(lambda s: s.startswith("worker") and " ready." in s, 60, since=since)
+        # The new worker does the work: a second run completes.
+        token = _csrf(session, f"{web}/book/")
+        start = timezone.localtime(timezone.now() + timedelta(seconds=5)).replace(microsecond=0)
+        booked = session.post(
+            f"{web}/book/",
+            data={
+                "csrfmiddlewaretoken": token,
+                "resource": "mobile-1",
+                "experiment": experiment_id,
+                "start_at": start.strftime("%Y-%m-%dT%H:%M:%S"),
+                "end_at": (start + timedelta(seconds=8)).strftime("%Y-%m-%dT%H:%M:%S"),
+            },
+            timeout=10,
+        )
+        assert "/runs/" in booked.url, booked.text[:3000]
+        data = _wait_ended(session, booked.url.rstrip("/") + "/data.json", launcher)
+        assert data["state"] == "completed", f"{data['reason']}\n{launcher.output(1500)}"
+        assert not any("stopping the rest" in s for s in launcher.lines)
 
         assert processes_matching_env("AMAZING_VAR_DIR", str(var_dir)), "children should be running"
         launcher.popen.send_signal(signal.SIGINT)
@@ -185,6 +230,7 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
     page's stream works on the embedded setup (no Redis: files under var/live)."""
     var_dir = tmp_path / "var"
     portal_port, agent_port, second_port = free_port(), free_port(), free_port()
+    streams_port = free_port()
     env = {
         k: v
         for k, v in os.environ.items()
@@ -195,6 +241,7 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
         {
             "AMAZING_VAR_DIR": str(var_dir),
             "PORTAL_PORT": str(portal_port),
+            "STREAMS_PORT": str(streams_port),
             "AGENT_PORT": str(agent_port),
             "AGENT_2_PORT": str(second_port),
             "ROBOTS": "2",
@@ -207,7 +254,7 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
         password = line.split("password: ")[1].strip()
         launcher.wait_for_line(lambda s: "ready: log in at" in s, 90)
         assert any(f"live updates: files in {var_dir / 'live'}" in s for s in launcher.lines)
-        assert any(s.startswith("agent-2") for s in launcher.lines)
+        launcher.wait_for_line(lambda s: s.startswith("agent-2"), 60)
 
         web = f"http://127.0.0.1:{portal_port}"
         session = requests.Session()
@@ -250,7 +297,8 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
             run_urls.append(booked.url.rstrip("/"))
 
         run_id = run_urls[1].rsplit("/", 1)[1]
-        events = _sse_events(session, f"{web}/live/runs/{run_id}/", "completed", 60)
+        streams = f"http://127.0.0.1:{streams_port}"
+        events = _sse_events(session, f"{streams}/live/runs/{run_id}/", "completed", 60)
         assert events[0] == "open"
         assert "samples" in events
         for url in run_urls:  # the other robot's run ends on its own, about as soon

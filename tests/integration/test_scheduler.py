@@ -14,7 +14,8 @@ import requests
 from django.utils import timezone
 from rest_framework.authtoken.models import Token
 
-from bookings.models import Reservation
+from bookings.models import Reservation, SchedulerLink
+from bookings.notifications import reservation_message
 from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -107,24 +108,19 @@ def test_a_booking_of_the_robot_and_four_nodes_holds_one_lease_and_its_run_compl
     assert run["sample_count"] == stack["agent"].get_run(f"run-{run_id}")["sample_count"] > 0
 
 
-def test_the_web_killed_between_lease_and_commit_leaves_an_orphan_the_sweep_cancels(world):
-    stack, _, headers = world
+def _kill_web_between_lease_and_commit(
+    stack: Any, body: dict[str, Any], headers: dict[str, str]
+) -> dict[str, Any]:
+    """POST ``body`` and kill the web process (SIGKILL) once its lease is on the broker, before
+    the portal commits; the orphan lease."""
     # The broker makes the lease, then holds its answer: the portal waits, uncommitted.
     requests.post(f"{stack['standin']}/_standin/faults", json={"answer_delay_s": 8}, timeout=5)
-    start = timezone.now() + timedelta(hours=3)
     outcome: dict[str, Any] = {}
 
     def book() -> None:
         try:
             outcome["response"] = requests.post(
-                f"{stack['web']}/api/v1/reservations/",
-                json={
-                    "resources": ["node-05"],
-                    "start_at": start.isoformat(),
-                    "end_at": (start + timedelta(hours=1)).isoformat(),
-                },
-                headers=headers,
-                timeout=30,
+                f"{stack['web']}/api/v1/reservations/", json=body, headers=headers, timeout=30
             )
         except requests.RequestException as exc:
             outcome["error"] = exc
@@ -141,10 +137,70 @@ def test_the_web_killed_between_lease_and_commit_leaves_an_orphan_the_sweep_canc
         outcome,
         "\n".join(p.output() for p in stack["procs"]),
     )
+    return orphan
+
+
+def test_the_web_killed_between_lease_and_commit_leaves_an_orphan_the_sweep_or_a_retry_cancels(
+    world,
+):
+    stack, _, headers = world
+    start = timezone.now() + timedelta(hours=3)
+    orphan = _kill_web_between_lease_and_commit(
+        stack,
+        {
+            "resources": ["node-05"],
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(hours=1)).isoformat(),
+        },
+        headers,
+    )
     # Beat sweeps every second; the killed process's transaction (and its lock) is gone.
     _until("the orphan's cancellation", lambda: not _live(stack), 15, stack)
     [cancelled] = [x for x in _broker_leases(stack) if x["uuid"] == orphan["uuid"]]
     assert cancelled["status"] == "cancelled"
+
+    # Again, the robot and a node with an idempotency key, and no sweep this time: the
+    # client's retry with the same key, as soon as a web process answers, clears the orphan
+    # of its own first attempt itself and books.
+    stack.kill("beat", signal.SIGKILL)
+    stack.start("web")
+    stack.wait_ready("web")
+    swept = SchedulerLink.objects.get(pk=1).orphans_cancelled
+    experiment = requests.post(
+        f"{stack['web']}/api/v1/experiments/",
+        json={
+            "title": "retried",
+            "segments": [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 3.0}],
+        },
+        headers=headers,
+        timeout=10,
+    ).json()
+    body = {
+        "resources": ["mobile-1", "node-02"],
+        "experiment": experiment["id"],
+        "start_at": start.isoformat(),
+        "end_at": (start + timedelta(minutes=30)).isoformat(),
+    }
+    keyed = {**headers, "X-Idempotency-Key": "book-once-7f3a"}
+    orphan = _kill_web_between_lease_and_commit(stack, body, keyed)
+    stack.start("web")
+    stack.wait_ready("web")
+    retry = requests.post(
+        f"{stack['web']}/api/v1/reservations/", json=body, headers=keyed, timeout=30
+    )
+    assert retry.status_code == 201, (retry.text, stack.output())
+    [reservation] = Reservation.objects.all()
+    assert reservation.pk == retry.json()["id"]
+    [live] = _live(stack)
+    assert live["uuid"] == reservation.lease_uuid != orphan["uuid"]
+    [cancelled] = [x for x in _broker_leases(stack) if x["uuid"] == orphan["uuid"]]
+    assert cancelled["status"] == "cancelled"
+    assert SchedulerLink.objects.get(pk=1).orphans_cancelled == swept  # not by a sweep
+    replay = requests.post(
+        f"{stack['web']}/api/v1/reservations/", json=body, headers=keyed, timeout=30
+    )
+    assert (replay.status_code, replay.headers.get("Idempotent-Replayed")) == (201, "true")
+    assert Reservation.objects.count() == 1
 
 
 def test_a_lease_made_on_the_broker_blocks_the_node_shows_busy_and_a_late_one_is_flagged(world):
@@ -213,6 +269,8 @@ def test_a_lease_made_on_the_broker_blocks_the_node_shows_busy_and_a_late_one_is
         timeout=20,
     )
     assert mine.status_code == 201, mine.text
+    mail = stack.procs["mail"]
+    since = mail.mark()  # the booking's own confirmation is not the mail looked for
     requests.post(
         f"{stack['standin']}/_standin/leases",
         json={
@@ -231,9 +289,14 @@ def test_a_lease_made_on_the_broker_blocks_the_node_shows_busy_and_a_late_one_is
         stack,
     )
     assert "“sneaky”" in flagged
-    # The owner is told: the mail worker sends the e-mail (the console backend prints it; its
-    # subject is MIME-encoded, its body is not).
-    stack.procs["mail"].wait_for_line(
-        lambda line: "there is a problem with your booking of node-01" in line, 15
+    # The owner is told: the mail worker sends the e-mail (the console backend prints it).
+    told = mail.wait_for_mail(
+        lambda m: m["Subject"].startswith("A lease on the testbed scheduler overlaps"),
+        15,
+        since=since,
     )
-    stack.procs["mail"].wait_for_line(lambda line: "To: erin@example.org" in line, 5)
+    booked = Reservation.objects.get(pk=mine.json()["id"])
+    assert told["Subject"] == reservation_message("lease_conflict", booked)[0]
+    assert told["To"] == "erin@example.org"  # the only user: no admin to copy
+    assert "there is a problem with your booking of node-01" in told.get_content()
+    assert "“sneaky”" in told.get_content()

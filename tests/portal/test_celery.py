@@ -41,7 +41,9 @@ def test_mail_tasks_go_to_the_mail_queue_and_everything_else_to_the_runs_queue()
 
 
 def test_each_queue_has_a_worker_of_its_own():
-    specs = system_processes(python="py", portal_port=1, agent_port=2, var_dir=settings.VAR_DIR)
+    specs = system_processes(
+        python="py", portal_port=1, streams_port=3, agent_port=2, var_dir=settings.VAR_DIR
+    )
     queues = {
         spec.name: spec.argv[spec.argv.index("--queues") + 1]
         for spec in specs

@@ -8,7 +8,7 @@ import pytest
 from django.core.cache import cache
 from django.test import override_settings
 
-from portal.health import SWEEP, heartbeat_record
+from core.health import SWEEP, heartbeat_record
 from portal.runs.tasks import runs_sweep
 
 pytestmark = pytest.mark.django_db

@@ -18,9 +18,9 @@ from django.test.utils import CaptureQueriesContext
 from django.utils import timezone
 
 from bookings.models import Reservation
-from portal.audit import tasks
-from portal.audit.idempotency import UNANSWERED_LEASE_S, idempotency_keys_delete_expired
-from portal.audit.models import IdempotencyKey
+from core.audit import tasks
+from core.audit.idempotency import UNANSWERED_LEASE_S, idempotency_keys_delete_expired
+from core.audit.models import IdempotencyKey
 from tests.factories import FixedResourceFactory
 from tests.integration.processes import Proc
 from tests.sqlite import run_on_sqlite
@@ -37,7 +37,7 @@ import django
 django.setup()
 from django.db import connection
 from rest_framework.test import APIClient
-from portal.accounts.models import User
+from core.accounts.models import User
 
 
 def hold_before_commit(execute, sql, params, many, context):
@@ -327,9 +327,9 @@ from django.db import connection
 from django.utils import timezone
 from rest_framework.test import APIClient
 from bookings.models import Reservation, Resource
-from portal.accounts.models import User
-from portal.audit.idempotency import idempotency_keys_delete_expired
-from portal.audit.models import IdempotencyKey
+from core.accounts.models import User
+from core.audit.idempotency import idempotency_keys_delete_expired
+from core.audit.models import IdempotencyKey
 
 alice, _ = User.objects.get_or_create(username="alice")
 Resource.objects.get_or_create(name="node-01", kind="fixed")

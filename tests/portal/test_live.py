@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 from asgiref.sync import async_to_sync
 
-from portal import live
+from core import live
 
 WAIT_S = 5.0
 

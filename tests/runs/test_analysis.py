@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 import math
+import random
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from portal.runs.analysis import SeriesCollector, analyse, lttb
+from portal.runs.analysis import (
+    SampleColumns,
+    SeriesCollector,
+    analyse,
+    analyse_columns,
+    chart_series,
+    downsample,
+    lttb,
+)
 from tests.runs.driving import HZ, RAIL_M, drive, segments
 
 
@@ -124,14 +133,19 @@ def test_an_empty_run_has_an_empty_analysis():
 # -- downsampling -------------------------------------------------------------------------------
 
 
+# ``lttb`` is the algorithm written out; ``downsample`` (compiled) is what the pages use.
+DOWNSAMPLERS = pytest.mark.parametrize("downsampler", [lttb, downsample], ids=lambda f: f.__name__)
+
+
+@DOWNSAMPLERS
 @settings(max_examples=200, deadline=None)
 @given(
     ys=st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=0, max_size=400),
     max_points=st.integers(3, 120),
 )
-def test_lttb_keeps_at_most_max_points_in_order_with_both_ends(ys, max_points):
+def test_lttb_keeps_at_most_max_points_in_order_with_both_ends(downsampler, ys, max_points):
     xs = [float(i) for i in range(len(ys))]
-    kept = lttb(xs, ys, max_points)
+    kept = downsampler(xs, ys, max_points)
     assert len(kept) == min(len(ys), max_points)
     assert kept == sorted(set(kept))
     if ys:
@@ -139,19 +153,43 @@ def test_lttb_keeps_at_most_max_points_in_order_with_both_ends(ys, max_points):
         assert kept[-1] == len(ys) - 1
 
 
-def test_lttb_keeps_a_spike_that_a_stride_would_drop():
+@settings(max_examples=200, deadline=None)
+@given(
+    ys=st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=0, max_size=400),
+    max_points=st.integers(3, 120),
+)
+def test_the_compiled_downsampling_keeps_the_same_points_as_lttb(ys, max_points):
+    xs = [i / HZ for i in range(len(ys))]
+    assert downsample(xs, ys, max_points) == lttb(xs, ys, max_points)
+
+
+def test_with_jittered_times_the_compiled_downsampling_keeps_nearly_the_same_points():
+    rng = random.Random(7)
+    n = 20_000
+    # Ticks as the agent records them: 20 Hz with a little lateness each.
+    xs = [i / HZ + rng.uniform(0.0, 0.002) for i in range(n)]
+    ys = [math.sin(i / 50) + rng.uniform(0.0, 0.1) for i in range(n)]
+    reference, compiled = lttb(xs, ys, 2000), downsample(xs, ys, 2000)
+    assert len(compiled) == len(reference)
+    # Where they differ is which of two near-equal triangles wins (rounding).
+    assert sum(a == b for a, b in zip(reference, compiled, strict=True)) >= 0.95 * len(reference)
+
+
+@DOWNSAMPLERS
+def test_lttb_keeps_a_spike_that_a_stride_would_drop(downsampler):
     n = 72_000
     xs = [i / HZ for i in range(n)]
     ys = [1.0] * n
     ys[12_345] = 3.0  # one sample of a 2 m/s jolt in an hour at 1 m/s
-    kept = lttb(xs, ys, 2000)
+    kept = downsampler(xs, ys, 2000)
     assert 12_345 in kept
     assert 12_345 not in range(0, n, -(-n // 2000))
 
 
-def test_lttb_refuses_fewer_than_three_points():
+@DOWNSAMPLERS
+def test_lttb_refuses_fewer_than_three_points(downsampler):
     with pytest.raises(ValueError, match="at least 3"):
-        lttb([0.0, 1.0], [0.0, 1.0], 2)
+        downsampler([0.0, 1.0], [0.0, 1.0], 2)
 
 
 def test_series_are_bounded_and_the_command_keeps_its_steps():
@@ -183,3 +221,53 @@ def test_without_the_rail_length_the_position_is_charted_as_reported():
     ys = collector.series(2000)["track_m"]["y"]
     assert max(ys) <= RAIL_M
     assert min(ys[1:]) < 1.0  # wrapped back past the origin
+
+
+# -- the same, a column at a time ---------------------------------------------------------------
+
+COLUMN_CASES = [
+    ([(1.0, "cw", 600.0), (2.0, "ccw", 600.0), (0.5, "cw", 600.0)], {}, RAIL_M, 50.0),
+    ([(2.0, "cw", 120.0)], {"skip": frozenset({3, 4, 9})}, RAIL_M, None),
+    ([(1.5, "ccw", 200.0), (0.0, "cw", 10.0)], {"start_m": 0.0}, RAIL_M, 0.0),
+    ([(1.0, "cw", 60.0)], {}, None, None),
+]
+
+
+@pytest.mark.parametrize(("program", "drive_options", "rail_m", "pass_at_m"), COLUMN_CASES)
+def test_the_column_analysis_is_the_row_by_row_one(program, drive_options, rail_m, pass_at_m):
+    """Same additions in the same order: the same floats, not merely close ones."""
+    rows = drive(program, **drive_options)
+    # Samples outside the program and unknown fixes are counted apart by both.
+    rows[5] = rows[5]._replace(segment=None, fix_quality=None)
+    rows[6] = rows[6]._replace(segment=len(program))
+    options = {"segments": segments(program), "rail_length_m": rail_m, "pass_at_m": pass_at_m}
+    expected = analyse(rows, **options)
+    assert analyse_columns(SampleColumns.from_rows(rows), **options) == expected
+
+
+@pytest.mark.parametrize(("program", "drive_options", "rail_m", "pass_at_m"), COLUMN_CASES)
+def test_the_column_series_are_the_collectors(program, drive_options, rail_m, pass_at_m):
+    rows = drive(program, **drive_options)
+    collector = SeriesCollector(segments(program), rail_m)
+    for row in rows:
+        collector.take(row)
+    columns = SampleColumns.from_rows(rows)
+    for max_points in (3, 100, 2000):
+        series = chart_series(
+            columns, segments=segments(program), rail_length_m=rail_m, max_points=max_points
+        )
+        assert series == collector.series(max_points)
+
+
+def test_the_column_analysis_of_no_samples_is_empty():
+    program = [(1.0, "cw", 10.0)]
+    result = analyse_columns(
+        SampleColumns.from_rows([]), segments=segments(program), rail_length_m=RAIL_M
+    )
+    assert result == analyse([], segments=segments(program), rail_length_m=RAIL_M)
+    empty = SeriesCollector(segments(program), RAIL_M).series(2000)
+    columns = SampleColumns.from_rows([])
+    assert (
+        chart_series(columns, segments=segments(program), rail_length_m=RAIL_M, max_points=2000)
+        == empty
+    )

@@ -7,7 +7,7 @@ from django.utils import timezone
 
 from bookings.choices import ReservationState
 from bookings.models import Reservation
-from portal.errors import Conflict, InvalidInput, NotAllowed
+from core.errors import Conflict, InvalidInput, NotAllowed
 from portal.runs.models import Run
 from portal.runs.services.booking import booking_cancel, booking_create
 from portal.runs.states import RunState

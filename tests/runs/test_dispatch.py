@@ -13,6 +13,7 @@ from django.utils import timezone
 
 from basestation.client import AgentError
 from bookings.choices import ReservationState
+from portal.runs import tasks
 from portal.runs.models import Run, Sample
 from portal.runs.services import collection, staging
 from portal.runs.services.booking import booking_cancel, booking_create
@@ -158,6 +159,85 @@ def test_cancelling_a_running_run_aborts_it_and_keeps_the_data(agent, booked, ow
     assert _state(booked) == RunState.INTERRUPTED
     on_agent = agent.client.get_run(booked.agent_run_id)
     assert Sample.objects.filter(run=booked).count() == on_agent["sample_count"] > 0
+
+
+# -- a cancel through its real paths: the commit hook, and the sweep when the hook's task is lost
+
+
+def _stage_and_start(agent, run: Run) -> float:
+    """Stage ``run``, drive the robot one second into it, collect: running on both sides."""
+    staging.run_stage(run_id=run.pk)
+    start_s = run.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 1.0)
+    collection.run_collect(run_id=run.pk)
+    assert _state(run) == RunState.RUNNING
+    return start_s + 1.0
+
+
+def _cancel(run: Run, owner, capture, *, hooks_run: bool) -> None:
+    """Cancel the booking as the API does; its commit hooks run, or are lost with the task
+    they queue (a worker or broker that went down)."""
+    with capture(execute=hooks_run):
+        booking_cancel(reservation=run.reservation, by=owner)
+    run.reservation.refresh_from_db()
+    assert run.reservation.state == ReservationState.CANCELLED
+
+
+def test_cancelling_a_staged_run_withdraws_it_through_the_commit_hook(
+    agent, booked, owner, eager_tasks, django_capture_on_commit_callbacks
+):
+    staging.run_stage(run_id=booked.pk)
+    _cancel(booked, owner, django_capture_on_commit_callbacks, hooks_run=True)
+    assert _state(booked) == RunState.CANCELLED
+    assert agent.client.get_run(booked.agent_run_id)["state"] == "cancelled"
+    assert not staging.runs_due_for_withdrawal().exists()
+
+
+def test_cancelling_a_running_run_aborts_it_through_the_commit_hook_and_the_robot_stops(
+    agent, booked, owner, eager_tasks, django_capture_on_commit_callbacks
+):
+    now_s = _stage_and_start(agent, booked)
+    assert agent.client.status()["robot"]["commanded_velocity_mps"] > 0
+    _cancel(booked, owner, django_capture_on_commit_callbacks, hooks_run=True)
+    assert agent.client.get_run(booked.agent_run_id)["state"] == "aborted"
+    agent.run_clock(now_s + TICK_S, now_s + 1.0)
+    assert agent.client.status()["robot"]["commanded_velocity_mps"] == 0.0
+    collection.run_collect(run_id=booked.pk)
+    assert _state(booked) == RunState.INTERRUPTED
+    on_agent = agent.client.get_run(booked.agent_run_id)
+    assert Sample.objects.filter(run=booked).count() == on_agent["sample_count"] > 0
+
+
+def test_a_staged_run_whose_withdrawal_was_lost_is_withdrawn_by_the_sweep(
+    agent, booked, owner, eager_tasks, django_capture_on_commit_callbacks
+):
+    staging.run_stage(run_id=booked.pk)
+    _cancel(booked, owner, django_capture_on_commit_callbacks, hooks_run=False)
+    # The hook's task never ran: the agent would still start the run.
+    assert _state(booked) == RunState.STAGED
+    assert agent.client.get_run(booked.agent_run_id)["state"] == "staged"
+    assert list(staging.runs_due_for_withdrawal()) == [booked]
+    tasks.runs_sweep.apply()
+    assert _state(booked) == RunState.CANCELLED
+    assert agent.client.get_run(booked.agent_run_id)["state"] == "cancelled"
+    assert not staging.runs_due_for_withdrawal().exists()
+
+
+def test_a_running_run_whose_withdrawal_was_lost_is_aborted_by_the_sweep(
+    agent, booked, owner, eager_tasks, django_capture_on_commit_callbacks
+):
+    now_s = _stage_and_start(agent, booked)
+    _cancel(booked, owner, django_capture_on_commit_callbacks, hooks_run=False)
+    assert agent.client.get_run(booked.agent_run_id)["state"] == "running"
+    tasks.runs_sweep.apply()
+    assert agent.client.get_run(booked.agent_run_id)["state"] == "aborted"
+    agent.run_clock(now_s + TICK_S, now_s + 1.0)
+    assert agent.client.status()["robot"]["commanded_velocity_mps"] == 0.0
+    # Still running here until collected: the sweep asks for the withdrawal again meanwhile.
+    assert list(staging.runs_due_for_withdrawal()) == [booked]
+    collection.run_collect(run_id=booked.pk)
+    assert _state(booked) == RunState.INTERRUPTED
+    assert not staging.runs_due_for_withdrawal().exists()
 
 
 def test_a_run_the_agent_does_not_know_fails(agent, booked):

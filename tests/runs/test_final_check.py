@@ -217,7 +217,7 @@ SQLITE_SCRIPT = r"""
 from datetime import timedelta
 from django.utils import timezone
 from bookings.models import Resource
-from portal.accounts.models import User
+from core.accounts.models import User
 from portal.experiments.models import Experiment
 from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest, run_missing_ranges

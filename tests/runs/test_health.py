@@ -11,13 +11,14 @@ import time
 from datetime import timedelta
 
 import pytest
+from django.core.cache import cache
 from django.utils import timezone
 
 from bookings.models import Resource
 from bookings.selectors import resource_free_intervals
 from bookings.services import resource_set_service
-from portal.audit.models import AuditEvent
-from portal.errors import InvalidInput, NotAllowed
+from core.audit.models import AuditEvent
+from core.errors import InvalidInput, NotAllowed
 from portal.runs.services.booking import booking_check, booking_create
 from portal.runs.services.health import (
     robot_health_cached,
@@ -71,7 +72,7 @@ def test_a_latched_estop_takes_the_robot_out_of_booking_with_the_reason(agent, r
         start_at=start,
         end_at=start + timedelta(minutes=10),
         experiment=ExperimentFactory(owner=owner),
-    )
+    ).problems
     assert [(p.code, p.message) for p in problems] == [("out_of_service", refused.value.message)]
     assert (
         resource_free_intervals(resource=robot, start_at=start, end_at=start + timedelta(1)) == []
@@ -119,6 +120,45 @@ def test_an_agent_out_of_reach_for_longer_than_the_threshold_takes_the_robot_out
     assert _held(robot).startswith("base station unreachable since ")
 
 
+def test_the_unreachable_count_survives_a_cache_restart(robot, settings):
+    Resource.objects.filter(pk=robot.pk).update(agent_url="http://127.0.0.1:9")
+    first_s = time.time()
+    robot_health_check(resource_id=robot.pk, now_s=first_s)
+    cache.clear()  # what a restarted Redis without persistence holds
+    robot_health_check(resource_id=robot.pk, now_s=first_s + settings.HEALTH_UNREACHABLE_S - 1)
+    assert _held(robot) == ""
+    cache.clear()
+    health = robot_health_check(resource_id=robot.pk, now_s=first_s + settings.HEALTH_UNREACHABLE_S)
+    assert health is not None
+    assert health.unreachable_since_s == pytest.approx(first_s, abs=1e-3)
+    assert _held(robot).startswith("base station unreachable since ")
+
+
+def test_a_robot_whose_agent_token_is_not_configured_is_held_once_with_the_reason(
+    agent, robot, owner, caplog
+):
+    # A robot of an earlier start with two robots: its agent's token is not configured now.
+    Resource.objects.filter(pk=robot.pk).update(agent_token_name="mobile-2")
+    with caplog.at_level("WARNING", logger="portal.runs.services.health"):
+        for _ in range(3):
+            health = robot_health_check(resource_id=robot.pk)
+    assert health is not None
+    assert not health.reachable
+    reason = (
+        "agent not configured: names agent token 'mobile-2', which is not configured (AGENT_TOKENS)"
+    )
+    assert health.problems == [reason]
+    assert _held(robot) == reason
+    assert AuditEvent.objects.filter(action="resource.hold").count() == 1
+    # Logged once, as the hold is made, and without a traceback.
+    logged = [r for r in caplog.records if r.name == "portal.runs.services.health"]
+    assert [r.getMessage() for r in logged] == [f"mobile-1 taken out of booking: {reason}"]
+    assert all(r.exc_info is None for r in logged)
+    with pytest.raises(InvalidInput) as refused:
+        _book(owner, robot)
+    assert refused.value.message == f"mobile-1 is out of service: {reason}."
+
+
 def test_an_agent_that_answers_again_starts_the_count_afresh(agent, robot, settings):
     Resource.objects.filter(pk=robot.pk).update(agent_url="http://127.0.0.1:9")
     first_s = time.time()
@@ -128,6 +168,8 @@ def test_an_agent_that_answers_again_starts_the_count_afresh(agent, robot, setti
     assert back is not None
     assert back.reachable
     assert back.unreachable_since_s is None
+    robot.refresh_from_db()
+    assert robot.agent_unreachable_since is None
     Resource.objects.filter(pk=robot.pk).update(agent_url="http://127.0.0.1:9")
     later_s = first_s + settings.HEALTH_UNREACHABLE_S + 1
     robot_health_check(resource_id=robot.pk, now_s=later_s)

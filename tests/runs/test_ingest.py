@@ -9,6 +9,7 @@ import pytest
 from django.utils import timezone
 
 from portal.runs.models import Sample
+from portal.runs.services import collection
 from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
 
@@ -50,6 +51,16 @@ def test_an_overlapping_page_adds_only_what_is_new(run):
     assert run.last_seq == 150
 
 
+def test_a_page_stored_meanwhile_by_another_collection_is_merged(run, monkeypatch):
+    """The overlap check and the COPY are not atomic: a duplicate found by the COPY itself
+    still ends in the merge."""
+    samples_ingest(run=run, samples=_page(1, 100))
+    monkeypatch.setattr(collection, "_overlaps_stored", lambda run_id, rows: False)
+    samples_ingest(run=run, samples=_page(51, 150))
+    seqs = list(Sample.objects.filter(run=run).order_by("seq").values_list("seq", flat=True))
+    assert seqs == list(range(1, 151))
+
+
 def test_a_page_out_of_order_still_moves_last_seq_forward_only(run):
     samples_ingest(run=run, samples=_page(101, 200))
     samples_ingest(run=run, samples=_page(1, 100))
@@ -74,3 +85,30 @@ def test_the_sample_columns_are_every_field_of_a_sample():
 
     stored = [f.name for f in Sample._meta.concrete_fields if f.name not in ("id", "run")]
     assert list(SAMPLE_FIELDS) == stored
+
+
+@pytest.fixture
+def announced(monkeypatch) -> list[dict]:
+    """The live events ``samples_ingest`` publishes (once committed)."""
+    events: list[dict] = []
+    monkeypatch.setattr(
+        collection, "publish_on_commit", lambda channel, event: events.append(dict(event))
+    )
+    return events
+
+
+def test_each_sample_is_announced_once_however_pages_overlap(run, announced):
+    assert samples_ingest(run=run, samples=_page(1, 100)) == 100
+    assert samples_ingest(run=run, samples=_page(51, 150)) == 50
+    assert samples_ingest(run=run, samples=_page(1, 150)) == 0
+    assert [(e["first_seq"], e["last_seq"], e["count"]) for e in announced] == [
+        (1, 100, 100),
+        (101, 150, 50),
+    ]
+    assert announced[-1]["last_t"] == pytest.approx(time.time() + 150 / 20, abs=5)
+
+
+def test_new_samples_around_stored_ones_are_announced_as_their_own_ranges(run, announced):
+    samples_ingest(run=run, samples=_page(11, 20))
+    samples_ingest(run=run, samples=_page(1, 30))
+    assert [(e["first_seq"], e["last_seq"]) for e in announced] == [(11, 20), (1, 10), (21, 30)]

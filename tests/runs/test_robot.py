@@ -8,7 +8,7 @@ from datetime import UTC, timedelta
 import pytest
 from django.utils import timezone
 
-from portal.audit.models import AuditEvent
+from core.audit.models import AuditEvent
 
 pytestmark = pytest.mark.django_db
 
@@ -146,7 +146,7 @@ def test_the_daily_log_comes_from_the_base_station(robot, agent, admin_user, own
 def test_taking_the_robot_out_of_service_stops_bookings(
     robot, admin_user, owner, experiment, client_for
 ):
-    from portal.errors import InvalidInput
+    from core.errors import InvalidInput
     from portal.runs.services.booking import booking_create
 
     client = client_for(admin_user)

@@ -18,8 +18,8 @@ from django.utils import timezone
 
 from bookings.models import Reservation, Resource
 from bookings.tasks import reservation_notify, reservations_remind
-from portal.audit.models import AuditEvent, IdempotencyKey
-from portal.audit.tasks import idempotency_keys_delete_expired
+from core.audit.models import AuditEvent, IdempotencyKey
+from core.audit.tasks import idempotency_keys_delete_expired
 from portal.celery import app as celery_app
 from portal.runs import notifications, tasks
 from portal.runs.models import Run, RunEvent, Sample
@@ -42,7 +42,7 @@ COVERED = {
     "portal.runs.tasks.robot_hold_notify",
     "bookings.tasks.reservation_notify",
     "bookings.tasks.reservations_remind",
-    "portal.audit.tasks.idempotency_keys_delete_expired",
+    "core.audit.tasks.idempotency_keys_delete_expired",
     # Run twice in tests/bookings/scheduler/test_booking_flow.py (they need the stand-in).
     "bookings.tasks.scheduler_sweep",
     "bookings.tasks.lease_cancel",

@@ -11,8 +11,8 @@ from django.contrib.admin.sites import site
 from django.test import RequestFactory
 from django.utils import timezone
 
-from portal.audit.models import AuditEvent
-from portal.errors import Conflict
+from core.audit.models import AuditEvent
+from core.errors import Conflict
 from portal.runs.admin import RunAdmin
 from portal.runs.models import Run, RunEvent
 from portal.runs.services.booking import booking_create

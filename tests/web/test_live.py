@@ -14,7 +14,7 @@ from django.test import AsyncClient
 from django.utils import timezone
 
 from bookings.models import Resource
-from portal import live
+from core import live
 from portal.runs.models import Run
 from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
@@ -188,3 +188,39 @@ def test_a_wsgi_server_answers_no_stream_and_the_page_polls(client, owner):
     """A stream would hold a WSGI thread for good: 204 tells the browser not to reconnect."""
     client.force_login(owner)
     assert client.get("/live/calendar/").status_code == 204
+
+
+def _headers(user: Any, url: str, origin: str) -> dict[str, str]:
+    """The answer's headers for a stream opened from a page of ``origin``."""
+
+    async def scenario() -> dict[str, str]:
+        client = AsyncClient()
+        if user is not None:
+            await client.aforce_login(user)
+        response = await client.get(url, headers={"Origin": origin})
+        if response.streaming:
+            await response.streaming_content.aclose()
+        return dict(response.headers)
+
+    return async_to_sync(scenario)()
+
+
+def test_pages_of_the_same_host_may_read_a_stream_served_on_another_port(owner):
+    # The test client's host is "testserver": its pages are on port 8000, its streams not.
+    same_host = _headers(owner, "/live/calendar/", "http://testserver:8000")
+    assert same_host["Access-Control-Allow-Origin"] == "http://testserver:8000"
+    assert same_host["Access-Control-Allow-Credentials"] == "true"
+    assert "Origin" in same_host["Vary"]
+    elsewhere = _headers(owner, "/live/calendar/", "http://attacker.example")
+    assert "Access-Control-Allow-Origin" not in elsewhere
+    refused = _headers(None, "/live/calendar/", "http://testserver:8000")
+    assert refused["Access-Control-Allow-Origin"] == "http://testserver:8000"  # 403, readable
+
+
+def test_a_page_learns_the_streams_port_when_they_have_their_own(client, owner, settings):
+    client.force_login(owner)
+    settings.LIVE_STREAM_PORT = None
+    assert 'name="live-stream-port"' not in client.get("/calendar/").content.decode()
+    settings.LIVE_STREAM_PORT = 8001
+    page = client.get("/calendar/").content.decode()
+    assert '<meta name="live-stream-port" content="8001">' in page

@@ -2,6 +2,10 @@
 
 Passwords are random and printed only when the users are created; run ``changepassword``
 to set new ones later.
+
+A start without the second robot after one with it (``make run`` after ``make run
+ROBOTS=2``) finds ``mobile-2`` with no agent running and no token for it: it is taken out of
+booking ("agent not configured"), and the next start with it puts it back.
 """
 
 from __future__ import annotations
@@ -13,13 +17,17 @@ from django.conf import settings
 from django.core.management.base import BaseCommand, CommandParser
 from django.db import transaction
 
+from bookings.models import Resource
 from bookings.services import (
+    AGENT_NOT_CONFIGURED,
     TestbedSpec,
     fixed_node_names_from_scheduler,
+    resource_hold,
+    resource_hold_lift,
     testbed_resources_ensure,
 )
-from portal.accounts.models import User
-from portal.processes import SECOND_ROBOT
+from core.accounts.models import User
+from core.fleet import SECOND_ROBOT
 
 
 class Command(BaseCommand):
@@ -51,6 +59,7 @@ class Command(BaseCommand):
                         fixed_node_names=fixed_nodes,
                     )
                 )
+            self._second_robot_in_or_out(started=bool(options["second_robot"]))
             created = []
             for username, staff in (("admin", True), ("experimenter", False)):
                 if User.objects.filter(username=username).exists():
@@ -68,3 +77,21 @@ class Command(BaseCommand):
             self.stdout.write(f"demo user created: {username} / password: {password}")
         if not created:
             self.stdout.write("demo users already exist (passwords were printed when created)")
+
+    def _second_robot_in_or_out(self, *, started: bool) -> None:
+        """The second robot is bookable exactly when this start runs its agent."""
+        robot = Resource.objects.filter(name=SECOND_ROBOT).first()
+        if robot is None:
+            return
+        if started:
+            if resource_hold_lift(
+                resource_id=robot.pk,
+                reason_prefix=AGENT_NOT_CONFIGURED,
+                why="started again with its agent (ROBOTS=2)",
+            ):
+                self.stdout.write(f"{SECOND_ROBOT} back in booking: its agent runs again")
+        elif resource_hold(
+            resource_id=robot.pk,
+            reason=f"{AGENT_NOT_CONFIGURED}: started without it (ROBOTS=2 runs its agent)",
+        ):
+            self.stdout.write(f"{SECOND_ROBOT} out of booking: started without its agent")

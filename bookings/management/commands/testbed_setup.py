@@ -16,7 +16,7 @@ from bookings.services import (
     fixed_node_names_from_scheduler,
     testbed_resources_ensure,
 )
-from portal.errors import DomainError
+from core.errors import DomainError
 
 
 class Command(BaseCommand):

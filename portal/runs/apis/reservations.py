@@ -10,6 +10,7 @@ from typing import Any
 
 from django.db.models import Prefetch, prefetch_related_objects
 from django.shortcuts import get_object_or_404
+from django.urls import reverse
 from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.permissions import IsAdminUser
@@ -19,8 +20,9 @@ from rest_framework.views import APIView
 
 from bookings.choices import ReservationState
 from bookings.models import Reservation, ReservationItem, Resource
-from portal.accounts.models import User
-from portal.api import (
+from bookings.rules import PROBLEM_CODES
+from core.accounts.models import User
+from core.api import (
     DateTimeInput,
     Pagination,
     paginated_response,
@@ -28,11 +30,11 @@ from portal.api import (
     valid_input,
     valid_query,
 )
-from portal.audit.idempotency import idempotent
-from portal.audit.services import client_ip
+from core.audit.idempotency import idempotent
+from core.audit.services import client_ip
+from core.openapi import errors
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
-from portal.openapi import errors
 from portal.runs.selectors import reservations_with_runs_visible
 from portal.runs.services import booking
 from portal.runs.states import RunState
@@ -145,11 +147,9 @@ class ReservationListApi(APIView):
     @extend_schema(parameters=[ReservationFilter], responses=ReservationOutput(many=True))
     def get(self, request: Request) -> Response:
         query = valid_query(ReservationFilter, request.query_params)
-        qs = reservations_with_runs_visible(user=request_user(request))
-        if "start" in query:
-            qs = qs.filter(end_at__gt=query["start"])
-        if "end" in query:
-            qs = qs.filter(start_at__lt=query["end"])
+        qs = reservations_with_runs_visible(user=request_user(request)).overlapping(
+            query.get("start"), query.get("end")
+        )
         if "resource" in query:
             qs = qs.filter(items__resource__name=query["resource"])
         if "owner" in query:
@@ -312,47 +312,83 @@ class BookingCheckInput(serializers.Serializer):
 
 class ProblemOutput(serializers.Serializer):
     code = serializers.ChoiceField(
-        choices=["window", "out_of_service", "program", "blackout", "booked", "quota"]
+        choices=PROBLEM_CODES,
+        help_text="The kind of problem (`lease`: a lease on the testbed's scheduler); `state` "
+        "and `reason` come only from changing a booking, never from the check.",
     )
-    field = serializers.CharField()
+    field = serializers.CharField(help_text="The input it is about; empty: the whole request.")
     message = serializers.CharField()
 
 
 class BookingCheckOutput(serializers.Serializer):
     fits = serializers.BooleanField()
     problems = ProblemOutput(many=True)
+    needs_approval = serializers.BooleanField(
+        help_text="Booked as it is, it would wait for an admin's approval."
+    )
+    leases_from = serializers.ChoiceField(
+        choices=["scheduler", "mirror"],
+        allow_null=True,
+        help_text="Where the testbed scheduler's leases were read: `scheduler` (asked now, as "
+        "booking asks it), `mirror` (it could not be reached: as of its last sync, see "
+        "`notice`); null when it was not asked (nothing asked for is the scheduler's).",
+    )
+    notice = serializers.CharField(help_text="Why the answer may be out of date; usually empty.")
     # The same problems by kind, for clients written before ``problems``.
     quota = serializers.ListField(child=serializers.CharField())
     conflicts = serializers.ListField(child=serializers.CharField())
     blackouts = serializers.ListField(child=serializers.CharField())
 
 
+CHECK_RESPONSES: dict[Any, Any] = {
+    200: BookingCheckOutput,
+    **errors(
+        404,
+        502,
+        e404="The experiment is not found.",
+        e502="The testbed's scheduler answered but would not list its leases.",
+    ),
+}
+
+
 class BookingCheckApi(APIView):
     """Would this booking be made? Every reason it would not; changes nothing.
 
-    The rules are the ones booking applies (``bookings.rules.booking_problems``).
+    The rules are the ones booking applies (``bookings/rules.py``), and the testbed's scheduler
+    is asked as booking asks it.
     """
 
-    @extend_schema(
-        request=BookingCheckInput,
-        responses={200: BookingCheckOutput, **errors(404, e404="The experiment is not found.")},
-    )
+    @extend_schema(request=BookingCheckInput, responses=CHECK_RESPONSES)
     def post(self, request: Request) -> Response:
         data = valid_input(BookingCheckInput, request.data)
-        problems = booking.booking_check(
+        check = booking.booking_check(
             owner=request_user(request),
             resources=data["resources"],
             start_at=data["start_at"],
             end_at=data["end_at"],
             experiment=_experiment(request, data.get("experiment")),
         )
-        quota = [m for p in problems if p.code == "quota" for m in p.messages]
+        problems = check.problems
         return Response(
             {
-                "fits": not problems,
+                "fits": check.fits,
                 "problems": [p.as_json() for p in problems],
-                "quota": quota,
+                "needs_approval": check.needs_approval,
+                "leases_from": check.leases_from,
+                "notice": check.notice,
+                "quota": [m for p in problems if p.code == "quota" for m in p.messages],
                 "conflicts": [p.message for p in problems if p.code == "booked"],
                 "blackouts": [p.message for p in problems if p.code == "blackout"],
             }
         )
+
+
+class QuotaCheckApi(BookingCheckApi):
+    """The live check's first name, kept for one release: use `POST /api/v1/reservations/check/`."""
+
+    @extend_schema(request=BookingCheckInput, responses=CHECK_RESPONSES, deprecated=True)
+    def post(self, request: Request) -> Response:
+        response = super().post(request)
+        response["Deprecation"] = "true"
+        response["Link"] = f'<{reverse("api-reservations-check")}>; rel="successor-version"'
+        return response

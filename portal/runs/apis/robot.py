@@ -19,9 +19,9 @@ from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
-from portal.api import GreaterThan, request_user, valid_input
-from portal.audit.services import client_ip
-from portal.openapi import errors
+from core.api import GreaterThan, request_user, valid_input
+from core.audit.services import client_ip
+from core.openapi import errors
 from portal.runs.services import robot
 
 AGENT_OBJECT = "As the base station reports it (docs/agent-api.md)."

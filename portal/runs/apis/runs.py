@@ -11,10 +11,10 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from basestation.contract import DIRECTIONS
-from portal.api import Pagination, paginated_response, request_user, valid_query
+from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
+from core.api import Pagination, paginated_response, request_user, valid_query
 from portal.experiments.apis import SegmentOutput
-from portal.runs.downloads import is_asgi, samples_csv_response, samples_json_response
+from portal.runs.downloads import samples_csv_response, samples_json_response
 from portal.runs.models import Run
 from portal.runs.selectors import run_report, run_report_json, run_samples, runs_visible
 from portal.runs.states import RunState
@@ -106,20 +106,30 @@ class RunDetailApi(APIView):
         return Response(RunOutput(run).data)
 
 
+def _sample_field(column: SampleColumn) -> serializers.Field:
+    """The API's field for one contract column (an ``epoch`` is given as a UTC instant)."""
+    if column.choices is not None:  # the enum says it all: no description beside its $ref
+        return serializers.ChoiceField(choices=column.choices, allow_null=column.nullable)
+    common: dict[str, Any] = {"allow_null": column.nullable, "help_text": column.doc}
+    if column.kind == "text":
+        if column.max_length is not None:
+            common["max_length"] = column.max_length
+        return serializers.CharField(**common)
+    if column.kind == "epoch":
+        return serializers.DateTimeField(**common)
+    if column.minimum is not None:
+        common["min_value"] = int(column.minimum) if column.kind == "int" else column.minimum
+    if column.kind == "int":
+        return serializers.IntegerField(**common)
+    return serializers.FloatField(**common)
+
+
 class SampleOutput(serializers.Serializer):
-    seq = serializers.IntegerField(min_value=1)
-    t = serializers.DateTimeField()
-    segment = serializers.IntegerField(allow_null=True)
-    commanded_velocity_mps = serializers.FloatField()
-    velocity_mps = serializers.FloatField()
-    direction = serializers.ChoiceField(choices=DIRECTIONS)
-    battery_v = serializers.FloatField()
-    track_m = serializers.FloatField()
-    fix_quality = serializers.IntegerField(allow_null=True)
-    lat_deg = serializers.FloatField(allow_null=True)
-    lon_deg = serializers.FloatField(allow_null=True)
-    grid_id = serializers.CharField(allow_null=True)
-    lap = serializers.IntegerField(allow_null=True)
+    """One telemetry sample, as the robot's base station recorded it."""
+
+    # The columns of ``basestation.contract.SAMPLE_COLUMNS``, in its order: written nowhere else.
+    def get_fields(self) -> dict[str, serializers.Field]:
+        return {column.name: _sample_field(column) for column in SAMPLE_COLUMNS}
 
 
 class SamplesQuery(serializers.Serializer):
@@ -205,14 +215,14 @@ class RunSamplesCsvApi(DownloadApi):
     )
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
-        return samples_csv_response(run, asynchronous=is_asgi(request))
+        return samples_csv_response(request, run)
 
 
 class RunSamplesJsonApi(DownloadApi):
     @extend_schema(responses={(200, "application/json"): SamplesDocumentOutput})
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
-        return samples_json_response(run, asynchronous=is_asgi(request))
+        return samples_json_response(request, run)
 
 
 class AnalysisQuery(serializers.Serializer):

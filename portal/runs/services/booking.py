@@ -2,8 +2,9 @@
 
 Each function here opens one transaction and, inside it, calls the booking service of
 ``bookings/services.py`` (which takes the booking locks and asks ``bookings.rules`` whether
-the booking can be made) and then does the run's part. Bookings know nothing of runs; pages
-and the API book through these functions.
+the booking can be made) and then does the run's part. Bookings know nothing of runs: what
+only this layer knows (who wrote the experiment, whether the run has left the schedule) is
+passed in. Pages and the API book through these functions.
 """
 
 from __future__ import annotations
@@ -16,17 +17,17 @@ from functools import partial
 from django.db import transaction
 from django.utils import timezone
 
-from bookings.leases import lease_release, scheduler_owned
+from bookings.leases import lease_release
 from bookings.models import Reservation, Resource
-from bookings.rules import Problem, aware_utc, booking_problems
 from bookings.services import (
+    BookingCheck,
     reservation_cancel,
+    reservation_check,
     reservation_create,
     reservation_decide,
     reservation_reschedule,
 )
-from portal.accounts.models import User
-from portal.errors import Conflict, InvalidInput, NotAllowed
+from core.accounts.models import User
 from portal.experiments.models import Experiment
 from portal.runs.models import Run
 from portal.runs.services.transitions import run_create, run_transition
@@ -34,11 +35,6 @@ from portal.runs.states import Cause, RunState
 from portal.runs.tasks import run_unstage
 
 logger = logging.getLogger(__name__)
-
-
-def _own_experiment(experiment: Experiment | None, owner: User) -> None:
-    if experiment is not None and experiment.owner_id != owner.pk:
-        raise NotAllowed.on_field("experiment", "That experiment belongs to someone else.")
 
 
 def booking_create(
@@ -56,7 +52,6 @@ def booking_create(
     now: datetime | None = None,
 ) -> Reservation:
     """Book resources; on a mobile node, also schedule the run of ``experiment`` there."""
-    _own_experiment(experiment, owner)
     chosen = list(resources or ([resource] if resource is not None else []))
     mobile = next((r for r in chosen if r.is_mobile), None)
     book = partial(
@@ -71,6 +66,7 @@ def booking_create(
         override_reason=override_reason,
         ip=ip,
         now=now,
+        program_owner_id=experiment.owner_id if experiment is not None else None,
     )
     if mobile is None or experiment is None:
         return book()  # no run to make with it (or booking refuses it and says why)
@@ -104,8 +100,6 @@ def booking_reschedule(
         # Reservation first, then run: the order every path that takes both locks uses.
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
         run = Run.objects.select_for_update().filter(reservation=locked).first()
-        if run is not None and run.state != RunState.SCHEDULED:
-            raise Conflict("Its run is already on the base station; cancel and book again.")
         moved = reservation_reschedule(
             reservation=locked,
             by=by,
@@ -114,6 +108,7 @@ def booking_reschedule(
             program=run,
             ip=ip,
             now=now,
+            run_started=run is not None and run.state != RunState.SCHEDULED,
         )
         if run is not None:
             Run.objects.filter(pk=run.pk).update(start_at=moved.start_at, end_at=moved.end_at)
@@ -174,24 +169,26 @@ def booking_check(
     start_at: datetime,
     end_at: datetime,
     experiment: Experiment | None,
+    by: User | None = None,
+    override_reason: str = "",
     exclude_reservation_id: int | None = None,
     now: datetime | None = None,
-) -> list[Problem]:
+) -> BookingCheck:
     """Everything that would refuse this booking now, for the calendar's live check.
 
     The same rules ``booking_create`` applies under its locks (``bookings.rules``), all of
-    them at once and without locking; nothing is written.
+    them at once and without locking, the testbed scheduler asked as booking asks it; nothing
+    is written. ``by``: who would book (an admin, for ``owner``; default ``owner``).
     """
-    _own_experiment(experiment, owner)
-    if not resources:
-        raise InvalidInput.on_field("resources", "Choose at least one resource.")
-    return booking_problems(
+    return reservation_check(
         owner=owner,
         resources=resources,
-        start_at=aware_utc(start_at, "start_at"),
-        end_at=aware_utc(end_at, "end_at"),
+        start_at=start_at,
+        end_at=end_at,
         program=experiment,
+        by=by,
+        override_reason=override_reason,
         now=now or timezone.now(),
         exclude_reservation_id=exclude_reservation_id,
-        scheduler_owned=scheduler_owned(resources),
+        program_owner_id=experiment.owner_id if experiment is not None else None,
     )

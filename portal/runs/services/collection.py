@@ -18,6 +18,13 @@ count and sequence range and decides how the run ends here:
 
 While the stored count is short of the agent's, the run stays ``collecting`` and the next
 sweeps pull again, up to the same grace.
+
+The sweep alone would leave a sample on the base station for up to one sweep interval. So
+the collector (``portal/runs/collector.py``, a process of its own) follows each staged or
+running run with :func:`run_follow_page`: a long-poll on the agent that answers as soon as
+the next samples are durable there, stored here through the same :func:`samples_ingest`.
+The sweep stays the safety net (it resumes after the last stored sample whoever stored it)
+and the final check stays :func:`run_collect`'s.
 """
 
 from __future__ import annotations
@@ -36,9 +43,9 @@ from django.db.models.functions import Lead
 from django.utils import timezone
 
 from basestation.client import AgentClient, AgentError
-from basestation.contract import AGENT_RUNNING, SAMPLE_FIELDS, sample_parse
+from basestation.contract import AGENT_ACTIVE_STATES, AGENT_RUNNING, SAMPLE_FIELDS, samples_parse
 from bookings.services import reservation_complete
-from portal.live import publish_on_commit, run_channel
+from core.live import publish_on_commit, run_channel
 from portal.runs.agents import agent_client_for
 from portal.runs.models import Run, Sample
 from portal.runs.services.transitions import run_transition
@@ -48,10 +55,24 @@ logger = logging.getLogger(__name__)
 
 SAMPLES_PAGE = 5000
 _T = SAMPLE_FIELDS.index("t")
+_SEQ = SAMPLE_FIELDS.index("seq")
+
+
+# The collector follows a run from this long before its start: its long-poll is already
+# waiting when the first sample is stored.
+FOLLOW_LEAD_S = 5.0
+RUN_FOLLOWED_STATES = (RunState.STAGED, RunState.RUNNING)
 
 
 def runs_due_for_collection(*, now: datetime) -> QuerySet[Run]:
     return Run.objects.filter(state__in=RUN_ACTIVE_STATES, start_at__lte=now)
+
+
+def runs_to_follow(*, now: datetime) -> QuerySet[Run]:
+    """Runs the collector follows live: staged or running, starting soon or started."""
+    return Run.objects.filter(
+        state__in=RUN_FOLLOWED_STATES, start_at__lte=now + timedelta(seconds=FOLLOW_LEAD_S)
+    )
 
 
 # --- Ingest ---------------------------------------------------------------------------------
@@ -60,41 +81,76 @@ def runs_due_for_collection(*, now: datetime) -> QuerySet[Run]:
 def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
     """Store a page of samples from the agent; duplicates (same run and seq) are skipped.
 
-    Returns how many rows the page held. ``run.last_seq`` only moves forward. Every value is
-    checked against the contract's columns first (``ValueError`` naming the sample and
-    column, nothing stored). On PostgreSQL the page goes in by ``COPY``: several times faster
-    than row inserts, and still idempotent.
+    Returns how many of the page's samples were new here. ``run.last_seq`` only moves
+    forward. Every value is checked against the contract's columns first (``ValueError``
+    naming the sample and column, nothing stored). On PostgreSQL the page goes in by
+    ``COPY``: several times faster than row inserts, and still idempotent.
+
+    The live pages hear of exactly the samples this call stored — one ``samples`` event per
+    run of consecutive new sequence numbers, after the commit — so when the collector and a
+    sweep pull the same samples at once, every sample is announced once.
     """
     if not samples:
         return 0
-    rows = []
-    for raw in samples:
-        row = list(sample_parse(raw))
-        row[_T] = datetime.fromtimestamp(row[_T], tz=UTC)
-        rows.append(tuple(row))
-    last_seq = max(r[0] for r in rows)
+    # Checked a column at a time (as each sample alone would be): per-value checks cost
+    # as much as the COPY itself.
+    rows = [
+        (*r[:_T], datetime.fromtimestamp(r[_T], tz=UTC), *r[_T + 1 :])
+        for r in samples_parse(samples)
+    ]
+    last_seq = max(r[_SEQ] for r in rows)
     with transaction.atomic():
         if connection.vendor == "postgresql":
-            _copy_samples(run.pk, rows)
+            stored = _copy_samples(run.pk, rows)
         else:
-            Sample.objects.bulk_create(
-                [Sample(run=run, **dict(zip(SAMPLE_FIELDS, r, strict=True))) for r in rows],
-                batch_size=2000,
-                ignore_conflicts=True,
-            )
+            stored = _insert_samples(run, rows)
         Run.objects.filter(pk=run.pk, last_seq__lt=last_seq).update(last_seq=last_seq)
-        newest = max(rows, key=lambda r: r[0])
-        publish_on_commit(
-            run_channel(run.pk),
-            {
-                "type": "samples",
-                "count": len(rows),
-                "last_seq": last_seq,
-                "last_t": newest[_T].timestamp(),
-            },
-        )
+        t_by_seq = {r[_SEQ]: r[_T] for r in rows}
+        for first, last in _consecutive(stored):
+            publish_on_commit(
+                run_channel(run.pk),
+                {
+                    "type": "samples",
+                    "count": last - first + 1,
+                    "first_seq": first,
+                    "last_seq": last,
+                    "last_t": t_by_seq[last].timestamp(),
+                },
+            )
     run.last_seq = max(run.last_seq, last_seq)
-    return len(rows)
+    return len(stored)
+
+
+def _consecutive(seqs: list[int]) -> list[tuple[int, int]]:
+    """Sorted sequence numbers as (first, last) runs of consecutive ones."""
+    ranges: list[tuple[int, int]] = []
+    for seq in sorted(seqs):
+        if ranges and seq == ranges[-1][1] + 1:
+            ranges[-1] = (ranges[-1][0], seq)
+        else:
+            ranges.append((seq, seq))
+    return ranges
+
+
+def _insert_samples(run: Run, rows: list[tuple[Any, ...]]) -> list[int]:
+    """Row inserts (SQLite), skipping sequence numbers already stored; the new ones.
+
+    The settings open SQLite transactions ``IMMEDIATE``: what this reads stays true until
+    the insert commits.
+    """
+    seqs = [r[0] for r in rows]
+    present = set(
+        Sample.objects.filter(run=run, seq__gte=min(seqs), seq__lte=max(seqs)).values_list(
+            "seq", flat=True
+        )
+    )
+    fresh = [r for r in rows if r[0] not in present]
+    Sample.objects.bulk_create(
+        [Sample(run=run, **dict(zip(SAMPLE_FIELDS, r, strict=True))) for r in fresh],
+        batch_size=2000,
+        ignore_conflicts=True,
+    )
+    return [r[0] for r in fresh]
 
 
 def _page_table_sql() -> str:
@@ -105,24 +161,34 @@ def _page_table_sql() -> str:
     return f"CREATE TEMPORARY TABLE IF NOT EXISTS sample_page ({columns}) ON COMMIT DELETE ROWS"
 
 
-def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> None:
+def _overlaps_stored(run_id: int, rows: list[tuple[Any, ...]]) -> bool:
+    """Whether any sequence number in the page's range is stored already: one index probe."""
+    seqs = [row[_SEQ] for row in rows]
+    return Sample.objects.filter(run_id=run_id, seq__gte=min(seqs), seq__lte=max(seqs)).exists()
+
+
+def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> list[int]:
     """COPY straight into the table; if a row is already there (a repeated or overlapping
-    collection), roll that back and merge through a temporary table instead."""
+    collection), merge through a temporary table instead. Returns the sequence numbers that
+    were new."""
     columns = ", ".join(SAMPLE_FIELDS)
     table = Sample._meta.db_table
-    try:
-        with (
-            transaction.atomic(),
-            connection.cursor() as cursor,
-            cursor.copy(f"COPY {table} (run_id, {columns}) FROM STDIN") as copy,
-        ):
-            for row in rows:
-                copy.write_row((run_id, *row))
-        return
-    except (IntegrityError, psycopg.errors.UniqueViolation):
-        # COPY goes to psycopg directly, so its error arrives unwrapped by Django. The unique
-        # (run, seq) constraint saw a duplicate and the savepoint undid the whole page.
-        pass
+    # A page sent again goes straight to the merge, not through a whole COPY rolled back.
+    if not _overlaps_stored(run_id, rows):
+        try:
+            with (
+                transaction.atomic(),
+                connection.cursor() as cursor,
+                cursor.copy(f"COPY {table} (run_id, {columns}) FROM STDIN") as copy,
+            ):
+                for row in rows:
+                    copy.write_row((run_id, *row))
+            return [row[_SEQ] for row in rows]
+        except (IntegrityError, psycopg.errors.UniqueViolation):
+            # Another collection stored some of them meanwhile. COPY goes to psycopg
+            # directly, so its error arrives unwrapped by Django; the savepoint undid the
+            # whole page.
+            pass
     with connection.cursor() as cursor:
         # Emptied at every commit, so one per connection serves every page.
         cursor.execute(_page_table_sql())
@@ -132,9 +198,10 @@ def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> None:
         # Identifiers are the contract's and the model's; the run id is a bound parameter.
         cursor.execute(
             f"INSERT INTO {table} (run_id, {columns}) SELECT %s, {columns} FROM sample_page "  # noqa: S608
-            "ON CONFLICT (run_id, seq) DO NOTHING",
+            "ON CONFLICT (run_id, seq) DO NOTHING RETURNING seq",
             [run_id],
         )
+        return [int(row[0]) for row in cursor.fetchall()]
 
 
 def run_sample_stats(*, run: Run) -> dict[str, int]:
@@ -300,6 +367,46 @@ def _pull(run: Run, client: AgentClient) -> None:
         after_seq = max(after_seq, int(page.get("last_seq") or after_seq))
         if not page["more"] or not page["samples"]:
             return
+
+
+@dataclass(frozen=True)
+class FollowedPage:
+    """What one long-poll brought: how many samples were new here, and the agent's state."""
+
+    stored: int
+    agent_state: str
+    more: bool
+
+    @property
+    def agent_active(self) -> bool:
+        """The run may still record samples on the agent (staged or running)."""
+        return self.agent_state in AGENT_ACTIVE_STATES
+
+
+def run_follow_page(*, run: Run, client: AgentClient, wait_s: int) -> FollowedPage:
+    """Wait (up to ``wait_s``) for the samples the agent stores after the last one stored
+    here, and store them (announced on the live bus at once).
+
+    Resumes after ``run.last_seq`` as the database has it, so the sweep and the collector,
+    pulling side by side, each store only what the other has not. Marks the run running
+    when the agent says it started. Raises ``AgentError`` (the agent's 404 included: the
+    run may not be staged there yet; only the sweep decides a run failed).
+    """
+    page = client.samples(
+        run.agent_run_id, after_seq=run.last_seq, limit=SAMPLES_PAGE, wait_s=wait_s
+    )
+    stored = samples_ingest(run=run, samples=page["samples"])
+    agent_state = str(page["state"])
+    if agent_state == AGENT_RUNNING and run.state == RunState.STAGED:
+        run_transition(
+            run_id=run.pk,
+            to_state=RunState.RUNNING,
+            cause=Cause.DISPATCH,
+            from_states=[RunState.STAGED],
+            reason="started on the base station",
+        )
+        run.state = RunState.RUNNING
+    return FollowedPage(stored=stored, agent_state=agent_state, more=bool(page["more"]))
 
 
 def _past_grace(run: Run, now: datetime) -> bool:

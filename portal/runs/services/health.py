@@ -9,29 +9,43 @@ booking rule "out of service" reads under the booking lock) when its agent repor
 - a fault (``faults`` in the status: the control loop stopped, the robot not answering),
 - a filtered battery voltage under ``HEALTH_LOW_BATTERY_V`` (or its own low-battery flag),
 
-or when the agent has not answered for longer than ``HEALTH_UNREACHABLE_S``. The hold says
-why; the admins are e-mailed once; only an admin puts the robot back in service (audited),
+or when the agent has not answered for longer than ``HEALTH_UNREACHABLE_S`` (counted from the
+first failed check, kept on the resource so that a cache restart does not reset it), or when
+the portal has no token for it ("agent not configured": a robot of an earlier set-up). The
+hold says why; the admins are e-mailed once; only an admin puts the robot back in service (audited),
 and a robot still unhealthy then is held again at the next check.
+
+Each answer's ``limits`` (the agent's effective velocity and acceleration limits and the
+robot's hard maximum) are recorded on the resource: booking checks programs against the
+stricter of them and the resource's own limit (``bookings.rules.velocity_limit``).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import asdict, dataclass, field
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from django.conf import settings
 from django.core.cache import cache
 from django.db.models import QuerySet
 
-from basestation.client import AgentError
+from basestation.client import AgentClient, AgentError
 from bookings.choices import ResourceKind
 from bookings.models import Resource
-from bookings.services import resource_hold
-from portal.live import hold_publish, publish_on_commit, robot_channel
-from portal.runs.agents import agent_client_for
+from bookings.services import (
+    AGENT_NOT_CONFIGURED,
+    AgentLimits,
+    resource_agent_reachable,
+    resource_agent_unreachable,
+    resource_hold,
+    resource_record_agent_limits,
+)
+from core.live import hold_publish, publish_on_commit, robot_channel
+from portal.runs.agents import AgentNotConfigured, agent_client_for
 
 logger = logging.getLogger(__name__)
 
@@ -99,6 +113,29 @@ def robot_health_problems(*, status: dict[str, Any], low_battery_v: float) -> li
     return problems
 
 
+def _positive(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value) if math.isfinite(value) and value > 0 else None
+
+
+def agent_limits(status: dict[str, Any]) -> AgentLimits | None:
+    """The ``limits`` of an agent's status; None when it has none (an agent older than
+    them) or they are not positive numbers."""
+    limits = status.get("limits")
+    if not isinstance(limits, dict):
+        return None
+    velocity = _positive(limits.get("max_velocity_mps"))
+    accel = _positive(limits.get("max_accel_mps2"))
+    if velocity is None or accel is None:
+        return None
+    return AgentLimits(
+        max_velocity_mps=velocity,
+        max_accel_mps2=accel,
+        robot_hard_max_velocity_mps=_positive(limits.get("robot_hard_max_velocity_mps")),
+    )
+
+
 def _when(at_s: float) -> str:
     return datetime.fromtimestamp(at_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
@@ -112,41 +149,21 @@ def robot_health_check(*, resource_id: int, now_s: float | None = None) -> Robot
         return None
     now_s = time.time() if now_s is None else now_s
     previous = robot_health_cached(name=resource.name)
-    client = agent_client_for(resource)
-    # At most one period: a hung agent must not pile checks up behind this one.
-    client.timeout_s = min(client.timeout_s, max(1.0, settings.HEALTH_POLL_INTERVAL_S))
     try:
-        status = client.status()
-    except AgentError as exc:
-        since_s = (
-            previous.unreachable_since_s
-            if previous is not None and previous.unreachable_since_s is not None
-            else now_s
-        )
-        problems = []
-        if now_s - since_s >= settings.HEALTH_UNREACHABLE_S:
-            problems.append(f"base station unreachable since {_when(since_s)}")
+        client = agent_client_for(resource)
+    except AgentNotConfigured as exc:
+        # Nothing can reach its agent, so nothing could run on it: out of booking, with the
+        # reason, once (the hold is made once; a check of it is no error to log again).
         health = RobotHealth(
             name=resource.name,
             checked_at_s=now_s,
             reachable=False,
             status=previous.status if previous is not None else None,
-            error=exc.message,
-            unreachable_since_s=since_s,
-            problems=problems,
+            error=str(exc),
+            problems=[f"{AGENT_NOT_CONFIGURED}: {exc.why}"],
         )
     else:
-        health = RobotHealth(
-            name=resource.name,
-            checked_at_s=now_s,
-            reachable=True,
-            status=status,
-            problems=robot_health_problems(
-                status=status, low_battery_v=settings.HEALTH_LOW_BATTERY_V
-            ),
-        )
-    finally:
-        client.close()
+        health = _ask_agent(resource, client, previous=previous, now_s=now_s)
     try:
         cache.set(_cache_key(resource.name), health, timeout=None)
     except Exception:  # the hold below matters more than the cached copy
@@ -159,6 +176,47 @@ def robot_health_check(*, resource_id: int, now_s: float | None = None) -> Robot
         hold_publish(resource)
     publish_on_commit(robot_channel(resource.name), {"type": "status", **health.to_json()})
     return health
+
+
+def _ask_agent(
+    resource: Resource, client: AgentClient, *, previous: RobotHealth | None, now_s: float
+) -> RobotHealth:
+    # At most one period: a hung agent must not pile checks up behind this one.
+    client.timeout_s = min(client.timeout_s, max(1.0, settings.HEALTH_POLL_INTERVAL_S))
+    try:
+        status = client.status()
+    except AgentError as exc:
+        # Counted in the database: a cache restarted meanwhile does not start it again.
+        now = datetime.fromtimestamp(now_s, UTC)
+        since = resource_agent_unreachable(resource_id=resource.pk, at=now)
+        since_s = since.timestamp()
+        problems = []
+        # In whole microseconds, as stored: a float difference could fall short by a hair.
+        if now - since >= timedelta(seconds=settings.HEALTH_UNREACHABLE_S):
+            problems.append(f"base station unreachable since {_when(since_s)}")
+        return RobotHealth(
+            name=resource.name,
+            checked_at_s=now_s,
+            reachable=False,
+            status=previous.status if previous is not None else None,
+            error=exc.message,
+            unreachable_since_s=since_s,
+            problems=problems,
+        )
+    finally:
+        client.close()
+    if resource.agent_unreachable_since is not None:
+        resource_agent_reachable(resource_id=resource.pk)
+    limits = agent_limits(status)
+    if limits is not None and resource_record_agent_limits(resource_id=resource.pk, limits=limits):
+        logger.info("%s: its agent reports %s", resource.name, limits)
+    return RobotHealth(
+        name=resource.name,
+        checked_at_s=now_s,
+        reachable=True,
+        status=status,
+        problems=robot_health_problems(status=status, low_battery_v=settings.HEALTH_LOW_BATTERY_V),
+    )
 
 
 def robots_held() -> QuerySet[Resource]:

@@ -13,9 +13,9 @@ from basestation.client import AgentConflict, AgentError, AgentRejected
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
 from bookings.rules import velocity_problem
-from portal.accounts.models import User
-from portal.audit.services import audit_record
-from portal.errors import Conflict, DomainError, InvalidInput, NotAllowed
+from core.accounts.models import User
+from core.audit.services import audit_record
+from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 from portal.runs.agents import agent_client_for
 
 MAX_MANUAL_TTL_S = 10.0

@@ -18,6 +18,7 @@ from django.utils import timezone
 
 from basestation.client import AgentConflict, AgentError, AgentRejected
 from bookings.choices import ReservationState
+from bookings.rules import velocity_limit
 from portal.runs.agents import agent_client_for
 from portal.runs.models import Run
 from portal.runs.services.transitions import run_transition
@@ -42,9 +43,14 @@ def runs_due_for_withdrawal() -> QuerySet[Run]:
 
 
 def run_agent_body(run: Run) -> dict[str, Any]:
-    """What the agent is asked to run: the program, its window and the robot's limits."""
+    """What the agent is asked to run: the program, its window and the robot's limits (the
+    stricter of the resource's and those its agent reported, as booking checked them)."""
     reservation = run.reservation
     resource = run.resource
+    limit = velocity_limit(resource)
+    accel = resource.max_accel_mps2
+    if accel is not None and resource.agent_max_accel_mps2 is not None:
+        accel = min(accel, resource.agent_max_accel_mps2)
     return {
         "owner": reservation.owner.get_username(),
         "title": run.title,
@@ -52,8 +58,8 @@ def run_agent_body(run: Run) -> dict[str, Any]:
         "end_at": run.end_at.isoformat(),
         "segments": run.segments,
         "limits": {
-            "max_velocity_mps": resource.max_velocity_mps,
-            "max_accel_mps2": resource.max_accel_mps2,
+            "max_velocity_mps": None if limit is None else limit.mps,
+            "max_accel_mps2": accel,
         },
     }
 

@@ -9,11 +9,11 @@ from django.db import transaction
 from django.utils import timezone
 
 from bookings.models import Reservation, Resource
-from portal.accounts.models import User
-from portal.audit.services import audit_record
-from portal.errors import Conflict, InvalidInput, NotAllowed
+from core.accounts.models import User
+from core.audit.services import audit_record
+from core.errors import Conflict, InvalidInput, NotAllowed
+from core.live import publish_on_commit, run_channel
 from portal.experiments.models import Experiment
-from portal.live import publish_on_commit, run_channel
 from portal.runs.models import Run, RunEvent
 from portal.runs.states import RUN_END_STATES, Cause, RunState, allowed, sources
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from basestation.protocol import (
     CommandFlag,
     CommandFrame,
+    ConfigAckFrame,
     ConfigFrame,
     Direction,
     FixQuality,
@@ -22,6 +23,7 @@ from basestation.protocol import (
     TelemetryStatus,
     decode_frame,
     encode_config,
+    encode_config_ack,
     encode_telemetry,
 )
 from basestation.telemetry import Rail
@@ -158,6 +160,9 @@ class ScriptedRobot:
     seq_step: int = 1  # telemetry seq increment (2 = every other frame "lost")
     latched: bool = False
     local_stop: bool = False
+    # Answer a config frame with an acknowledgement carrying this hard maximum; None answers
+    # with a config frame, as firmware before the acknowledgement does.
+    hard_max_mm_s: int | None = None
     battery_10mv: int = 6000
     before_answer: list[bytes] = field(default_factory=list)  # junk put on air first
     commands: list[CommandFrame] = field(default_factory=list)
@@ -170,6 +175,17 @@ class ScriptedRobot:
     def __call__(self, raw: bytes) -> None:
         frame = decode_frame(raw)
         if isinstance(frame, ConfigFrame):
+            if self.hard_max_mm_s is not None:
+                ack = ConfigAckFrame(
+                    seq=frame.seq,
+                    max_velocity_mm_s=min(frame.max_velocity_mm_s, self.hard_max_mm_s),
+                    accel_mm_s2=min(frame.accel_mm_s2, 2000),
+                    hard_max_velocity_mm_s=self.hard_max_mm_s,
+                    to_node=frame.from_node,
+                    from_node=frame.to_node,
+                )
+                self.chip.inject(encode_config_ack(ack))
+                return
             applied = ConfigFrame(
                 seq=frame.seq,
                 max_velocity_mm_s=min(frame.max_velocity_mm_s, 3000),

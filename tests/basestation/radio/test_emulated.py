@@ -10,7 +10,7 @@ import pytest
 
 from basestation.protocol import FixQuality, TelemetryStatus
 from basestation.radio import RFM69, RadioError, RadioRobotLink, RadioSettings, RadioTelemetry
-from basestation.robot import Command, RobotLinkError
+from basestation.robot import Command, RobotLimits, RobotLinkError
 from basestation.sim.channel import InProcessChannel
 from basestation.sim.clock import FakeClock
 from basestation.sim.config import RadioConfig, SimConfig
@@ -275,6 +275,32 @@ def test_configure_gets_the_limits_the_firmware_applied(
     link: RadioRobotLink, clock: FakeClock, sim_robot: SimulatedRobot
 ) -> None:
     clock.set(1.0)
-    max_velocity_mps, accel_mps2 = link.configure(max_velocity_mps=0.8, accel_mps2=0.4)
-    assert max_velocity_mps == pytest.approx(0.8)
-    assert accel_mps2 == pytest.approx(0.4)
+    limits = link.configure(max_velocity_mps=0.8, accel_mps2=0.4)
+    assert limits.max_velocity_mps == pytest.approx(0.8)
+    assert limits.max_accel_mps2 == pytest.approx(0.4)
+    # The firmware reports the hard maximum compiled into it (robot_config.h: 4000 mm/s).
+    assert limits.hard_max_velocity_mps == pytest.approx(4.0)
+
+
+def test_configure_above_the_hard_maximum_is_applied_at_it_and_reported(
+    link: RadioRobotLink, clock: FakeClock, sim_robot: SimulatedRobot
+) -> None:
+    clock.set(1.0)
+    limits = link.configure(max_velocity_mps=6.0, accel_mps2=0.4)
+    assert limits == RobotLimits(
+        max_velocity_mps=4.0, max_accel_mps2=pytest.approx(0.4), hard_max_velocity_mps=4.0
+    )
+
+
+def test_a_robot_built_with_a_lower_hard_maximum_reports_it(
+    clock: FakeClock, channel: InProcessChannel, sim_config: SimConfig
+) -> None:
+    slow = replace(sim_config, firmware={"hard_max_velocity_mm_s": 1500})
+    robot = SimulatedRobot(slow, channel=channel)
+    try:
+        link = RadioRobotLink(driver(channel, clock, node=1), rail=Rail.default())
+        clock.set(1.0)
+        limits = link.configure(max_velocity_mps=2.0, accel_mps2=0.4)
+        assert (limits.max_velocity_mps, limits.hard_max_velocity_mps) == (1.5, 1.5)
+    finally:
+        robot.close()

@@ -19,7 +19,7 @@ from basestation.protocol import (
     encode_telemetry,
 )
 from basestation.radio import RFM69, RadioRobotLink, RadioTelemetry
-from basestation.robot import Command, RobotLinkError, Telemetry
+from basestation.robot import Command, RobotLimits, RobotLinkError, Telemetry
 from basestation.store import RunStore
 from basestation.telemetry import Rail
 from tests.basestation.conftest import TOKEN
@@ -311,7 +311,19 @@ def test_without_a_fresh_fix_the_position_becomes_unknown(
 
 
 def test_configure_returns_the_limits_the_robot_applied(link: RadioRobotLink) -> None:
-    assert link.configure(max_velocity_mps=5.0, accel_mps2=0.5) == (3.0, 0.5)
+    # The scripted robot answers with the older config frame: no hard maximum reported.
+    assert link.configure(max_velocity_mps=5.0, accel_mps2=0.5) == RobotLimits(
+        max_velocity_mps=3.0, max_accel_mps2=0.5, hard_max_velocity_mps=None
+    )
+
+
+def test_configure_reads_the_hard_maximum_from_the_acknowledgement(
+    link: RadioRobotLink, robot: ScriptedRobot
+) -> None:
+    robot.hard_max_mm_s = 2500
+    assert link.configure(max_velocity_mps=5.0, accel_mps2=0.5) == RobotLimits(
+        max_velocity_mps=2.5, max_accel_mps2=0.5, hard_max_velocity_mps=2.5
+    )
 
 
 def test_a_radio_that_cannot_transmit_is_a_robot_link_error(

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from basestation.protocol import (
     CommandFlag,
     CommandFrame,
-    ConfigFrame,
+    ConfigAckFrame,
     Direction,
     FixQuality,
     TelemetryFrame,
@@ -102,11 +102,22 @@ def test_a_broadcast_e_stop_latches_without_an_answer() -> None:
 
 
 def test_a_wheel_sensor_reports_the_measured_speed() -> None:
-    bench = Bench.create(SimConfig(wheel_um_per_pulse=5000))
-    bench.drive(8.0, 1.0)
-    _, last = bench.telemetry[-1]
-    # The ramp says 1000 mm/s; the wheel turns at the duty's 1013 mm/s (5 mm pulses per 100 ms).
-    assert abs(last.velocity_mm_s - 1013) <= 50
+    # A coarse sensor (30 mm a pulse, read every 100 ms) counts 3 or 4 pulses at 1 m/s, so it
+    # reads 900 or 1200 mm/s, never the ramp's 1000: the telemetry must carry its reading.
+    bench = Bench.create(SimConfig(wheel_um_per_pulse=30_000))
+    bench.drive(4.0, 1.0)  # up to speed
+    from_m, from_s = bench.robot.physics.odometer_m, bench.now_s
+    bench.drive(4.0, 1.0)
+    cruise = [frame.velocity_mm_s for at_s, frame in bench.telemetry if at_s > from_s + 0.1]
+    assert len(cruise) >= 70
+    assert set(cruise) == {900, 1200}
+    # Counted pulses lose no travel: on average they are the speed the robot really made.
+    true_mm_s = 1000 * (bench.robot.physics.odometer_m - from_m) / (bench.now_s - from_s)
+    assert abs(sum(cruise) / len(cruise) - true_mm_s) <= 30
+    # Without the sensor the firmware reports the speed it applies.
+    plain = Bench.create()
+    plain.drive(8.0, 1.0)
+    assert {frame.velocity_mm_s for _, frame in plain.telemetry[-70:]} == {1000}
 
 
 def test_a_config_frame_is_answered_with_the_limits_applied() -> None:
@@ -115,6 +126,14 @@ def test_a_config_frame_is_answered_with_the_limits_applied() -> None:
     assert bench.configs
     answer = bench.configs[-1]
     assert (answer.max_velocity_mm_s, answer.accel_mm_s2) == (4000, 1000)  # hard limits
+    assert answer.hard_max_velocity_mm_s == 4000  # and the robot says which
+
+
+def test_a_robot_built_with_another_hard_maximum_reports_it() -> None:
+    bench = Bench.create(SimConfig(firmware={"hard_max_velocity_mm_s": 2500}))
+    bench.send_config(3.0, 0.5)
+    answer = bench.configs[-1]
+    assert (answer.max_velocity_mm_s, answer.hard_max_velocity_mm_s) == (2500, 2500)
 
 
 def test_the_robot_follows_a_configured_rail_clockwise_whatever_the_file_order() -> None:
@@ -206,7 +225,7 @@ def test_arbitrary_frames_never_crash_the_robot(
         for frame in frames:
             reply = robot.handle_frame(frame, rssi_dbm=-300.0)  # RSSI is clamped to an int8
             if reply:
-                assert isinstance(decode_frame(reply), TelemetryFrame | ConfigFrame)
+                assert isinstance(decode_frame(reply), TelemetryFrame | ConfigAckFrame)
             robot.step(0.013)
         assert math.isfinite(robot.velocity_mps)
         assert abs(robot.velocity_mps) <= 4.0 + 0.02  # never beyond the hard limit

@@ -137,16 +137,21 @@ def test_a_command_above_the_maximum_is_clamped() -> None:
 @pytest.mark.parametrize(
     ("dwell_ms", "tolerance"),
     [
-        # The firmware's default 250 ms dwell is shorter than the drive's lag: the body still
+        # The firmware's former 250 ms dwell is shorter than the drive's lag: the body still
         # rolls (32 mm/s) when the pin flips, the speed loop brakes it through zero, falls
         # behind the ramp and catches up at up to 3.4 % above it for 0.3 s.
         (250, 1.04),
-        # A 700 ms dwell lets the body come to rest first: only the PWM ripple is left.
+        # A 700 ms dwell (the default, None) lets the body come to rest first: only the PWM
+        # ripple is left.
         (700, RAMP_TOLERANCE),
+        (None, RAMP_TOLERANCE),
     ],
 )
-def test_a_reversal_passes_through_zero(dwell_ms: int, tolerance: float) -> None:
-    bench = Bench.create(SimConfig(firmware={"reverse_dwell_ms": dwell_ms}))
+def test_a_reversal_passes_through_zero(dwell_ms: int | None, tolerance: float) -> None:
+    firmware = {} if dwell_ms is None else {"reverse_dwell_ms": dwell_ms}
+    bench = Bench.create(SimConfig(firmware=firmware))
+    if dwell_ms is None:
+        assert bench.robot.firmware_config.reverse_dwell_ms == 700
     bench.drive(6.0, 1.0, Direction.CW)
     bench.drive(10.0, 1.0, Direction.CCW)
     trace = bench.robot.trace
@@ -163,12 +168,39 @@ def test_a_reversal_passes_through_zero(dwell_ms: int, tolerance: float) -> None
             assert abs(a.velocity_mps) <= RAMP_MPS2 * lag_s
             flips.append(a.velocity_mps)
     assert len(flips) == 1
-    if dwell_ms >= 700:
+    if dwell_ms is None or dwell_ms >= 700:
         assert flips == [0.0]
     last_forward = max(s.time_s for s in trace if s.velocity_mps > 0)
     first_backward = min(s.time_s for s in trace if s.velocity_mps < 0)
     assert any(last_forward < s.time_s < first_backward for s in trace if s.velocity_mps == 0.0)
     assert max(abs(a) for _, a in accelerations(trace)) <= RAMP_MPS2 * tolerance
+
+
+def test_a_program_at_50_hz_is_answered_every_tick_and_driven_within_the_invariants() -> None:
+    """The agent's fastest rate: a command every 20 ms (time-to-live 100 ms), a program with
+    speed changes and a reversal. Each command is answered before the next one goes out
+    (request and answer fit in the period, docs/protocol.md §5); the robot never falls back
+    on its dead-man or a time-to-live, follows the program and keeps its ramp."""
+    tick_s = 0.02
+    bench = Bench.create()
+    program = [(1.0, Direction.CW, 6.0), (0.4, Direction.CW, 4.0), (0.8, Direction.CCW, 10.0)]
+    sent = 0
+    for velocity_mps, direction, duration_s in program:
+        bench.drive(duration_s, velocity_mps, direction, tick_s=tick_s, ttl_ms=100)
+        sent += round(duration_s / tick_s)
+        last = bench.robot.velocity_mps
+        expected = velocity_mps if direction == Direction.CW else -velocity_mps
+        assert abs(last - expected) <= DUTY_STEP_MPS, (velocity_mps, direction, last)
+    assert len(bench.telemetry) == sent  # every command answered, none lost at 50 Hz
+    for k, (at_s, frame) in enumerate(bench.telemetry):
+        # The answer ends on the air within the command's own tick.
+        assert k * tick_s < at_s < (k + 1) * tick_s, (k, at_s)
+        assert TelemetryStatus.DEAD_MAN not in frame.status
+        assert TelemetryStatus.TTL_EXPIRED not in frame.status
+    trace = bench.robot.trace
+    for a, b in itertools.pairwise(trace):
+        assert a.velocity_mps * b.velocity_mps >= 0.0, f"sign jumped at {b.time_s:.3f} s"
+    assert max(abs(a) for _, a in accelerations(trace)) <= RAMP_MPS2 * RAMP_TOLERANCE
 
 
 def test_acceleration_never_exceeds_the_ramp() -> None:

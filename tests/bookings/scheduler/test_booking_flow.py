@@ -24,7 +24,7 @@ from bookings.scheduler import LeaseStatus
 from bookings.selectors import resource_free_intervals
 from bookings.services import fixed_node_names_from_scheduler, reservation_create
 from bookings.tasks import lease_cancel, scheduler_sweep
-from portal.errors import Conflict, NotAllowed
+from core.errors import Conflict, NotAllowed
 from portal.runs.models import Run
 from portal.runs.services.booking import (
     booking_cancel,
@@ -36,6 +36,7 @@ from portal.runs.services.booking import (
 from tests.bookings.scheduler.conftest import Standin
 from tests.factories import ExperimentFactory, FixedResourceFactory
 from tests.runs.test_tasks_twice import twice
+from tests.sqlite import run_on_sqlite
 
 pytestmark = pytest.mark.django_db
 
@@ -233,6 +234,97 @@ def test_the_sweep_cancels_an_orphan_but_never_a_lease_still_being_booked(linked
     assert _live(linked) == []
 
 
+def test_a_booking_cancels_the_portals_own_orphan_in_its_way_but_no_other_lease(
+    linked, owner, slot
+):
+    orphan, being_booked = uuid.uuid4(), uuid.uuid4()
+    with linked.scheduler() as scheduler:
+        for public_id, node in ((orphan, "node-05"), (being_booked, "node-06")):
+            scheduler.create_lease(
+                name=leases.lease_name_for(public_id),
+                valid_from=slot[0],
+                valid_until=slot[1],
+                component_names=[node],
+            )
+    # Named like the portal's, but another account's: not the portal's to cancel.
+    linked.seed(
+        name=leases.lease_name_for(uuid.uuid4()),
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-04"}],
+        account_attributes={"name": "someone"},
+    )
+    booking = threading.Event()
+    release = threading.Event()
+
+    def book_slowly() -> None:
+        # Another connection is between the lease of ``being_booked`` and its commit.
+        with transaction.atomic():
+            leases.booking_guard(being_booked)
+            booking.set()
+            release.wait(10)
+        connection.close()
+
+    thread = threading.Thread(target=book_slowly)
+    thread.start()
+    try:
+        assert booking.wait(10)
+        reservation = reservation_create(
+            owner=owner, resources=_nodes(5), start_at=slot[0], end_at=slot[1]
+        )
+        with pytest.raises(Conflict, match="node-06 is leased on the testbed scheduler"):
+            reservation_create(owner=owner, resources=_nodes(6), start_at=slot[0], end_at=slot[1])
+    finally:
+        release.set()
+        thread.join()
+    with pytest.raises(Conflict, match="node-04 is leased on the testbed scheduler by someone"):
+        reservation_create(owner=owner, resources=_nodes(4), start_at=slot[0], end_at=slot[1])
+    by_name = {lease.name: lease for lease in _broker_leases(linked)}
+    assert by_name[leases.lease_name_for(orphan)].status == LeaseStatus.CANCELLED
+    assert by_name[leases.lease_name_for(being_booked)].holds_nodes
+    [own] = [lease for lease in _live(linked) if lease.uuid == reservation.lease_uuid]
+    assert own.component_names == ("node-05",)
+    assert SchedulerLease.objects.get(name=leases.lease_name_for(orphan)).status == "cancelled"
+
+
+SQLITE_ORPHAN = r"""
+import uuid
+from datetime import timedelta
+from django.utils import timezone
+from bookings import leases
+from bookings.models import Resource
+from bookings.services import reservation_create
+from core.accounts.models import User
+
+node = Resource.objects.create(name="node-05", kind="fixed")
+alice = User.objects.create_user("alice")
+start = timezone.now().replace(microsecond=0) + timedelta(days=1)
+end = start + timedelta(hours=1)
+with leases.scheduler_client() as scheduler:
+    orphan = scheduler.create_lease(
+        name=leases.lease_name_for(uuid.uuid4()), valid_from=start, valid_until=end,
+        component_names=["node-05"],
+    )
+booked = reservation_create(owner=alice, resource=node, start_at=start, end_at=end)
+with leases.scheduler_client() as scheduler:
+    for lease in scheduler.list_leases(window_start=start, window_end=end, statuses=("cancelled",)):
+        print("cancelled:", lease.uuid == orphan.uuid)
+print("booked:", booked.lease_uuid not in ("", orphan.uuid))
+"""
+
+
+def test_on_sqlite_a_booking_cancels_the_portals_own_orphan_without_waiting(
+    standin_409, tmp_path, monkeypatch
+):
+    # SQLite has no advisory locks; inside a booking's IMMEDIATE transaction no other
+    # booking is under way, so the sweep's grace is not needed there.
+    standin_409.reset()
+    monkeypatch.setenv("SCHEDULER_URL", standin_409.url)
+    output = run_on_sqlite(SQLITE_ORPHAN, tmp_path)
+    assert "cancelled: True" in output
+    assert "booked: True" in output
+
+
 def test_leases_made_elsewhere_show_as_busy_and_block_the_live_check(linked, owner, slot):
     linked.seed(
         name="fit-session",
@@ -251,10 +343,74 @@ def test_leases_made_elsewhere_show_as_busy_and_block_the_live_check(linked, own
     ]
     free = resource_free_intervals(resource=node, start_at=slot[0], end_at=slot[1])
     assert free == [(slot[0] + timedelta(minutes=10), slot[1])]
-    problems = booking_check(
+    check = booking_check(
         owner=owner, resources=[node], start_at=slot[0], end_at=slot[1], experiment=None
     )
-    assert [p.code for p in problems] == ["lease"]
+    assert [p.code for p in check.problems] == ["lease"]
+    assert check.leases_from == "scheduler"
+
+
+def test_the_live_check_asks_the_scheduler_as_booking_does(linked, owner, other, slot):
+    # A portal booking of node-06, which holds a lease of its own.
+    reservation_create(owner=other, resources=_nodes(6), start_at=slot[0], end_at=slot[1])
+    # A lease made elsewhere a moment ago: nothing has mirrored it yet.
+    linked.seed(
+        name="just-now",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-05"}],
+        account_attributes={"name": "fit"},
+    )
+    check = booking_check(
+        owner=owner, resources=_nodes(5, 6), start_at=slot[0], end_at=slot[1], experiment=None
+    )
+    assert (check.leases_from, check.notice) == ("scheduler", "")
+    # The portal's booking is named once, as a booking, not again as its lease.
+    assert [(p.code, p.message.split(" ")[0]) for p in check.problems] == [
+        ("booked", "node-06"),
+        ("lease", "node-05"),
+    ]
+    assert "“just-now”" in check.problems[1].message
+    assert not SchedulerLease.objects.filter(name="just-now").exists()  # a check writes nothing
+    # Booking says the same first problem.
+    with pytest.raises(Conflict) as refused:
+        reservation_create(owner=owner, resources=_nodes(5, 6), start_at=slot[0], end_at=slot[1])
+    assert refused.value.message == check.problems[0].message
+
+
+def test_when_the_scheduler_cannot_be_reached_the_check_reads_the_mirror_and_says_so(
+    linked, owner, slot, client_for
+):
+    linked.seed(
+        name="fit-session",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-02"}],
+        account_attributes={"name": "fit"},
+    )
+    leases.scheduler_sweep()  # mirrored
+    linked.faults(unavailable=True)
+    try:
+        response = client_for(owner).post(
+            "/api/v1/reservations/check/",
+            {
+                "resources": ["node-02"],
+                "start_at": slot[0].isoformat(),
+                "end_at": slot[1].isoformat(),
+            },
+            format="json",
+        )
+    finally:
+        linked.faults(unavailable=False)
+    assert response.status_code == 200, response.content
+    body = response.json()
+    assert [p["code"] for p in body["problems"]] == ["lease"]
+    assert body["leases_from"] == "mirror"
+    synced = SchedulerLink.objects.get(pk=1).last_success_at
+    assert body["notice"] == (
+        "The testbed scheduler did not answer: its leases are shown as of "
+        f"{timezone.localtime(synced):%Y-%m-%d %H:%M}. Booking asks it again."
+    )
 
 
 def test_a_late_lease_over_a_booking_is_flagged_and_its_owner_and_the_admins_told(

@@ -56,14 +56,18 @@
       feedback.className = "";
       return;
     }
-    // The same rules booking applies (time, service, program, maintenance, overlaps, quota).
+    // The same rules booking applies (time, service, program, maintenance, overlaps, leases on
+    // the testbed scheduler, quota).
     const check = { resources: body.resources, start_at: body.start_at, end_at: body.end_at };
     if (body.experiment) check.experiment = body.experiment;
-    const result = await api("POST", "/api/v1/quota/check/", check);
+    const result = await api("POST", "/api/v1/reservations/check/", check);
     if (!result.ok) { feedback.textContent = explain(result.data); feedback.className = "error"; return; }
     const d = result.data;
     const problems = d.problems.flatMap((p) => (p.code === "quota" ? d.quota : [p.message]));
-    feedback.textContent = d.fits ? "Free, and within your quota." : problems.join(" ");
+    let text = d.fits ? "Free, and within your quota." : problems.join(" ");
+    if (d.fits && d.needs_approval) text += " An admin will confirm it.";
+    if (d.notice) text += " " + d.notice;
+    feedback.textContent = text;
     feedback.className = d.fits ? "ok" : "error";
   }
   form.addEventListener("change", () => { clearTimeout(checkTimer); checkTimer = setTimeout(liveCheck, 150); });
@@ -171,6 +175,9 @@
         .then((r) => (r.ok ? r.json() : Promise.reject(new Error(r.statusText))))
         .then(success, failure);
     },
+    // data-loading="false" once the shown range's bookings are in (tests and assistive
+    // technology wait on it).
+    loading: (busy) => { el.dataset.loading = busy ? "true" : "false"; el.setAttribute("aria-busy", String(busy)); },
     select: (info) => openBooking(info.start, info.end),
     eventDrop: move,
     eventResize: move,

@@ -15,6 +15,15 @@
     polling: "updating every few seconds", off: "",
   };
 
+  // The streams are served by the ASGI server: on this page's own origin behind a proxy, or
+  // on its own port of the same host (the page's meta tag names it).
+  const streamPort = document.querySelector('meta[name="live-stream-port"]');
+  function streamUrl(path) {
+    const url = new URL(path, window.location.href);
+    if (streamPort) url.port = streamPort.content;
+    return url.href;
+  }
+
   window.liveFollow = function (url, options) {
     const indicator = options.indicator || null;
     let source = null;
@@ -36,7 +45,7 @@
     function connect() {
       if (stopped) return;
       if (typeof EventSource === "undefined") { show("polling"); startPolling(); return; }
-      source = new EventSource(url);
+      source = new EventSource(streamUrl(url), { withCredentials: true });
       source.onopen = () => {
         retryMs = 1000;
         stopPolling();

@@ -37,8 +37,8 @@
     for (const chart of Object.values(charts)) {
       if (!chart) continue;
       for (const dataset of chart.data.datasets) {
-        const s = series[dataset.key] || { t: [], y: [] };
-        dataset.data = s.t.map((t, i) => ({ x: t, y: s.y[i] }));
+        const s = series[dataset.key];
+        dataset.data = s && Array.isArray(s.t) ? s.t.map((t, i) => ({ x: t, y: s.y[i] })) : [];
       }
       chart.update();
     }
@@ -63,26 +63,16 @@
   let firstLoad = true;
   let loading = false;
   let again = false;
-  // One read at a time; pushes that arrive meanwhile cause one more read after it.
-  async function refresh() {
-    if (loading) { again = true; return; }
-    loading = true;
-    let data;
-    try {
-      const response = await fetch(status.dataset.url, { headers: { Accept: "application/json" } });
-      if (!response.ok) throw new Error(response.statusText);
-      data = await response.json();
-    } catch (error) {
-      document.getElementById("run-progress").textContent = "(could not refresh: " + error.message + ")";
-      loading = false;
-      return;
-    }
+
+  function render(data) {
     draw(data.series);
     showState(data.state, data.state_label, data.reason);
     showMissing(data.missing);
     document.getElementById("sample-count").textContent = String(data.sample_count);
     // The server rendered the tables with the page; while samples arrive they are redrawn.
-    if (!firstLoad || data.live) document.getElementById("run-analysis").innerHTML = data.analysis_html;
+    if ((!firstLoad || data.live) && typeof data.analysis_html === "string") {
+      document.getElementById("run-analysis").innerHTML = data.analysis_html;
+    }
     firstLoad = false;
     // The rail length arrives with the first samples; the form's hint follows it.
     const form = document.getElementById("pass-form");
@@ -94,9 +84,33 @@
     const progress = document.getElementById("run-progress");
     progress.setAttribute("aria-busy", data.live ? "true" : "false");
     progress.textContent = data.live ? "updating…" : "";
-    loading = false;
     if (!data.live && follow) { follow.stop(); follow = null; }
-    if (again) { again = false; refresh(); }
+  }
+
+  // An answer has the run's shape, or it is not this page's (a proxy's page during a
+  // restart, an error in another shape): such an answer is reported and the next read retries.
+  function complete(data) {
+    return data !== null && typeof data === "object" && typeof data.state === "string" &&
+      data.series !== null && typeof data.series === "object" && typeof data.live === "boolean";
+  }
+
+  // One read at a time; pushes that arrive meanwhile cause one more read after it. Whatever
+  // the answer, the read ends in `finally`: no answer can leave the page stuck.
+  async function refresh() {
+    if (loading) { again = true; return; }
+    loading = true;
+    try {
+      const response = await fetch(status.dataset.url, { headers: { Accept: "application/json" } });
+      if (!response.ok) throw new Error(response.statusText || "HTTP " + response.status);
+      const data = await response.json();
+      if (!complete(data)) throw new Error("incomplete answer");
+      render(data);
+    } catch (error) {
+      document.getElementById("run-progress").textContent = "(could not refresh: " + error.message + ")";
+    } finally {
+      loading = false;
+      if (again) { again = false; refresh(); }
+    }
   }
 
   if (status.dataset.live === "1") {

@@ -1,0 +1,7 @@
+from django.urls import path
+
+from core.accounts import apis
+
+urlpatterns = [
+    path("me/", apis.MeApi.as_view(), name="api-me"),
+]

@@ -1,7 +1,0 @@
-from django.urls import path
-
-from portal.audit import apis
-
-urlpatterns = [
-    path("audit/", apis.AuditEventListApi.as_view(), name="api-audit"),
-]

@@ -1,0 +1,21 @@
+"""The WSGI server's settings (``gunicorn -c python:portal.gunicorn_conf``): pages and API.
+
+Threads in a few processes: a request is plain synchronous Django on a thread of its own, with
+no bridge between an event loop and the views, and a process per core uses both cores. The
+numbers come from the portal's settings (``WEB_WORKERS``, ``WEB_THREADS``), so the settings
+are checked before any worker starts. The live streams are the ASGI server's
+(``portal/processes.py`` ``streams_process``): a stream here would hold a thread for good.
+"""
+
+from __future__ import annotations
+
+from portal import settings
+
+worker_class = "gthread"
+workers = settings.WEB_WORKERS
+threads = settings.WEB_THREADS
+# A request still running this long is a fault (the longest downloads stream in well under it).
+timeout = 120
+graceful_timeout = 10
+# TLS ends at the proxy in front; it says who the client is and how it came.
+forwarded_allow_ips = "*"

@@ -1,0 +1,188 @@
+"""The control loop in its own process (``python -m basestation`` spawns and supervises it).
+
+- HTTP cannot hold it up: with the agent's HTTP process frozen (SIGSTOP), the loop keeps
+  recording a sample every tick into the run store.
+- A killed loop process never leaves the robot moving: the robot (its own process, as on
+  the roof) stops on its firmware's dead-man; the agent reports the death and starts the
+  loop again, which takes up commands (an e-stop reaches the robot through the new one).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TypeVar
+
+import pytest
+
+from basestation.client import AgentClient, AgentError
+from tests.basestation.conftest import TOKEN, run_body
+from tests.basestation.processes import REPO_ROOT, Agent, start_agent
+
+pytestmark = pytest.mark.integration
+
+T = TypeVar("T")
+HZ = 50
+
+
+@pytest.fixture
+def agents() -> Iterator[list[Agent]]:
+    started: list[Agent] = []
+    yield started
+    for agent in started:
+        if agent.process.poll() is None:
+            agent.process.send_signal(signal.SIGCONT)  # a frozen agent cannot clean up
+        agent.kill()
+
+
+def _wait_for(condition: Callable[[], T | None], timeout_s: float = 10.0) -> T:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise AssertionError("timed out")
+
+
+def _last_seq(store_path: Path, run_id: str) -> int:
+    """The newest stored sample of the run, read straight from the WAL store."""
+    with sqlite3.connect(f"file:{store_path}?mode=ro", uri=True, timeout=5.0) as db:
+        row = db.execute("SELECT max(seq) FROM samples WHERE run_id = ?", (run_id,)).fetchone()
+    return int(row[0] or 0)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_the_loop_runs_in_its_own_process_and_ticks_on_while_http_is_frozen(
+    tmp_path: Path, agents: list[Agent]
+) -> None:
+    data_dir = tmp_path / "data"
+    agent = start_agent(
+        data_dir, tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_CONTROL_HZ=str(HZ)
+    )
+    agents.append(agent)
+    with AgentClient(agent.url, TOKEN) as client:
+        control = client.status()["control"]
+        loop_pid = control["pid"]
+        assert isinstance(loop_pid, int)
+        assert loop_pid != agent.process.pid
+        assert _alive(loop_pid)
+        assert control["hz"] == HZ
+        segments = [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 60.0}]
+        client.put_run("frozen", run_body(time.time() + 0.3, window_s=120.0, segments=segments))
+        _wait_for(lambda: client.get_run("frozen")["state"] == "running")
+
+    store_path = data_dir / "runs.sqlite3"
+    _wait_for(lambda: _last_seq(store_path, "frozen") > 0)
+    agent.process.send_signal(signal.SIGSTOP)
+    try:
+        frozen_at = _last_seq(store_path, "frozen")
+        frozen_s = time.monotonic()
+        # Two seconds of ticks while nobody in the HTTP process can run at all.
+        reached = _wait_for(
+            lambda: (seq := _last_seq(store_path, "frozen")) >= frozen_at + 2 * HZ and seq
+        )
+        elapsed_s = time.monotonic() - frozen_s
+        assert agent.process.poll() is None
+    finally:
+        agent.process.send_signal(signal.SIGCONT)
+    # The loop's pace, not a burst: about one sample a tick over the frozen time.
+    assert reached - frozen_at <= (elapsed_s + 0.5) * HZ
+    with AgentClient(agent.url, TOKEN) as client:
+        status = client.status()
+        assert status["control"]["pid"] == loop_pid
+        assert status["control"]["missed_ticks"] == 0
+        assert status["faults"] == []
+        # The API's requests reach the loop's process and its answers come back, refusals
+        # included: the run holds the robot, so manual drive is refused without force.
+        with pytest.raises(AgentError) as refused:
+            client.control(user="admin", velocity_mps=0.3, direction="ccw")
+        assert refused.value.status == 409
+        assert "robot_busy" in str(refused.value.body)
+        taken = client.control(user="admin", velocity_mps=0.3, direction="ccw", force=True)
+        assert taken["aborted_run"] == "frozen"
+        assert client.status()["manual"]["user"] == "admin"
+        assert client.get_run("frozen")["state"] == "aborted"
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def test_a_killed_loop_process_leaves_the_robot_stopped_and_is_reported_and_started_again(
+    tmp_path: Path, agents: list[Agent]
+) -> None:
+    from tests.basestation.sim.test_process import READY, inspect, lines_of
+
+    base_port, robot_port = _free_udp_port(), _free_udp_port()
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "basestation.sim", "--radio-port", str(robot_port),
+         "--peer-port", str(base_port), "--inspect-port", "0"],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        assert robot.stdout is not None
+        ready = READY.search(lines_of(robot.stdout).get(timeout=20.0))
+        assert ready, "the robot process did not say it was ready"
+        inspect_port = int(ready.group(2))
+        agent = start_agent(
+            tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_ROBOT="sim-udp",
+            AGENT_SIM_BASE_PORT=str(base_port), AGENT_SIM_ROBOT_PORT=str(robot_port),
+            AGENT_CONTROL_HZ=str(HZ),
+        )  # fmt: skip
+        agents.append(agent)
+        with AgentClient(agent.url, TOKEN) as client:
+            first_pid = client.status()["control"]["pid"]
+            segments = [{"velocity_mps": 1.0, "direction": "cw", "duration_s": 60.0}]
+            client.put_run("cut", run_body(time.time() + 0.3, window_s=120.0, segments=segments))
+            _wait_for(lambda: inspect(inspect_port)["velocity_mps"] >= 0.9)
+
+            os.kill(first_pid, signal.SIGKILL)  # the loop alone: the agent lives on
+            killed_s = time.monotonic()
+            # Nobody commands it any more: the firmware's dead-man takes over after 500 ms
+            # (the agent starts the loop again only after a second).
+            _wait_for(lambda: inspect(inspect_port)["dead_man"], timeout_s=3.0)
+            _wait_for(lambda: inspect(inspect_port)["velocity_mps"] == 0.0)
+            stopped_after_s = time.monotonic() - killed_s
+            assert stopped_after_s < 0.5 + 1.0 / 0.5 + 1.5
+            assert agent.process.poll() is None
+
+            # Reported, then running again in a new process that holds the robot.
+            restarted = _wait_for(
+                lambda: (
+                    (c := client.status()["control"])["restarts"] == 1
+                    and c["running"]
+                    and c["pid"] != first_pid
+                    and c
+                )
+            )
+            assert _alive(restarted["pid"])
+            assert not _alive(first_pid)
+            run = client.get_run("cut")
+            assert run["state"] == "interrupted"
+            assert "control loop restarted" in run["reason"]
+            assert "died" in agent.log()
+            # Commands reach the robot through the new loop process.
+            client.stop(reason="after the restart")
+            _wait_for(lambda: inspect(inspect_port)["e_stop_latched"])
+    finally:
+        robot.terminate()
+        robot.wait(10)
+        if robot.stdout is not None:
+            robot.stdout.close()

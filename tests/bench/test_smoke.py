@@ -1,0 +1,56 @@
+"""Every benchmark run through at tiny sizes (``bench.__main__.SMOKE``), figures unchecked:
+a benchmark the code has moved away from fails the build here instead of at ``make bench``."""
+
+from __future__ import annotations
+
+import importlib
+
+import pytest
+from django.conf import settings as django_settings
+
+from bench.__main__ import BENCHMARKS, ON_DATABASE, SMOKE, WHOLE_SYSTEM
+
+
+def _run(name: str, **extra: object) -> str:
+    module = importlib.import_module(f"bench.{name}")
+    report = getattr(module, "run_rates", module.run)(**SMOKE[name], **extra)
+    assert isinstance(report, str)
+    return report
+
+
+def test_every_benchmark_has_a_smoke_size():
+    assert set(SMOKE) == set(BENCHMARKS)
+
+
+@pytest.mark.parametrize("name", [n for n in BENCHMARKS if n not in ON_DATABASE])
+def test_a_benchmark_of_the_base_station_runs_through(name):
+    assert _run(name).startswith("## ")
+
+
+@pytest.mark.django_db
+@pytest.mark.parametrize("name", [n for n in ON_DATABASE if n not in WHOLE_SYSTEM])
+def test_a_benchmark_of_the_portal_runs_through(name, settings):
+    # The conftest's settings override is active: what a benchmark sets is undone after it.
+    assert settings.API_THROTTLE_USER is None
+    assert _run(name).startswith("## ")
+
+
+@pytest.mark.integration
+@pytest.mark.django_db(transaction=True)
+def test_the_live_benchmark_runs_through_the_whole_system():
+    db = django_settings.DATABASES["default"]
+    url = f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}"
+    report = _run("live", database_url=url)
+    assert "| SSE event |" in report
+
+
+@pytest.mark.integration
+@pytest.mark.django_db(transaction=True)
+def test_the_load_benchmark_runs_through_the_web_server():
+    """locust against the web server as compose runs it, on the test database."""
+    db = django_settings.DATABASES["default"]
+    url = f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}"
+    report = _run("load", database_url=url)
+    row = next(line for line in report.splitlines() if line.startswith("| 5 | 1 |"))
+    assert "| 0 of " in row, report  # no call failed
+    assert not row.endswith("| 0 of 0 |"), report  # and there were calls
