@@ -3,6 +3,7 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Any
 
+from django.http import Http404
 from django.shortcuts import get_object_or_404
 from django.utils import timezone
 from drf_spectacular.utils import extend_schema
@@ -14,9 +15,9 @@ from rest_framework.views import APIView
 
 from bookings import services
 from bookings.choices import QuotaPeriod
-from bookings.models import Blackout, QuotaPolicy, Resource, ResourceGroup
+from bookings.models import CALENDAR, Blackout, QuotaPolicy, Resource, ResourceGroup
 from bookings.quotas import quota_summary
-from bookings.selectors import external_leases, items_overlapping, resource_free_intervals
+from bookings.selectors import busy_slots, resource_free_intervals
 from core.accounts.models import User
 from core.api import (
     DateTimeInput,
@@ -59,8 +60,11 @@ class ResourceListApi(APIView):
 
     @extend_schema(responses=ResourceOutput(many=True))
     def get(self, request: Request) -> Response:
-        qs = Resource.objects.prefetch_related("groups")
-        return Response(ResourceOutput(qs, many=True).data)
+        def listed() -> list[dict[str, Any]]:
+            qs = Resource.objects.prefetch_related("groups")
+            return [dict(row) for row in ResourceOutput(qs, many=True).data]
+
+        return Response(CALENDAR.answer(("resources",), listed))
 
 
 class RangeQuery(serializers.Serializer):
@@ -90,19 +94,26 @@ class AvailabilityOutput(serializers.Serializer):
 class AvailabilityApi(APIView):
     @extend_schema(parameters=[RangeQuery], responses=AvailabilityOutput)
     def get(self, request: Request, name: str) -> Response:
-        resource = get_object_or_404(Resource, name=name)
         query = valid_query(RangeQuery, request.query_params)
-        free = resource_free_intervals(
-            resource=resource, start_at=query["start"], end_at=query["end"]
-        )
-        return Response(
-            {
+
+        def available() -> dict[str, Any] | None:
+            resource = Resource.objects.filter(name=name).first()
+            if resource is None:
+                return None
+            free = resource_free_intervals(
+                resource=resource, start_at=query["start"], end_at=query["end"]
+            )
+            return {
                 "resource": resource.name,
                 "start": query["start"],
                 "end": query["end"],
                 "free": [{"start": s, "end": e} for s, e in free],
             }
-        )
+
+        answer = CALENDAR.answer(("availability", name, query["start"], query["end"]), available)
+        if answer is None:
+            raise Http404
+        return Response(answer)
 
 
 class BusyOutput(serializers.Serializer):
@@ -120,34 +131,17 @@ class BusyApi(APIView):
     @extend_schema(parameters=[RangeQuery], responses=BusyOutput(many=True))
     def get(self, request: Request) -> Response:
         query = valid_query(RangeQuery, request.query_params)
-        items = items_overlapping(
-            resources=Resource.objects.all(), start_at=query["start"], end_at=query["end"]
-        ).order_by("start_at")
-        busy: dict[int, dict[str, Any]] = {}
-        for item in items:
-            entry = busy.setdefault(
-                item.reservation_id,
-                {
-                    "resources": [],
-                    "start_at": item.start_at,
-                    "end_at": item.end_at,
-                    "state": item.reservation.state,
-                },
+        return Response(
+            CALENDAR.answer(
+                ("busy", query["start"], query["end"]),
+                lambda: [
+                    dict(row)
+                    for row in BusyOutput(
+                        busy_slots(start_at=query["start"], end_at=query["end"]), many=True
+                    ).data
+                ],
             )
-            entry["resources"].append(item.resource.name)
-        rows = list(busy.values())
-        # Leases made on the testbed scheduler hold their fixed nodes just the same.
-        rows += [
-            {
-                "resources": [r.name for r in lease.resources.all()],
-                "start_at": lease.start_at,
-                "end_at": lease.end_at,
-                "state": "leased",
-            }
-            for lease in external_leases(query["start"], query["end"])
-        ]
-        rows.sort(key=lambda row: row["start_at"])
-        return Response(BusyOutput(rows, many=True).data)
+        )
 
 
 class QuotaUseOutput(serializers.Serializer):

@@ -11,12 +11,13 @@ from django.core.exceptions import ValidationError
 from django.db import models
 
 from bookings.choices import BookedVia, QuotaPeriod, ReservationState, ResourceKind
+from core.cache import ChangeTrackedQuerySet, Generation, track_changes
 
 _Timed = TypeVar("_Timed", bound=models.Model)
 HOLD_REASON_MAX_CHARS = 300
 
 
-class PeriodQuerySet(models.QuerySet[_Timed]):
+class PeriodQuerySet(ChangeTrackedQuerySet[_Timed]):
     """Rows that hold a half-open period ``[start_at, end_at)``."""
 
     def overlapping(
@@ -57,6 +58,8 @@ class ResourceGroup(models.Model):
 
     name = models.SlugField(max_length=64, unique=True)
     description = models.CharField(max_length=200, blank=True)
+
+    objects = ChangeTrackedQuerySet["ResourceGroup"].as_manager()
 
     class Meta:
         ordering = ["name"]
@@ -109,6 +112,8 @@ class Resource(models.Model):
     # checks; None while it answers. Here, not in the cache, so that a restarted cache does
     # not start the count again (and an agent out of reach for good is still held).
     agent_unreachable_since = models.DateTimeField(null=True, blank=True, editable=False)
+
+    objects = ChangeTrackedQuerySet["Resource"].as_manager()
 
     class Meta:
         ordering = ["kind", "name"]
@@ -397,3 +402,11 @@ class SchedulerLink(models.Model):
 
     def __str__(self) -> str:
         return "link to the testbed scheduler"
+
+
+# Everything the calendar shows of who holds what and when (resources, busy slots,
+# availability): its answers are cached until one of these rows changes.
+CALENDAR = Generation("calendar")
+track_changes(
+    CALENDAR, Resource, ResourceGroup, Reservation, ReservationItem, Blackout, SchedulerLease
+)

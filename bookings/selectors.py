@@ -2,6 +2,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from datetime import datetime
+from typing import Any
 
 from django.db.models import Q, QuerySet
 
@@ -79,6 +80,39 @@ def resource_free_intervals(
     ]
     busy += [(x.start_at, x.end_at) for x in external_leases(start_at, end_at, resource)]
     return gaps(busy, start_at, end_at)
+
+
+def busy_slots(*, start_at: datetime, end_at: datetime) -> list[dict[str, Any]]:
+    """Every active booking and scheduler lease in ``[start_at, end_at)``, as everyone may
+    see it: which resources, when, and the booking's state ("leased" for the scheduler's)."""
+    items = items_overlapping(
+        resources=Resource.objects.all(), start_at=start_at, end_at=end_at
+    ).order_by("start_at")
+    busy: dict[int, dict[str, Any]] = {}
+    for item in items:
+        entry = busy.setdefault(
+            item.reservation_id,
+            {
+                "resources": [],
+                "start_at": item.start_at,
+                "end_at": item.end_at,
+                "state": item.reservation.state,
+            },
+        )
+        entry["resources"].append(item.resource.name)
+    rows = list(busy.values())
+    # Leases made on the testbed scheduler hold their fixed nodes just the same.
+    rows += [
+        {
+            "resources": [r.name for r in lease.resources.all()],
+            "start_at": lease.start_at,
+            "end_at": lease.end_at,
+            "state": "leased",
+        }
+        for lease in external_leases(start_at, end_at)
+    ]
+    rows.sort(key=lambda row: row["start_at"])
+    return rows
 
 
 def external_leases(

@@ -1,7 +1,6 @@
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import json
 from collections.abc import Iterator
@@ -18,6 +17,7 @@ from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS
 from bookings.models import PeriodQuerySet, Reservation
 from bookings.selectors import reservations_visible
 from core.accounts.models import User
+from core.cache import database_namespace
 from portal.runs.analysis import (
     RunAnalysis,
     SampleColumns,
@@ -280,14 +280,6 @@ def _sample_columns_read(run: Run) -> SampleColumns:
     return SampleColumns.from_lists(*lists)
 
 
-def _database_namespace() -> str:
-    """Which database a cache entry was computed from: run ids repeat between databases
-    (a test's, a benchmark's, a restore) that may share one cache."""
-    db = connection.settings_dict
-    where = f"{connection.vendor}:{db.get('HOST') or ''}:{db.get('PORT') or ''}:{db['NAME']}"
-    return hashlib.blake2b(where.encode(), digest_size=8).hexdigest()
-
-
 def run_report(
     *,
     run: Run,
@@ -316,7 +308,7 @@ def run_report(
         # While samples arrive (a gap may be filled below last_seq), their count says whether
         # anything changed: every viewer's poll then costs one count, not a recomputation.
         identity += (Sample.objects.filter(run=run).count(),)
-    key = f"run-report:{_database_namespace()}:{identity}:{pass_at_m}:{max_points}".replace(" ", "")
+    key = f"run-report:{database_namespace()}:{identity}:{pass_at_m}:{max_points}".replace(" ", "")
     hit = cache.get(key)
     if isinstance(hit, RunReport):
         return hit

@@ -1,0 +1,191 @@
+"""Cached answers and the generations that retire them (``core/cache.py``), and the calendar's
+answers (resources, busy slots, availability) that use them."""
+
+from __future__ import annotations
+
+import threading
+from datetime import timedelta
+
+import pytest
+from django.db import connection, transaction
+from django.utils import timezone
+
+from bookings.models import (
+    CALENDAR,
+    Blackout,
+    Reservation,
+    ReservationItem,
+    Resource,
+    ResourceGroup,
+    SchedulerLease,
+)
+from core.cache import ChangeTrackedQuerySet, Generation
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+
+pytestmark = pytest.mark.django_db
+
+
+class Counted:
+    """A computation that says how often it ran."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def __call__(self) -> int:
+        self.calls += 1
+        return self.calls
+
+
+def test_an_answer_is_computed_once_per_generation_and_parts():
+    generation = Generation("test-once")
+    compute = Counted()
+    assert generation.answer(("a",), compute) == 1
+    assert generation.answer(("a",), compute) == 1
+    assert generation.answer(("b",), compute) == 2
+    generation.changed()
+    assert generation.answer(("a",), compute) == 3
+
+
+def test_a_flushed_cache_starts_a_generation_no_earlier_one_used(settings):
+    from django.core.cache import cache
+
+    generation = Generation("test-flush")
+    before = generation.current()
+    cache.clear()
+    assert generation.current() > before
+
+
+def test_the_calendar_follows_every_model_its_answers_read():
+    tracked = {
+        model
+        for model in (
+            Resource,
+            ResourceGroup,
+            Reservation,
+            ReservationItem,
+            Blackout,
+            SchedulerLease,
+        )
+        if CALENDAR in getattr(model, "_generations", ())
+    }
+    assert tracked == {
+        Resource,
+        ResourceGroup,
+        Reservation,
+        ReservationItem,
+        Blackout,
+        SchedulerLease,
+    }
+    for model in tracked:
+        assert isinstance(model.objects.all(), ChangeTrackedQuerySet)
+
+
+def _moves_the_calendar(change) -> bool:
+    before = CALENDAR.current()
+    change()
+    return CALENDAR.current() != before
+
+
+def test_every_kind_of_write_moves_the_calendar_on():
+    robot = MobileResourceFactory()
+    node = FixedResourceFactory()
+    group = ResourceGroup.objects.create(name="north")
+    owner = UserFactory()
+    start = timezone.now() + timedelta(days=1)
+    end = start + timedelta(hours=1)
+
+    assert _moves_the_calendar(
+        lambda: Resource.objects.filter(pk=robot.pk).update(hold_reason="e-stop")
+    )
+    assert _moves_the_calendar(lambda: robot.save())
+    assert _moves_the_calendar(lambda: robot.groups.add(group))
+    assert _moves_the_calendar(lambda: group.resources.remove(robot))
+    reservation = Reservation(owner=owner, start_at=start, end_at=end)
+    assert _moves_the_calendar(lambda: Reservation.objects.bulk_create([reservation]))
+    item = ReservationItem(reservation=reservation, resource=node, start_at=start, end_at=end)
+    assert _moves_the_calendar(lambda: item.save())
+    item.active = False
+    assert _moves_the_calendar(lambda: ReservationItem.objects.bulk_update([item], ["active"]))
+    blackout = Blackout.objects.create(start_at=start, end_at=end, reason="roof works")
+    assert _moves_the_calendar(lambda: blackout.resources.add(node))
+    assert _moves_the_calendar(lambda: Blackout.objects.filter(pk=blackout.pk).delete())
+    assert _moves_the_calendar(lambda: reservation.delete())
+    # A write that changes no row moves nothing: the health sweep's idle checks stay cheap.
+    assert not _moves_the_calendar(lambda: Resource.objects.filter(pk=-1).update(enabled=False))
+
+
+@pytest.mark.django_db(transaction=True)
+def test_an_answer_read_while_a_change_commits_is_not_kept():
+    """A reader between the change and its commit sees the rows before it; what it stores is
+    left behind when the transaction commits."""
+    robot = MobileResourceFactory()
+    seen: list[str] = []
+
+    def read_hold() -> str:
+        return str(Resource.objects.get(pk=robot.pk).hold_reason)
+
+    def reader() -> None:
+        try:
+            seen.append(CALENDAR.answer(("hold", robot.pk), read_hold))
+        finally:
+            connection.close()
+
+    with transaction.atomic():
+        Resource.objects.filter(pk=robot.pk).update(hold_reason="e-stop")
+        other = threading.Thread(target=reader)
+        other.start()
+        other.join()
+    assert seen == [""], "the other connection read before the commit"
+    assert CALENDAR.answer(("hold", robot.pk), read_hold) == "e-stop"
+
+
+def _week() -> dict[str, str]:
+    start = timezone.now().replace(microsecond=0) + timedelta(hours=1)
+    return {"start": start.isoformat(), "end": (start + timedelta(days=7)).isoformat()}
+
+
+def test_busy_slots_show_a_booking_made_after_they_were_read(api, mobile, experiment):
+    week = _week()
+    assert api.get("/api/v1/reservations/busy/", week).json() == []
+    start = timezone.now().replace(microsecond=0) + timedelta(hours=2)
+    booked = api.post(
+        "/api/v1/reservations/",
+        {
+            "resource": mobile.name,
+            "experiment": experiment.pk,
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(minutes=30)).isoformat(),
+        },
+        format="json",
+    )
+    assert booked.status_code == 201, booked.content
+    busy = api.get("/api/v1/reservations/busy/", week).json()
+    assert [row["resources"] for row in busy] == [[mobile.name]]
+    cancelled = api.delete(f"/api/v1/reservations/{booked.json()['id']}/")
+    assert cancelled.status_code == 200, cancelled.content
+    assert api.get("/api/v1/reservations/busy/", week).json() == []
+
+
+def test_availability_and_resources_follow_a_hold_and_a_blackout(api, mobile):
+    week = _week()
+    url = f"/api/v1/resources/{mobile.name}/availability/"
+    assert len(api.get(url, week).json()["free"]) == 1
+    listed = {r["name"]: r for r in api.get("/api/v1/resources/").json()}
+    assert listed[mobile.name]["hold_reason"] == ""
+
+    Resource.objects.filter(pk=mobile.pk).update(hold_reason="e-stop latched")
+    assert api.get(url, week).json()["free"] == []
+    listed = {r["name"]: r for r in api.get("/api/v1/resources/").json()}
+    assert listed[mobile.name]["hold_reason"] == "e-stop latched"
+
+    Resource.objects.filter(pk=mobile.pk).update(hold_reason="")
+    start = timezone.now() + timedelta(days=2)
+    blackout = Blackout.objects.create(
+        start_at=start, end_at=start + timedelta(hours=3), reason="roof works"
+    )
+    blackout.resources.add(mobile)
+    assert len(api.get(url, week).json()["free"]) == 2
+
+
+def test_availability_of_an_unknown_resource_is_404(api):
+    assert api.get("/api/v1/resources/nowhere/availability/", _week()).status_code == 404
