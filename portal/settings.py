@@ -222,7 +222,8 @@ REDIS_URL = env.str("REDIS_URL", default="")
 LIVE_DIR = VAR_DIR / "live"
 CACHES = {
     "default": (
-        {"BACKEND": "django.core.cache.backends.redis.RedisCache", "LOCATION": REDIS_URL}
+        # Django's, keeping its Redis clients (core/redis_cache.py).
+        {"BACKEND": "core.redis_cache.RedisCache", "LOCATION": REDIS_URL}
         if REDIS_URL
         # Files, not process memory: under `make run` the worker's notes (the scheduler's
         # heartbeat) must be visible to the web process.
@@ -353,7 +354,7 @@ REST_FRAMEWORK = {
     # The token first: a request without credentials is told how to authenticate (401 with
     # WWW-Authenticate: Token). The pages' own calls use the session (with its CSRF token).
     "DEFAULT_AUTHENTICATION_CLASSES": [
-        "rest_framework.authentication.TokenAuthentication",
+        "core.accounts.tokens.CachedTokenAuthentication",
         "rest_framework.authentication.SessionAuthentication",
     ],
     "DEFAULT_PERMISSION_CLASSES": ["rest_framework.permissions.IsAuthenticated"],
@@ -376,7 +377,7 @@ SPECTACULAR_SETTINGS = {
     "SERVE_INCLUDE_SCHEMA": False,
     "COMPONENT_SPLIT_REQUEST": True,
     # Only the token is for clients; the session cookie serves the portal's own pages.
-    "AUTHENTICATION_WHITELIST": ["rest_framework.authentication.TokenAuthentication"],
+    "AUTHENTICATION_WHITELIST": ["core.accounts.tokens.CachedTokenAuthentication"],
     "ENUM_NAME_OVERRIDES": {
         "RunStateEnum": "portal.runs.states.RunState",
         "ReservationStateEnum": "bookings.choices.ReservationState",

@@ -189,3 +189,26 @@ def test_availability_and_resources_follow_a_hold_and_a_blackout(api, mobile):
 
 def test_availability_of_an_unknown_resource_is_404(api):
     assert api.get("/api/v1/resources/nowhere/availability/", _week()).status_code == 404
+
+
+def test_the_redis_cache_keeps_one_client_per_pool_and_serves_threads():
+    from django.core.cache import caches
+
+    from core.redis_cache import RedisCache
+
+    cache = caches["default"]
+    assert isinstance(cache, RedisCache), "make test runs on Redis"
+    client = cache._cache.get_client("a")
+    assert cache._cache.get_client("b") is client
+    seen: list[object] = []
+
+    def use() -> None:
+        cache.set(f"thread-{threading.get_ident()}", 1)
+        seen.append(cache.get(f"thread-{threading.get_ident()}"))
+
+    threads = [threading.Thread(target=use) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert seen == [1] * 8

@@ -21,6 +21,7 @@ from bookings.models import Reservation
 from core.audit import tasks
 from core.audit.idempotency import UNANSWERED_LEASE_S, idempotency_keys_delete_expired
 from core.audit.models import IdempotencyKey
+from core.cache import Generation
 from tests.factories import FixedResourceFactory
 from tests.integration.processes import Proc
 from tests.sqlite import run_on_sqlite
@@ -106,7 +107,9 @@ def test_a_replay_gets_the_stored_answer_and_queues_nothing(
     assert Reservation.objects.count() == 1
     # The booking's e-mail was queued once, by the request that did the work (beside the
     # live push that tells open calendars to read again).
-    queued = sorted(getattr(c.func, "__name__", "") for c in first_tasks)
+    # (The calendar's cache generation moving on at commit is not a task.)
+    tasks = [c for c in first_tasks if not isinstance(getattr(c, "__self__", None), Generation)]
+    queued = sorted(getattr(c.func, "__name__", "") for c in tasks)
     assert queued == ["delay", "publish"]
     assert replay_tasks == []
 
@@ -330,6 +333,7 @@ from bookings.models import Reservation, Resource
 from core.accounts.models import User
 from core.audit.idempotency import idempotency_keys_delete_expired
 from core.audit.models import IdempotencyKey
+from core.cache import Generation
 
 alice, _ = User.objects.get_or_create(username="alice")
 Resource.objects.get_or_create(name="node-01", kind="fixed")
