@@ -132,13 +132,22 @@ class LoopState:
 # -- the loop process ------------------------------------------------------------------------
 
 
-# Set by SIGTERM (or the agent's death); the main thread's wait wakes on it. The handler
-# only sets it: raising from a handler could cut the clean-up short, robot stop included.
-_terminated = threading.Event()
+class _Termination:
+    """Set by SIGTERM (or the agent's death); the main thread's wait wakes through the
+    signal's wake-up socket and reads it.
+
+    A plain attribute, not a ``threading.Event``: a handler runs on the main thread between
+    two of its bytecodes, possibly while that thread is inside ``Event.set`` for the previous
+    SIGTERM (the agent's death and a stop from its process group come together), and the
+    Event's lock is not reentrant: the process hung for good there, its loop ticking on. The
+    handler only sets it: raising from a handler could cut the clean-up short, robot stop
+    included."""
+
+    requested = False
 
 
 def _on_sigterm(signum: int, frame: types.FrameType | None) -> None:
-    _terminated.set()
+    _Termination.requested = True
 
 
 def _die_with_parent(parent_pid: int) -> bool:
@@ -324,7 +333,7 @@ def _serve_requests(
 ) -> bool:
     """Answer the agent's requests, one at a time, until it says stop (True), or SIGTERM
     comes or the agent goes away (False)."""
-    while not _terminated.is_set():
+    while not _Termination.requested:
         readable, _, _ = select.select([requests.fileno(), signal_wake.fileno()], [], [])
         if signal_wake.fileno() in readable:
             with contextlib.suppress(OSError):

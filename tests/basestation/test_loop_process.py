@@ -186,3 +186,23 @@ def test_a_killed_loop_process_leaves_the_robot_stopped_and_is_reported_and_star
         robot.wait(10)
         if robot.stdout is not None:
             robot.stdout.close()
+
+
+def test_a_burst_of_sigterms_as_the_agent_dies_stops_the_loop_process(
+    tmp_path: Path, agents: list[Agent]
+) -> None:
+    """The agent's death sends the loop SIGTERM (its parent-death signal) just as a stop of
+    the process group does: signals arriving while the handler of the one before runs must
+    still end the process, not hang it with its loop ticking on."""
+    agent = start_agent(tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN)
+    agents.append(agent)
+    with AgentClient(agent.url, TOKEN) as client:
+        loop_pid = client.status()["control"]["pid"]
+    assert isinstance(loop_pid, int)
+    agent.process.send_signal(signal.SIGKILL)
+    for _ in range(2000):
+        try:
+            os.kill(loop_pid, signal.SIGTERM)
+        except ProcessLookupError:
+            break
+    _wait_for(lambda: not _alive(loop_pid), timeout_s=15.0)
