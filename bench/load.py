@@ -78,6 +78,8 @@ def _start_web(database_url: str, workers: int, port: int, log: Path) -> subproc
     env.update(
         {
             "DJANGO_DEBUG": "0",
+            # Plain HTTP on loopback, as inside a deployment behind its TLS proxy.
+            "DJANGO_SSL_REDIRECT": "0",
             "DJANGO_SECRET_KEY": secrets.token_urlsafe(50),
             "DJANGO_ALLOWED_HOSTS": "127.0.0.1",
             "AGENT_TOKEN": secrets.token_urlsafe(24),

@@ -64,6 +64,11 @@ def _page(browser, stack: Stack, username: str) -> Page:
     context = browser.new_context(viewport={"width": 1280, "height": 1000})
     page = context.new_page()
     page.on("pageerror", lambda exc: SCRIPT_ERRORS.append(f"{username}: {exc}"))
+    # A stream on another port than the page's must be allowed by the policy's connect-src.
+    page.on(
+        "console",
+        lambda m: "Content Security Policy" in m.text and SCRIPT_ERRORS.append(m.text),
+    )
     login(page, stack.web, username, PASSWORD)
     return page
 

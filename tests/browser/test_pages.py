@@ -123,3 +123,41 @@ def test_pages_fit_a_phone_and_a_laptop(browser, live_server, viewport):
     page.screenshot(path=str(SCREENSHOTS / f"home-{viewport['width']}.png"))
     assert not failed, failed
     context.close()
+
+
+def test_no_page_breaks_the_content_security_policy(browser, live_server):
+    """Every page of a researcher and of an admin, the API docs included, runs under the
+    policy with nothing refused: no inline script, nothing from elsewhere."""
+    admin = UserFactory(username="zoe", is_staff=True, is_superuser=True)
+    robot = MobileResourceFactory()
+    run = completed_run(admin, robot, [(1.0, "cw", 20.0)])
+    context = browser.new_context()
+    page = context.new_page()
+    refused: list[str] = []
+    page.on(
+        "console",
+        lambda m: "Content Security Policy" in m.text and refused.append(f"{page.url}: {m.text}"),
+    )
+    login(page, live_server.url, "zoe", "correct horse battery")
+    for path in (
+        "/",
+        "/experiments/new/",
+        "/book/",
+        "/calendar/",
+        "/calendar/feeds/",
+        f"/runs/{run.pk}/",
+        "/approvals/",
+        f"/robot/{robot.name}/",
+        "/usage/",
+        "/scheduler-link/",
+        "/accounts/password/change/",
+    ):
+        response = page.goto(f"{live_server.url}{path}")
+        assert response is not None, path
+        assert response.status == 200, path
+        assert "script-src 'self'" in (response.headers.get("content-security-policy") or "")
+        page.wait_for_load_state("load")
+    page.goto(f"{live_server.url}/api/docs/")
+    expect(page.locator(".swagger-ui .info .title")).to_be_visible()
+    assert not refused, refused
+    context.close()

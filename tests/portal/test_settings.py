@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import secrets
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 CHECK = "import django; django.setup(); print('started')"
+_NOT_INHERITED = ("DJANGO_", "AGENT_", "DATABASE_", "CELERY_", "REDIS_")
 
 
 def _start(env_changes: dict[str, str], tmp_path: Path) -> subprocess.CompletedProcess[str]:
@@ -81,3 +83,54 @@ def test_the_readme_documents_every_setting():
     readme = (REPO / "README.md").read_text()
     undocumented = sorted(n for n in names if f"`{n}`" not in readme)
     assert not undocumented, f"README.md does not document {undocumented}"
+
+
+def test_check_deploy_is_clean_in_production_behind_a_tls_proxy(tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith(_NOT_INHERITED)}
+    env.update(PRODUCTION, AMAZING_VAR_DIR=str(tmp_path))
+    env["DJANGO_SECRET_KEY"] = secrets.token_urlsafe(50)
+    # The operator's one decision left: asking browsers to preload HSTS for the domain.
+    env["DJANGO_HSTS_PRELOAD"] = "1"
+    result = subprocess.run(
+        [sys.executable, "manage.py", "check", "--deploy", "--fail-level", "WARNING"],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "no issues" in result.stdout
+
+
+def test_production_sends_plain_http_to_https_but_for_the_health_check(tmp_path):
+    script = (
+        "import django; django.setup()\n"
+        "from django.test import Client\n"
+        "c = Client(HTTP_HOST='amazing.example.org')\n"
+        "print(c.get('/accounts/login/').status_code, c.get('/accounts/login/').get('Location'))\n"
+        "print(c.get('/accounts/login/', headers={'X-Forwarded-Proto': 'https'}).status_code)\n"
+        "print(c.get('/healthz').status_code != 301)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith(_NOT_INHERITED)}
+    env.update(PRODUCTION, AMAZING_VAR_DIR=str(tmp_path), DJANGO_SETTINGS_MODULE="portal.settings")
+    result = subprocess.run(
+        [sys.executable, "-c", script], cwd=REPO, env=env, capture_output=True, text=True,
+        timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.split("\n")
+    assert lines[0] == "301 https://amazing.example.org/accounts/login/"
+    assert lines[1] == "200"
+    assert lines[2] == "True"
+
+
+@pytest.mark.django_db
+def test_every_answer_carries_the_security_headers(client):
+    for path in ("/accounts/login/", "/api/v1/resources/"):
+        response = client.get(path)
+        policy = response["Content-Security-Policy"]
+        assert "script-src 'self'" in policy
+        assert "unsafe-inline" not in policy.split("style-src")[0]
+        assert "frame-ancestors 'none'" in policy
+        assert "object-src 'none'" in policy
+        assert response["X-Frame-Options"] == "DENY"
+        assert response["Referrer-Policy"] == "same-origin"
+        assert "camera=()" in response["Permissions-Policy"]
+        assert response["X-Content-Type-Options"] == "nosniff"
