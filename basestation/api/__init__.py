@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from flask import Blueprint, Flask
 
-from basestation.api import battery, control, health, logs, runs, status
+from basestation.api import battery, control, health, logs, metrics, runs, status
 from basestation.api.auth import require_bearer_token
 from basestation.api.errors import register_error_handlers
 from basestation.api.limits import refuse_oversized_body
@@ -25,4 +25,5 @@ def register_api(app: Flask) -> None:
     api.register_blueprint(runs.bp)
     api.register_blueprint(control.bp)
     api.register_blueprint(logs.bp)
+    api.register_blueprint(metrics.bp)
     app.register_blueprint(api)

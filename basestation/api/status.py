@@ -74,6 +74,11 @@ def control_json(control: ControlStats, loop: LoopProcess | None = None) -> dict
 
 @bp.get("/status")
 def status() -> ResponseReturnValue:
+    return jsonify(status_document())
+
+
+def status_document() -> dict[str, Any]:
+    """What ``GET /status`` answers (and ``GET /metrics`` counts from)."""
     runtime = get_runtime()
     now_s = time.time()
     manager = runtime.control
@@ -95,40 +100,38 @@ def status() -> ResponseReturnValue:
     manual = manager.manual(now_s)
     threshold_v = runtime.config.low_battery_v
     control = runtime.control_stats()
-    return jsonify(
-        {
-            "version": AGENT_VERSION,
-            "clock": now_s,
-            "clock_synchronized": clock_synchronized(),
-            "resource": runtime.config.resource,
-            "battery_v": snapshot.battery_v,
-            "battery": {
-                "filtered_v": snapshot.battery_v,
-                "raw_v": snapshot.battery_raw_v,
-                "low_battery_v": threshold_v if threshold_v > 0 else None,
-                "low": snapshot.battery_low,
-            },
-            "robot": robot,
-            "limits": runtime.limits_json(),
-            "link": {
-                "state": "up" if age_s is not None and age_s <= LINK_DOWN_AFTER_S else "down",
-                "age_s": age_s,
-                "loss_pct": snapshot.loss_pct,
-                "rssi_dbm": rssi if isinstance(rssi, int | float) else None,
-            },
-            "current_run": snapshot.current_run,
-            "manual": None if manual is None else manual.to_json_dict(now_s),
-            "estop": estop_json(manager.estop),
-            "host": {
-                "cpu_temp_c": cpu_temp_c(runtime.config.cpu_temp_path),
-                "disk_free_bytes": None if disk is None else disk.free_bytes,
-                "disk_total_bytes": None if disk is None else disk.total_bytes,
-            },
-            "control": control_json(control, runtime.loop),
-            "faults": faults(
-                loop_started=runtime.loop_started,
-                control=control,
-                link_age_s=age_s,
-            ),
-        }
-    )
+    return {
+        "version": AGENT_VERSION,
+        "clock": now_s,
+        "clock_synchronized": clock_synchronized(),
+        "resource": runtime.config.resource,
+        "battery_v": snapshot.battery_v,
+        "battery": {
+            "filtered_v": snapshot.battery_v,
+            "raw_v": snapshot.battery_raw_v,
+            "low_battery_v": threshold_v if threshold_v > 0 else None,
+            "low": snapshot.battery_low,
+        },
+        "robot": robot,
+        "limits": runtime.limits_json(),
+        "link": {
+            "state": "up" if age_s is not None and age_s <= LINK_DOWN_AFTER_S else "down",
+            "age_s": age_s,
+            "loss_pct": snapshot.loss_pct,
+            "rssi_dbm": rssi if isinstance(rssi, int | float) else None,
+        },
+        "current_run": snapshot.current_run,
+        "manual": None if manual is None else manual.to_json_dict(now_s),
+        "estop": estop_json(manager.estop),
+        "host": {
+            "cpu_temp_c": cpu_temp_c(runtime.config.cpu_temp_path),
+            "disk_free_bytes": None if disk is None else disk.free_bytes,
+            "disk_total_bytes": None if disk is None else disk.total_bytes,
+        },
+        "control": control_json(control, runtime.loop),
+        "faults": faults(
+            loop_started=runtime.loop_started,
+            control=control,
+            link_age_s=age_s,
+        ),
+    }

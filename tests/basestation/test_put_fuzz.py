@@ -81,9 +81,12 @@ def nearly_valid_bodies(draw: st.DrawFn) -> dict[str, Any]:
         where = draw(st.sampled_from(["top", "segment", "limits"]))
         if where == "top":
             body[draw(st.sampled_from([*body, "extra"]))] = value
-        elif where == "segment" and isinstance(body.get("segments"), list):
+        elif where == "segment" and isinstance(body.get("segments"), list) and body["segments"]:
+            # (An earlier replacement may have left segments that are not objects.)
             segment = body["segments"][draw(st.integers(0, len(body["segments"]) - 1))]
-            segment[draw(st.sampled_from(["velocity_mps", "direction", "duration_s", "x"]))] = value
+            if isinstance(segment, dict):
+                field = draw(st.sampled_from(["velocity_mps", "direction", "duration_s", "x"]))
+                segment[field] = value
         elif isinstance(body.get("limits"), dict):
             body["limits"][draw(st.sampled_from(["max_velocity_mps", "max_accel_mps2"]))] = value
     return body
