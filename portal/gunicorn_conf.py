@@ -9,6 +9,11 @@ are checked before any worker starts. The live streams are the ASGI server's
 
 from __future__ import annotations
 
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
 from portal import settings
 
 worker_class = "gthread"
@@ -19,3 +24,24 @@ timeout = 120
 graceful_timeout = 10
 # TLS ends at the proxy in front; it says who the client is and how it came.
 forwarded_allow_ips = "*"
+
+# Prometheus: the processes' HTTP metrics add up in one folder of this server's own, emptied
+# at its start (core/metrics.py). Set before any worker imports prometheus-client.
+_metrics_dir = Path(
+    os.environ.setdefault(
+        "PROMETHEUS_MULTIPROC_DIR", str(settings.VAR_DIR / "metrics" / f"web-{os.getpid()}")
+    )
+)
+
+# Only now: prometheus-client picks its multiprocess storage when first imported, and the
+# workers inherit the module from this process.
+from prometheus_client import multiprocess  # noqa: E402
+
+
+def on_starting(server: Any) -> None:
+    shutil.rmtree(_metrics_dir, ignore_errors=True)
+    _metrics_dir.mkdir(parents=True, exist_ok=True)
+
+
+def child_exit(server: Any, worker: Any) -> None:
+    multiprocess.mark_process_dead(worker.pid)

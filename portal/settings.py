@@ -67,6 +67,8 @@ CSRF_TRUSTED_ORIGINS: list[str] = env.list("DJANGO_CSRF_TRUSTED_ORIGINS", defaul
 # The bearer token the portal presents to base-station agents. Resources name a token by
 # reference (``Resource.agent_token_name``); "default" is this one.
 AGENT_TOKEN = env_secret("AGENT_TOKEN")
+# Prometheus scrapes /metrics with this bearer token; without one, /metrics is off (404).
+METRICS_TOKEN = env_secret("METRICS_TOKEN")
 if AGENT_TOKEN is None and not DEBUG:
     raise ImproperlyConfigured(
         "AGENT_TOKEN (or AGENT_TOKEN_FILE) is required when DJANGO_DEBUG is off"
@@ -125,6 +127,7 @@ MIDDLEWARE = [
     "django.middleware.security.SecurityMiddleware",
     "csp.middleware.CSPMiddleware",
     "core.http.PermissionsPolicyMiddleware",
+    "core.metrics.RequestMetricsMiddleware",
     "whitenoise.middleware.WhiteNoiseMiddleware",
     "django.contrib.sessions.middleware.SessionMiddleware",
     "django.middleware.common.CommonMiddleware",

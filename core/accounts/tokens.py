@@ -11,35 +11,21 @@ bypasses that: it takes effect within ``TOKEN_USER_CACHE_S``.
 
 from __future__ import annotations
 
-import hashlib
-from typing import Any
-
 from django.core.cache import cache
-from django.db import connection, transaction
-from django.db.models.signals import post_delete, post_save
-from django.dispatch import receiver
 from rest_framework import exceptions
 from rest_framework.authentication import TokenAuthentication
 from rest_framework.authtoken.models import Token
 
 from core.accounts.models import User
-from core.cache import database_namespace
-
-TOKEN_USER_CACHE_S = 60
-
-
-def _cache_key(token_key: str) -> str:
-    # A digest: the cache never holds a usable token.
-    digest = hashlib.blake2b(token_key.encode(), digest_size=16).hexdigest()
-    return f"token-user:{database_namespace()}:{digest}"
+from core.accounts.token_cache import TOKEN_USER_CACHE_S, cache_key
 
 
 class CachedTokenAuthentication(TokenAuthentication):
     """``Authorization: Token <key>``, as DRF's, answered from the cache when it can."""
 
     def authenticate_credentials(self, key: str) -> tuple[User, Token]:
-        cache_key = _cache_key(key)
-        user = cache.get(cache_key)
+        entry = cache_key(key)
+        user = cache.get(entry)
         if not isinstance(user, User):
             try:
                 token = Token.objects.select_related("user").defer("user__password").get(key=key)
@@ -47,29 +33,8 @@ class CachedTokenAuthentication(TokenAuthentication):
                 raise exceptions.AuthenticationFailed("Invalid token.") from None
             user = token.user
             if user.is_active:
-                cache.set(cache_key, user, TOKEN_USER_CACHE_S)
+                cache.set(entry, user, TOKEN_USER_CACHE_S)
         if not user.is_active:
             raise exceptions.AuthenticationFailed("User inactive or deleted.")
         # The token object as DRF hands it on (``request.auth``), without a second read.
         return user, Token(key=key, user=user)
-
-
-def forget_tokens(*token_keys: str) -> None:
-    """Drop the cached users of ``token_keys``, now and once the transaction commits."""
-    keys = [_cache_key(k) for k in token_keys]
-    if not keys:
-        return
-    cache.delete_many(keys)
-    if not connection.get_autocommit():
-        transaction.on_commit(lambda: cache.delete_many(keys))
-
-
-@receiver(post_delete, sender=Token, dispatch_uid="tokens:forget-deleted")
-def _token_deleted(sender: type[Token], instance: Token, **_: Any) -> None:
-    forget_tokens(instance.key)
-
-
-@receiver(post_save, sender=User, dispatch_uid="tokens:forget-saved-user")
-def _user_saved(sender: type[User], instance: User, created: bool, **_: Any) -> None:
-    if not created:
-        forget_tokens(*Token.objects.filter(user=instance).values_list("key", flat=True))

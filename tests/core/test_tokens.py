@@ -10,7 +10,7 @@ from django.test.utils import CaptureQueriesContext
 from rest_framework.authtoken.models import Token
 from rest_framework.test import APIClient
 
-from core.accounts.tokens import _cache_key
+from core.accounts.token_cache import cache_key as _cache_key
 from tests.factories import UserFactory
 
 pytestmark = pytest.mark.django_db

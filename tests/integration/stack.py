@@ -27,6 +27,8 @@ from portal.processes import ProcessSpec, system_processes
 from tests.integration.processes import Proc, free_port, python, wait_http
 
 REDIS_SERVER = "/usr/bin/redis-server"
+# Prometheus's bearer token for the stack's /metrics.
+METRICS_TOKEN = "stack-metrics-token-0123456789"
 
 
 class RedisServer:
@@ -148,6 +150,7 @@ def running_stack(
             "DATABASE_URL": f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}",
             "CELERY_BROKER_URL": broker_url,
             "AGENT_TOKEN": token,
+            "METRICS_TOKEN": METRICS_TOKEN,
             "AGENT_DATA_DIR": str(var_dir / "agent"),
             "AMAZING_VAR_DIR": str(var_dir),
             "RUN_SWEEP_INTERVAL_S": "0.5",

@@ -14,10 +14,13 @@ import time
 from datetime import timedelta
 
 import pytest
+from django.urls import resolve
 from django.utils import timezone
+from prometheus_client.parser import text_string_to_metric_families
 from rest_framework.authtoken.models import Token
 
 from tests.factories import MobileResourceFactory, UserFactory
+from tests.integration.stack import METRICS_TOKEN
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -28,6 +31,8 @@ pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 VELOCITY_TOLERANCE_MPS = 0.05
 RAMP_ALLOWANCE_S = 2.0
 SEGMENT_S = 4.0
+# Reads of one view, spread over the web processes, that /metrics must count exactly.
+RESOURCE_READS = 24
 
 
 def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back(stack):
@@ -170,3 +175,20 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
     assert document["rail_length_m"] == run["rail_length_m"]
     assert [s["seq"] for s in document["samples"]] == [s["seq"] for s in samples]
     assert document["samples"][-1]["battery_v"] == samples[-1]["battery_v"]
+
+    # Prometheus sees the run and every request, whichever web process answered it.
+    view = resolve("/api/v1/resources/").view_name
+    for _ in range(RESOURCE_READS):
+        assert requests.get(f"{web}/api/v1/resources/", headers=headers, timeout=10).ok
+    scraped = requests.get(
+        f"{web}/metrics", headers={"Authorization": f"Bearer {METRICS_TOKEN}"}, timeout=10
+    )
+    assert scraped.status_code == 200, scraped.text
+    metrics = {
+        (sample.name, tuple(sorted(sample.labels.items()))): sample.value
+        for family in text_string_to_metric_families(scraped.text)
+        for sample in family.samples
+    }
+    assert metrics[("amazing_runs", (("state", "completed"),))] == 1
+    reads = ("amazing_http_requests_total", (("method", "GET"), ("status", "2xx"), ("view", view)))
+    assert metrics[reads] == RESOURCE_READS
