@@ -6,8 +6,10 @@ with a message naming the variable, instead of surfacing later as a strange robo
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,7 +43,12 @@ class ConfigError(Exception):
 
 @dataclass(frozen=True)
 class AgentConfig:
-    token: str
+    # The bearer token the portal presents, in the clear (AGENT_TOKEN) ...
+    token: str = ""
+    # ... and/or the SHA-256 digests (hex) of the tokens accepted (AGENT_TOKEN_SHA256): a
+    # base station then holds no usable token, and two digests let a token be rotated
+    # without refusing the portal in between.
+    token_sha256: tuple[str, ...] = ()
     data_dir: Path = DEFAULT_DATA_DIR
     control_hz: float = 20.0
     max_velocity_mps: float = 2.0
@@ -74,7 +81,11 @@ class AgentConfig:
 
     def __post_init__(self) -> None:
         # Checked here too so that configs built in code (tests, benchmarks) obey the same rules.
-        _check_token(self.token, "token")
+        if self.token or not self.token_sha256:
+            _check_token(self.token, "token")
+        for digest in self.token_sha256:
+            if not re.fullmatch(r"[0-9a-f]{64}", digest):
+                raise ConfigError("token_sha256: each must be a SHA-256 digest (64 hex digits)")
         _check_range("control_hz", self.control_hz, low=1.0, high=200.0)
         _check_range("max_velocity_mps", self.max_velocity_mps, low=0.01, high=10.0)
         _check_range("max_accel_mps2", self.max_accel_mps2, low=0.01, high=20.0)
@@ -93,6 +104,14 @@ class AgentConfig:
             _check_range(name, getattr(self, name), low=1, high=65535)
 
     @property
+    def accepted_token_digests(self) -> tuple[bytes, ...]:
+        """The SHA-256 digests of every token this agent accepts."""
+        digests = [bytes.fromhex(d) for d in self.token_sha256]
+        if self.token:
+            digests.append(hashlib.sha256(self.token.encode("utf-8")).digest())
+        return tuple(digests)
+
+    @property
     def control_period_s(self) -> float:
         return 1.0 / self.control_hz
 
@@ -103,7 +122,8 @@ class AgentConfig:
     def __repr__(self) -> str:
         # Never print the token (logs, tracebacks).
         return (
-            f"AgentConfig(token=<hidden>, data_dir={self.data_dir!r}, "
+            f"AgentConfig(token=<hidden>, token_sha256={len(self.token_sha256)} digests, "
+            f"data_dir={self.data_dir!r}, "
             f"control_hz={self.control_hz}, max_velocity_mps={self.max_velocity_mps}, "
             f"max_accel_mps2={self.max_accel_mps2}, rail_length_m={self.rail_length_m}, "
             f"resource={self.resource!r}, low_battery_v={self.low_battery_v}, "
@@ -119,7 +139,8 @@ class AgentConfig:
         low_battery_v = _float_env(env, "LOW_BATTERY_V", DEFAULT_LOW_BATTERY_V, low=0, high=1000)
         min_free_mb = _float_env(env, "MIN_FREE_DISK_MB", DEFAULT_MIN_FREE_DISK_MB, low=0, high=1e7)
         return cls(
-            token=_token_from_env(env),
+            token=_token_from_env(env, required=not _digests_from_env(env)),
+            token_sha256=_digests_from_env(env),
             data_dir=Path(env.get(f"{ENV_PREFIX}DATA_DIR", "").strip() or DEFAULT_DATA_DIR),
             control_hz=_float_env(env, "CONTROL_HZ", 20.0, low=1.0, high=200.0),
             max_velocity_mps=_float_env(env, "MAX_VELOCITY_MPS", 2.0, low=0.01, high=10.0),
@@ -150,7 +171,19 @@ class AgentConfig:
         return None if self.retention_days == 0 else self.retention_days * 86_400.0
 
 
-def _token_from_env(env: Mapping[str, str]) -> str:
+def _digests_from_env(env: Mapping[str, str]) -> tuple[str, ...]:
+    """``AGENT_TOKEN_SHA256`` (or its ``_FILE``): hex SHA-256 digests, comma or space apart."""
+    text = _secret_from_env(env, "TOKEN_SHA256") or ""
+    digests = tuple(d.lower() for d in re.split(r"[\s,]+", text) if d)
+    for digest in digests:
+        if not re.fullmatch(r"[0-9a-f]{64}", digest):
+            raise ConfigError(
+                f"{ENV_PREFIX}TOKEN_SHA256: {digest[:8]}… is not a SHA-256 digest (64 hex digits)"
+            )
+    return digests
+
+
+def _token_from_env(env: Mapping[str, str], *, required: bool = True) -> str:
     token = env.get(f"{ENV_PREFIX}TOKEN")
     token_file = env.get(f"{ENV_PREFIX}TOKEN_FILE")
     if token and token_file:
@@ -163,9 +196,11 @@ def _token_from_env(env: Mapping[str, str]) -> str:
         _check_token(token, f"{ENV_PREFIX}TOKEN_FILE ({token_file})")
         return token
     if not token:
+        if not required:
+            return ""
         raise ConfigError(
-            f"{ENV_PREFIX}TOKEN or {ENV_PREFIX}TOKEN_FILE must be set: the agent refuses to "
-            "serve its API without a bearer token"
+            f"{ENV_PREFIX}TOKEN, {ENV_PREFIX}TOKEN_FILE or {ENV_PREFIX}TOKEN_SHA256 must be "
+            "set: the agent refuses to serve its API without a bearer token"
         )
     _check_token(token, f"{ENV_PREFIX}TOKEN")
     return token

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import hmac
 
 from flask import request
@@ -29,9 +30,10 @@ def require_bearer_token() -> None:
     scheme, _, presented = header.strip().partition(" ")
     if scheme.lower() != "bearer" or not presented.strip():
         raise BearerUnauthorized("Missing bearer token: send 'Authorization: Bearer <token>'.")
-    expected = get_runtime().config.token
-    # Compare bytes in constant time; surrogatepass because a header may carry any character.
-    if not hmac.compare_digest(
-        presented.strip().encode("utf-8", "surrogatepass"), expected.encode("utf-8")
-    ):
+    # Digests compared in constant time, each of them (several during a rotation): the agent
+    # may hold only digests, never a usable token. surrogatepass: a header may carry any
+    # character.
+    digest = hashlib.sha256(presented.strip().encode("utf-8", "surrogatepass")).digest()
+    accepted = get_runtime().config.accepted_token_digests
+    if not sum(hmac.compare_digest(digest, expected) for expected in accepted):
         raise BearerUnauthorized("The bearer token is not valid for this agent.")

@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import pytest
+from flask import Flask
 from flask.testing import FlaskClient
 
-from basestation.runtime import AgentRuntime
-from tests.basestation.conftest import TOKEN, run_body
+from basestation.app import create_app
+from basestation.config import AgentConfig, ConfigError
+from basestation.runtime import AgentRuntime, get_runtime
+from tests.basestation.conftest import TOKEN, RecordingRobot, run_body
 
 CONTROL_BODY = {"user": "mallory", "velocity_mps": 1.0, "direction": "cw", "force": True}
 
@@ -117,3 +123,68 @@ def test_it_accepts_the_right_token_on_every_endpoint(
         lambda: client.get("/api/v1/logs/2030-01-01", headers=auth),
     ]
     assert [call().status_code for call in calls] == [200] * len(calls)
+
+
+# -- tokens held as digests, one per agent, rotated without a refusal ----------------------
+
+OTHER_AGENTS_TOKEN = "another-agents-token-0123456789abcdef"
+NEW_TOKEN = "the-rotated-token-0123456789abcdefghij"
+
+
+def _digest(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def _status(app: Flask, token: str) -> int:
+    return (
+        app.test_client()
+        .get("/api/v1/status", headers={"Authorization": f"Bearer {token}"})
+        .status_code
+    )
+
+
+@pytest.fixture
+def digest_agent(
+    agent_config: AgentConfig, robot: RecordingRobot
+) -> Iterator[Callable[..., Flask]]:
+    apps: list[Flask] = []
+
+    def make(*tokens: str) -> Flask:
+        config = replace(agent_config, token="", token_sha256=tuple(_digest(t) for t in tokens))
+        app = create_app(config, start_control_loop=False, robot=robot)
+        apps.append(app)
+        return app
+
+    yield make
+    for app in apps:
+        get_runtime(app).close()
+
+
+def test_an_agent_holding_only_a_digest_takes_its_token_and_refuses_another_agents(digest_agent):
+    app = digest_agent(TOKEN)
+    assert _status(app, TOKEN) == 200
+    assert _status(app, OTHER_AGENTS_TOKEN) == 401
+    assert TOKEN not in repr(get_runtime(app).config)
+
+
+def test_a_rotation_accepts_both_tokens_until_the_old_digest_goes(digest_agent):
+    during = digest_agent(TOKEN, NEW_TOKEN)
+    assert _status(during, TOKEN) == 200
+    assert _status(during, NEW_TOKEN) == 200
+    after = digest_agent(NEW_TOKEN)
+    assert _status(after, NEW_TOKEN) == 200
+    assert _status(after, TOKEN) == 401
+
+
+def test_digests_come_from_the_environment_or_a_file(tmp_path: Path):
+    digests = tmp_path / "digests"
+    digests.write_text(f"{_digest(TOKEN)}\n{_digest(NEW_TOKEN)}\n")
+    config = AgentConfig.from_env({"AGENT_TOKEN_SHA256_FILE": str(digests)})
+    assert config.token == ""
+    assert config.token_sha256 == (_digest(TOKEN), _digest(NEW_TOKEN))
+    inline = AgentConfig.from_env({"AGENT_TOKEN_SHA256": f"{_digest(TOKEN)}, {_digest(NEW_TOKEN)}"})
+    assert inline.token_sha256 == config.token_sha256
+    with pytest.raises(ConfigError, match="not a SHA-256 digest"):
+        AgentConfig.from_env({"AGENT_TOKEN_SHA256": "abc123"})
+    with pytest.raises(ConfigError, match="AGENT_TOKEN_SHA256"):
+        AgentConfig.from_env({})

@@ -76,7 +76,7 @@ def test_it_reads_the_token_from_a_file(tmp_path: Path) -> None:
 
 
 def test_it_refuses_to_start_without_a_token() -> None:
-    with pytest.raises(ConfigError, match="AGENT_TOKEN or AGENT_TOKEN_FILE must be set"):
+    with pytest.raises(ConfigError, match="AGENT_TOKEN_SHA256 must be set"):
         AgentConfig.from_env({})
 
 

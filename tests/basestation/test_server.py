@@ -83,7 +83,7 @@ def test_the_real_agent_refuses_to_start_without_a_token(tmp_path: Path) -> None
         check=False,
     )
     assert result.returncode == 2
-    assert "AGENT_TOKEN or AGENT_TOKEN_FILE must be set" in result.stderr
+    assert "AGENT_TOKEN, AGENT_TOKEN_FILE or AGENT_TOKEN_SHA256 must be set" in result.stderr
 
 
 def test_a_bad_rail_file_stops_the_agent_with_one_clear_line(tmp_path: Path) -> None:
