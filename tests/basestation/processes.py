@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,3 +73,42 @@ def start_agent(data_dir: Path, log_path: Path, *, timeout_s: float = 15.0, **en
 
 def _read(path: Path) -> str:
     return path.read_text(encoding="utf-8", errors="replace") if path.exists() else ""
+
+
+@dataclass
+class SimRobot:
+    """The simulated robot in its own process (as on the roof), on the UDP radio."""
+
+    process: subprocess.Popen[str]
+    base_port: int
+    robot_port: int
+    inspect_port: int
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@contextlib.contextmanager
+def sim_robot_process() -> Iterator[SimRobot]:
+    """``python -m basestation.sim`` started and ready; stopped on leaving."""
+    from tests.basestation.sim.test_process import READY, lines_of
+
+    base_port, robot_port = free_udp_port(), free_udp_port()
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "basestation.sim", "--radio-port", str(robot_port),
+         "--peer-port", str(base_port), "--inspect-port", "0"],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        assert robot.stdout is not None
+        ready = READY.search(lines_of(robot.stdout).get(timeout=20.0))
+        assert ready, "the robot process did not say it was ready"
+        yield SimRobot(robot, base_port, robot_port, int(ready.group(2)))
+    finally:
+        robot.terminate()
+        robot.wait(10)
+        if robot.stdout is not None:
+            robot.stdout.close()

@@ -8,9 +8,6 @@ robot in its own process, the robot stops by itself on its dead-man.
 from __future__ import annotations
 
 import http.client
-import socket
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +19,7 @@ import requests
 from basestation.app import MAX_BODY_BYTES
 from basestation.client import AgentClient
 from tests.basestation.conftest import TOKEN, run_body
-from tests.basestation.processes import REPO_ROOT, Agent, start_agent
+from tests.basestation.processes import Agent, sim_robot_process, start_agent
 
 pytestmark = pytest.mark.integration
 
@@ -134,29 +131,14 @@ def test_the_real_server_refuses_traversal_and_oversized_bodies(
         assert client.status()["estop"]["latched"] is False
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def test_a_killed_agent_leaves_the_robot_to_stop_by_itself(
     tmp_path: Path, agents: list[Agent]
 ) -> None:
     """The robot runs in its own process (as on the roof): the agent's death is its silence."""
-    from tests.basestation.sim.test_process import READY, inspect, lines_of
+    from tests.basestation.sim.test_process import inspect
 
-    base_port, robot_port = _free_udp_port(), _free_udp_port()
-    robot = subprocess.Popen(
-        [sys.executable, "-m", "basestation.sim", "--radio-port", str(robot_port),
-         "--peer-port", str(base_port), "--inspect-port", "0"],
-        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
-    try:
-        assert robot.stdout is not None
-        ready = READY.search(lines_of(robot.stdout).get(timeout=20.0))
-        assert ready, "the robot process did not say it was ready"
-        inspect_port = int(ready.group(2))
+    with sim_robot_process() as robot:
+        base_port, robot_port, inspect_port = robot.base_port, robot.robot_port, robot.inspect_port
         agent = start_agent(
             tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_ROBOT="sim-udp",
             AGENT_SIM_BASE_PORT=str(base_port), AGENT_SIM_ROBOT_PORT=str(robot_port),
@@ -175,7 +157,7 @@ def test_a_killed_agent_leaves_the_robot_to_stop_by_itself(
         assert state["track_m"] > moving["track_m"]
         # 500 ms dead-man, then at least 0.5 m/s² from 1 m/s, and the drive's lag.
         assert stopped_after_s < 0.5 + 1.0 / 0.5 + 1.5
-        assert robot.poll() is None  # it stopped itself; nobody stopped it
+        assert robot.process.poll() is None  # it stopped itself; nobody stopped it
 
         restarted = start_agent(
             tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_ROBOT="sim-udp",
@@ -184,8 +166,3 @@ def test_a_killed_agent_leaves_the_robot_to_stop_by_itself(
         agents.append(restarted)
         with AgentClient(restarted.url, TOKEN) as client:
             assert client.get_run("roof")["state"] == "interrupted"
-    finally:
-        robot.terminate()
-        robot.wait(10)
-        if robot.stdout is not None:
-            robot.stdout.close()

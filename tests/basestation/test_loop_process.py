@@ -11,10 +11,7 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import sqlite3
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -24,7 +21,7 @@ import pytest
 
 from basestation.client import AgentClient, AgentError
 from tests.basestation.conftest import TOKEN, run_body
-from tests.basestation.processes import REPO_ROOT, Agent, start_agent
+from tests.basestation.processes import Agent, sim_robot_process, start_agent
 
 pytestmark = pytest.mark.integration
 
@@ -119,28 +116,13 @@ def test_the_loop_runs_in_its_own_process_and_ticks_on_while_http_is_frozen(
         assert client.get_run("frozen")["state"] == "aborted"
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def test_a_killed_loop_process_leaves_the_robot_stopped_and_is_reported_and_started_again(
     tmp_path: Path, agents: list[Agent]
 ) -> None:
-    from tests.basestation.sim.test_process import READY, inspect, lines_of
+    from tests.basestation.sim.test_process import inspect
 
-    base_port, robot_port = _free_udp_port(), _free_udp_port()
-    robot = subprocess.Popen(
-        [sys.executable, "-m", "basestation.sim", "--radio-port", str(robot_port),
-         "--peer-port", str(base_port), "--inspect-port", "0"],
-        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
-    try:
-        assert robot.stdout is not None
-        ready = READY.search(lines_of(robot.stdout).get(timeout=20.0))
-        assert ready, "the robot process did not say it was ready"
-        inspect_port = int(ready.group(2))
+    with sim_robot_process() as robot:
+        base_port, robot_port, inspect_port = robot.base_port, robot.robot_port, robot.inspect_port
         agent = start_agent(
             tmp_path / "data", tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_ROBOT="sim-udp",
             AGENT_SIM_BASE_PORT=str(base_port), AGENT_SIM_ROBOT_PORT=str(robot_port),
@@ -181,11 +163,6 @@ def test_a_killed_loop_process_leaves_the_robot_stopped_and_is_reported_and_star
             # Commands reach the robot through the new loop process.
             client.stop(reason="after the restart")
             _wait_for(lambda: inspect(inspect_port)["e_stop_latched"])
-    finally:
-        robot.terminate()
-        robot.wait(10)
-        if robot.stdout is not None:
-            robot.stdout.close()
 
 
 def test_a_burst_of_sigterms_as_the_agent_dies_stops_the_loop_process(
