@@ -13,6 +13,9 @@ logger = logging.getLogger(__name__)
 # A lost config frame or answer is retried this many times before the agent starts without
 # the robot's confirmation (a robot switched off now still has its compiled-in limits).
 CONFIGURE_ATTEMPTS = 3
+# The limits are sent once, at start-up, before any tick: nothing waits on the answer but the
+# start itself, so a robot busy for a moment (or a loaded simulator) gets longer than a tick.
+CONFIGURE_REPLY_TIMEOUT_S = 0.25
 
 
 class RadioRobot:
@@ -105,7 +108,9 @@ def _configure(link: Any, config: AgentConfig) -> RobotLimits | None:
     for attempt in range(1, CONFIGURE_ATTEMPTS + 1):
         try:
             limits = link.configure(
-                max_velocity_mps=config.max_velocity_mps, accel_mps2=config.max_accel_mps2
+                max_velocity_mps=config.max_velocity_mps,
+                accel_mps2=config.max_accel_mps2,
+                reply_timeout_s=CONFIGURE_REPLY_TIMEOUT_S,
             )
             break
         except RobotLinkError as exc:

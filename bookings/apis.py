@@ -3,7 +3,7 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Any
 
-from django.http import Http404
+from django.http import Http404, HttpResponse
 from django.shortcuts import get_object_or_404
 from django.utils import timezone
 from drf_spectacular.utils import extend_schema
@@ -16,13 +16,14 @@ from rest_framework.views import APIView
 from bookings import services
 from bookings.choices import QuotaPeriod
 from bookings.models import CALENDAR, Blackout, QuotaPolicy, Resource, ResourceGroup
-from bookings.quotas import quota_summary
+from bookings.quotas import period_bounds, quota_summary
 from bookings.selectors import busy_slots, resource_free_intervals
 from core.accounts.models import User
 from core.api import (
     DateTimeInput,
     GreaterThan,
     Pagination,
+    cached_json,
     paginated_response,
     request_user,
     valid_input,
@@ -59,12 +60,13 @@ class ResourceListApi(APIView):
     """Every resource, the mobile node(s) and the fixed nodes (a short list: not paginated)."""
 
     @extend_schema(responses=ResourceOutput(many=True))
-    def get(self, request: Request) -> Response:
-        def listed() -> list[dict[str, Any]]:
-            qs = Resource.objects.prefetch_related("groups")
-            return [dict(row) for row in ResourceOutput(qs, many=True).data]
-
-        return Response(CALENDAR.answer(("resources",), listed))
+    def get(self, request: Request) -> HttpResponse | Response:
+        return cached_json(
+            request,
+            (CALENDAR,),
+            (),
+            lambda: ResourceOutput(Resource.objects.prefetch_related("groups"), many=True).data,
+        )
 
 
 class RangeQuery(serializers.Serializer):
@@ -93,13 +95,12 @@ class AvailabilityOutput(serializers.Serializer):
 
 class AvailabilityApi(APIView):
     @extend_schema(parameters=[RangeQuery], responses=AvailabilityOutput)
-    def get(self, request: Request, name: str) -> Response:
-        query = valid_query(RangeQuery, request.query_params)
-
-        def available() -> dict[str, Any] | None:
+    def get(self, request: Request, name: str) -> HttpResponse | Response:
+        def available() -> dict[str, Any]:
+            query = valid_query(RangeQuery, request.query_params)
             resource = Resource.objects.filter(name=name).first()
             if resource is None:
-                return None
+                raise Http404  # nothing kept: an unknown name is asked for again each time
             free = resource_free_intervals(
                 resource=resource, start_at=query["start"], end_at=query["end"]
             )
@@ -110,10 +111,7 @@ class AvailabilityApi(APIView):
                 "free": [{"start": s, "end": e} for s, e in free],
             }
 
-        answer = CALENDAR.answer(("availability", name, query["start"], query["end"]), available)
-        if answer is None:
-            raise Http404
-        return Response(answer)
+        return cached_json(request, (CALENDAR,), (), available)
 
 
 class BusyOutput(serializers.Serializer):
@@ -129,18 +127,15 @@ class BusyApi(APIView):
     """Every active booking in a range, others' shown only as busy (calendar and scheduler)."""
 
     @extend_schema(parameters=[RangeQuery], responses=BusyOutput(many=True))
-    def get(self, request: Request) -> Response:
+    def get(self, request: Request) -> HttpResponse | Response:
         query = valid_query(RangeQuery, request.query_params)
-        return Response(
-            CALENDAR.answer(
-                ("busy", query["start"], query["end"]),
-                lambda: [
-                    dict(row)
-                    for row in BusyOutput(
-                        busy_slots(start_at=query["start"], end_at=query["end"]), many=True
-                    ).data
-                ],
-            )
+        return cached_json(
+            request,
+            (CALENDAR,),
+            (),
+            lambda: (
+                BusyOutput(busy_slots(start_at=query["start"], end_at=query["end"]), many=True).data
+            ),
         )
 
 
@@ -170,8 +165,17 @@ class QuotaOutput(serializers.Serializer):
 
 class QuotaApi(APIView):
     @extend_schema(responses=QuotaOutput)
-    def get(self, request: Request) -> Response:
-        return Response({"policies": quota_summary(user=request_user(request), now=timezone.now())})
+    def get(self, request: Request) -> HttpResponse | Response:
+        user = request_user(request)
+        now = timezone.now()
+        # The use shown is of the current day, week and month: it is the same answer until
+        # one of them ends or a reservation, policy or group membership changes.
+        return cached_json(
+            request,
+            (CALENDAR,),
+            (user.pk, *(period_bounds(period, now)[0] for period in QuotaPeriod.values)),
+            lambda: {"policies": quota_summary(user=user, now=now)},
+        )
 
 
 class BlackoutOutput(serializers.ModelSerializer):

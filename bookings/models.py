@@ -11,7 +11,8 @@ from django.core.exceptions import ValidationError
 from django.db import models
 
 from bookings.choices import BookedVia, QuotaPeriod, ReservationState, ResourceKind
-from core.cache import ChangeTrackedQuerySet, Generation, track_changes
+from core.accounts.models import User
+from core.cache import ChangeTrackedQuerySet, Generation, track_changes, track_saves
 
 _Timed = TypeVar("_Timed", bound=models.Model)
 HOLD_REASON_MAX_CHARS = 300
@@ -318,6 +319,8 @@ class QuotaPolicy(models.Model):
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 
+    objects = ChangeTrackedQuerySet["QuotaPolicy"].as_manager()
+
     class Meta:
         ordering = ["name"]
         verbose_name_plural = "quota policies"
@@ -405,8 +408,17 @@ class SchedulerLink(models.Model):
 
 
 # Everything the calendar shows of who holds what and when (resources, busy slots,
-# availability): its answers are cached until one of these rows changes.
+# availability, reservations) and what the quotas allow: its answers are cached until one of
+# these rows changes, or a group's name or its members (quota policies may name a group).
 CALENDAR = Generation("calendar")
 track_changes(
-    CALENDAR, Resource, ResourceGroup, Reservation, ReservationItem, Blackout, SchedulerLease
+    CALENDAR,
+    Resource,
+    ResourceGroup,
+    Reservation,
+    ReservationItem,
+    Blackout,
+    SchedulerLease,
+    QuotaPolicy,
 )
+track_saves(CALENDAR, Group, User.groups.through)

@@ -4,7 +4,7 @@ from collections.abc import Iterable
 from datetime import datetime
 from typing import Any
 
-from django.db.models import Q, QuerySet
+from django.db.models import Prefetch, Q, QuerySet
 
 from bookings.choices import ResourceKind
 from bookings.models import (
@@ -59,7 +59,10 @@ def blackouts_overlapping(
 
 
 def reservations_visible(*, user: User) -> PeriodQuerySet[Reservation]:
-    qs = Reservation.objects.select_related("owner").prefetch_related("items__resource")
+    # The items with their resources in one query (``items__resource`` would take two).
+    qs = Reservation.objects.select_related("owner").prefetch_related(
+        Prefetch("items", ReservationItem.objects.select_related("resource"))
+    )
     return qs if user.is_testbed_admin else qs.filter(owner=user)
 
 

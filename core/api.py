@@ -26,11 +26,12 @@ from django.core.cache.backends.redis import RedisCache
 from django.core.exceptions import PermissionDenied as DjangoPermissionDenied
 from django.core.exceptions import RequestDataTooBig
 from django.core.exceptions import ValidationError as DjangoValidationError
-from django.http import Http404, HttpRequest, JsonResponse, QueryDict
+from django.http import Http404, HttpRequest, HttpResponse, JsonResponse, QueryDict
 from django.views.decorators.csrf import csrf_exempt
 from rest_framework import exceptions, serializers
 from rest_framework.pagination import LimitOffsetPagination
 from rest_framework.relations import ManyRelatedField, PrimaryKeyRelatedField, SlugRelatedField
+from rest_framework.renderers import JSONRenderer
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.settings import api_settings
@@ -38,6 +39,7 @@ from rest_framework.throttling import AnonRateThrottle, UserRateThrottle
 from rest_framework.views import exception_handler as drf_exception_handler
 
 from core.accounts.models import User
+from core.cache import Generation, cached_answer
 from core.errors import DomainError
 
 INVALID_DETAIL = "The request has invalid fields."
@@ -346,6 +348,37 @@ def request_user(request: Request) -> User:
     return user
 
 
+# --- Answers kept until what they show changes ---------------------------------------------
+
+
+def cached_json(
+    request: Request,
+    generations: tuple[Generation, ...],
+    parts: tuple[object, ...],
+    compute: Callable[[], Any],
+) -> HttpResponse | Response:
+    """``compute()``'s data as the answer, its JSON rendered once for as long as none of
+    ``generations`` moves on (``core.cache``), then served as those bytes: a repeated read
+    costs one cache round trip, no query, no serializer and no rendering.
+
+    ``parts`` names what the data depends on besides the generations and the request's URL
+    (the user); the full URL and the media type asked for are added here, since the query,
+    pagination links and indentation follow them. ``compute`` checks the query itself: an
+    invalid one raises and keeps nothing, so a URL found in the cache was valid. A request
+    for another renderer than JSON (the browsable API) is answered afresh.
+    """
+    renderer = getattr(request, "accepted_renderer", None)
+    if not isinstance(renderer, JSONRenderer):
+        return Response(compute())
+    media_type = request.accepted_media_type
+    body = cached_answer(
+        generations,
+        ("json", request.build_absolute_uri(), media_type, *parts),
+        lambda: renderer.render(compute(), media_type, {"request": request}),
+    )
+    return HttpResponse(body, content_type=renderer.media_type)
+
+
 # --- Throttles ------------------------------------------------------------------------------
 
 
@@ -360,7 +393,10 @@ def _increment(counter: str, timeout_s: int) -> int:
     if isinstance(backend, RedisCache):
         key = backend.make_and_validate_key(counter)
         client = backend._cache.get_client(key, write=True)  # type: ignore[attr-defined]
-        count, _ = client.pipeline().incr(key).expire(key, timeout_s, nx=True).execute()
+        # Not a MULTI/EXEC transaction: INCR alone is atomic, and EXPIRE NX only ever sets
+        # the first expiry.
+        pipeline = client.pipeline(transaction=False)
+        count, _ = pipeline.incr(key).expire(key, timeout_s, nx=True).execute()
         return int(count)
     try:
         return int(cache.incr(counter))
@@ -471,7 +507,15 @@ def paginated_response(
     *, request: Request, view: Any, queryset: Any, serializer_class: type[serializers.Serializer]
 ) -> Response:
     """One page of ``queryset`` (ordered by the caller), serialized."""
+    data = paginated_data(request=request, queryset=queryset, serializer_class=serializer_class)
+    return Response(data)
+
+
+def paginated_data(
+    *, request: Request, queryset: Any, serializer_class: type[serializers.Serializer]
+) -> dict[str, Any]:
+    """One page of ``queryset`` (ordered by the caller) as ``{count, next, previous, results}``."""
     paginator = Pagination()
-    page = paginator.paginate_queryset(queryset, request, view=view)
+    page = paginator.paginate_queryset(queryset, request)
     assert page is not None  # a limit always applies
-    return paginator.get_paginated_response(serializer_class(page, many=True).data)
+    return paginator.get_paginated_response(serializer_class(page, many=True).data).data

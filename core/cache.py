@@ -3,8 +3,10 @@
 A ``Generation`` is a counter in the cache that names a family of answers (for example
 everything the calendar shows). An answer is stored under the generation current when it was
 computed; any change to the rows it depends on moves the generation on (after the change
-commits), so the next read computes afresh and the old entries simply expire. Readers pay one
-cache round trip for the generation and one for the answer; nothing is ever deleted by pattern.
+commits), so the next read computes afresh and the old entries simply expire. An answer may
+depend on several generations; a reader pays one cache round trip for all of them and the
+answer together (each answer is kept beside the generations it was computed under, and used
+only while they are all still current). Nothing is ever deleted by pattern.
 
 Models declare what they feed through ``ChangeTrackedQuerySet`` and ``track_changes``: saves,
 deletes, many-to-many changes, and the queryset's bulk writes (``update``, ``delete``,
@@ -14,9 +16,10 @@ deletes, many-to-many changes, and the queryset's bulk writes (``update``, ``del
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, TypeVar
 
 from django.core.cache import cache
@@ -36,6 +39,11 @@ def database_namespace() -> str:
     test's, a benchmark's, a restore) that may share one cache."""
     db = connection.settings_dict
     where = f"{connection.vendor}:{db.get('HOST') or ''}:{db.get('PORT') or ''}:{db['NAME']}"
+    return _namespace(where)
+
+
+@functools.lru_cache(maxsize=64)
+def _namespace(where: str) -> str:
     return hashlib.blake2b(where.encode(), digest_size=8).hexdigest()
 
 
@@ -51,11 +59,14 @@ class Generation:
     def current(self) -> int:
         key = self._key()
         value = cache.get(key)
-        if value is None:
-            # A new (or flushed) cache: start from the clock, never from a number an earlier
-            # cache may have used for answers still held elsewhere.
-            cache.add(key, time.time_ns(), timeout=None)
-            value = cache.get(key)
+        return int(value) if value is not None else self._start(key)
+
+    @staticmethod
+    def _start(key: str) -> int:
+        # A new (or flushed) cache: start from the clock, never from a number an earlier
+        # cache may have used for answers still held elsewhere.
+        cache.add(key, time.time_ns(), timeout=None)
+        value = cache.get(key)
         return int(value) if value is not None else time.time_ns()
 
     def changed(self) -> None:
@@ -75,17 +86,35 @@ class Generation:
 
     def answer(self, parts: Iterable[object], compute: Callable[[], T]) -> T:
         """``compute()``, or what it gave under the current generation for the same ``parts``."""
-        generation = self.current()
-        key = (
-            f"answer:{database_namespace()}:{self.name}:{generation}:"
-            + hashlib.blake2b(repr(tuple(parts)).encode(), digest_size=12).hexdigest()
-        )
-        hit = cache.get(key)
-        if hit is not None:
-            return hit
-        value = compute()
-        cache.set(key, value, ANSWER_TTL_S)
-        return value
+        return cached_answer((self,), parts, compute)
+
+
+def cached_answer(
+    generations: Sequence[Generation], parts: Iterable[object], compute: Callable[[], T]
+) -> T:
+    """``compute()``, or what it gave for the same ``parts`` while every one of
+    ``generations`` was what it is now.
+
+    One round trip on a hit: the generations and the answer are read together. The answer
+    is stored with the generations read before computing it, so an answer computed from rows
+    that a change then replaced is never served once that change has moved its generation on.
+    """
+    namespace = database_namespace()
+    generation_keys = [g._key() for g in generations]
+    answer_key = (
+        f"answer:{namespace}:{'+'.join(g.name for g in generations)}:"
+        + hashlib.blake2b(repr(tuple(parts)).encode(), digest_size=12).hexdigest()
+    )
+    found = cache.get_many([*generation_keys, answer_key])
+    current = tuple(
+        int(found[key]) if key in found else Generation._start(key) for key in generation_keys
+    )
+    hit = found.get(answer_key)
+    if isinstance(hit, tuple) and len(hit) == 2 and hit[0] == current:
+        return hit[1]
+    value = compute()
+    cache.set(answer_key, (current, value), ANSWER_TTL_S)
+    return value
 
 
 class ChangeTrackedQuerySet(models.QuerySet[_M]):
@@ -140,3 +169,21 @@ def track_changes(generation: Generation, *model_classes: type[models.Model]) ->
         for field in model._meta.many_to_many:
             through = field.remote_field.through
             m2m_changed.connect(moved, sender=through, weak=False, dispatch_uid=f"{uid}:{field}")
+
+
+def track_saves(generation: Generation, *senders: type[models.Model]) -> None:
+    """Saves and deletes of ``senders``' rows move ``generation`` on, and so do additions and
+    removals through a many-to-many table among them (``User.groups.through``). For models
+    whose manager is not ours (Django's ``Group``, the user's groups): unlike
+    ``track_changes``, a bulk write through their querysets goes unseen."""
+
+    def moved(**_: Any) -> None:
+        generation.changed()
+
+    for sender in senders:
+        uid = f"{generation.name}:{sender._meta.label}"
+        if sender._meta.auto_created:  # a many-to-many table: written through its relation
+            m2m_changed.connect(moved, sender=sender, weak=False, dispatch_uid=f"{uid}:m2m")
+        else:
+            post_save.connect(moved, sender=sender, weak=False, dispatch_uid=f"{uid}:save")
+            post_delete.connect(moved, sender=sender, weak=False, dispatch_uid=f"{uid}:delete")

@@ -72,9 +72,11 @@ def health() -> tuple[bool, dict[str, Any]]:
         logger.error("health: database unreachable: %s", exc)
         body["database"] = "unreachable"
     try:
+        # A key of this probe's own: two probes at once (a load balancer and Prometheus)
+        # must not read each other's value and report the cache as broken.
         token = secrets.token_hex(8)
-        cache.set("health:probe", token, timeout=30)
-        body["cache"] = "ok" if cache.get("health:probe") == token else "not storing"
+        cache.set(f"health:probe:{token}", token, timeout=30)
+        body["cache"] = "ok" if cache.get(f"health:probe:{token}") == token else "not storing"
     except Exception as exc:
         logger.error("health: cache unreachable: %s", exc)
         body["cache"] = "unreachable"

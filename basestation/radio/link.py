@@ -215,7 +215,9 @@ class RadioRobotLink:
         in its EEPROM across a restart). A released robot moves only on a later command."""
         self._release_pending = True
 
-    def configure(self, *, max_velocity_mps: float, accel_mps2: float) -> RobotLimits:
+    def configure(
+        self, *, max_velocity_mps: float, accel_mps2: float, reply_timeout_s: float | None = None
+    ) -> RobotLimits:
         """Send these limits in a config frame; return what the robot confirmed.
 
         The agent calls it once, at start-up, with its own ``AGENT_MAX_*`` limits (a run's
@@ -223,7 +225,8 @@ class RadioRobotLink:
         allows). The robot applies them within its compiled-in hard limits and answers with
         a config acknowledgement that carries its hard maximum too; a robot whose firmware
         predates the acknowledgement answers with a config frame (no hard maximum). Raises
-        :class:`RobotLinkError` without an answer.
+        :class:`RobotLinkError` without an answer within ``reply_timeout_s`` (by default the
+        control tick's).
         """
         frame = ConfigFrame(
             seq=self._take_seq(),
@@ -239,7 +242,8 @@ class RadioRobotLink:
             self._send_errors += 1
             raise RobotLinkError(f"config {frame.seq} not sent: {exc}") from exc
         self._frames_sent += 1
-        deadline_s = self.clock() + self.reply_timeout_s
+        timeout_s = self.reply_timeout_s if reply_timeout_s is None else reply_timeout_s
+        deadline_s = self.clock() + timeout_s
         while (remaining_s := deadline_s - self.clock()) > 0:
             decoded = self._receive_for_us(remaining_s)
             if decoded is None:

@@ -7,6 +7,7 @@ from django.db import models
 from django.db.models import Value
 
 from basestation.contract import SAMPLE_FIELDS
+from core.cache import ChangeTrackedQuerySet, Generation, track_changes
 from portal.experiments.choices import Direction
 from portal.experiments.models import Experiment
 from portal.runs.states import Cause, RunState
@@ -46,6 +47,8 @@ class Run(models.Model):
     owner_told_at = models.DateTimeField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
+
+    objects = ChangeTrackedQuerySet["Run"].as_manager()
 
     class Meta:
         ordering = ["-start_at"]
@@ -99,6 +102,8 @@ class RunEvent(models.Model):
         related_name="+",
     )
 
+    objects = ChangeTrackedQuerySet["RunEvent"].as_manager()
+
     class Meta:
         ordering = ["at", "pk"]
 
@@ -142,3 +147,9 @@ class Sample(models.Model):
 
     def __str__(self) -> str:
         return f"{self.run_id}#{self.seq}"
+
+
+# What the runs lists show (state, events, samples stored): cached until a run or its events
+# change. Samples arrive by COPY, which no signal sees: their ingest moves it on itself.
+RUNS = Generation("runs")
+track_changes(RUNS, Run, RunEvent)

@@ -212,9 +212,11 @@ def test_a_throttle_costs_one_round_trip_to_redis_and_counts_each_user_apart(
     client = APIClient()
     client.force_authenticate(owner)
     assert client.get("/api/v1/runs/").status_code == 200
-    assert len(sent) == 1, sent
-    assert b"INCR" in sent[0]
-    assert b"EXPIRE" in sent[0]
+    # The answer itself may come from the cache too: only the throttle's trips count here.
+    throttle = [command for command in sent if b"throttle_" in command]
+    assert len(throttle) == 1, sent
+    assert b"INCR" in throttle[0]
+    assert b"EXPIRE" in throttle[0]
     sent.clear()
     client.force_authenticate(other)
     assert client.get("/api/v1/runs/").status_code == 200

@@ -13,13 +13,14 @@ from django.utils import timezone
 from bookings.models import (
     CALENDAR,
     Blackout,
+    QuotaPolicy,
     Reservation,
     ReservationItem,
     Resource,
     ResourceGroup,
     SchedulerLease,
 )
-from core.cache import ChangeTrackedQuerySet, Generation
+from core.cache import ChangeTrackedQuerySet, Generation, cached_answer
 from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
 
 pytestmark = pytest.mark.django_db
@@ -46,6 +47,35 @@ def test_an_answer_is_computed_once_per_generation_and_parts():
     assert generation.answer(("a",), compute) == 3
 
 
+def test_an_answer_of_several_generations_is_retired_by_any_of_them():
+    first, second = Generation("test-first"), Generation("test-second")
+    compute = Counted()
+    assert cached_answer((first, second), ("a",), compute) == 1
+    assert cached_answer((first, second), ("a",), compute) == 1
+    second.changed()
+    assert cached_answer((first, second), ("a",), compute) == 2
+    first.changed()
+    assert cached_answer((first, second), ("a",), compute) == 3
+    assert cached_answer((first,), ("a",), compute) == 4, "another family of answers"
+
+
+def test_a_kept_answer_costs_one_cache_round_trip(monkeypatch):
+    from django.core.cache import cache
+
+    first, second = Generation("test-trips-1"), Generation("test-trips-2")
+    cached_answer((first, second), ("a",), Counted())
+    calls: list[str] = []
+    for method in ("get", "get_many", "set", "add", "incr"):
+        original = getattr(cache, method)
+        monkeypatch.setattr(
+            cache,
+            method,
+            lambda *a, _m=method, _o=original, **k: calls.append(_m) or _o(*a, **k),
+        )
+    assert cached_answer((first, second), ("a",), Counted()) == 1
+    assert calls == ["get_many"]
+
+
 def test_a_flushed_cache_starts_a_generation_no_earlier_one_used(settings):
     from django.core.cache import cache
 
@@ -65,6 +95,7 @@ def test_the_calendar_follows_every_model_its_answers_read():
             ReservationItem,
             Blackout,
             SchedulerLease,
+            QuotaPolicy,
         )
         if CALENDAR in getattr(model, "_generations", ())
     }
@@ -75,6 +106,7 @@ def test_the_calendar_follows_every_model_its_answers_read():
         ReservationItem,
         Blackout,
         SchedulerLease,
+        QuotaPolicy,
     }
     for model in tracked:
         assert isinstance(model.objects.all(), ChangeTrackedQuerySet)

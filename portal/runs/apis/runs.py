@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from django.http import StreamingHttpResponse
+from django.http import HttpResponse, StreamingHttpResponse
 from django.shortcuts import get_object_or_404
 from drf_spectacular.utils import OpenApiResponse, extend_schema
 from rest_framework import serializers
@@ -12,10 +12,11 @@ from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
-from core.api import Pagination, paginated_response, request_user, valid_query
+from bookings.models import CALENDAR
+from core.api import Pagination, cached_json, paginated_data, request_user, valid_query
 from portal.experiments.apis import SegmentOutput
 from portal.runs.downloads import samples_csv_response, samples_json_response
-from portal.runs.models import Run
+from portal.runs.models import RUNS, Run
 from portal.runs.selectors import run_report, run_report_json, run_samples, runs_visible
 from portal.runs.states import RunState
 
@@ -86,17 +87,22 @@ class RunListApi(APIView):
     pagination_class = Pagination
 
     @extend_schema(parameters=[RunFilter], responses=RunOutput(many=True))
-    def get(self, request: Request) -> Response:
-        query = valid_query(RunFilter, request.query_params)
-        qs = runs_visible(user=request_user(request)).prefetch_related("events")
-        if "state" in query:
-            qs = qs.filter(state=query["state"])
-        return paginated_response(
-            request=request,
-            view=self,
-            queryset=qs.order_by("-start_at", "-pk"),
-            serializer_class=RunOutput,
-        )
+    def get(self, request: Request) -> HttpResponse | Response:
+        user = request_user(request)
+
+        def listed() -> dict[str, Any]:
+            query = valid_query(RunFilter, request.query_params)
+            qs = runs_visible(user=user).prefetch_related("events")
+            if "state" in query:
+                qs = qs.filter(state=query["state"])
+            return paginated_data(
+                request=request,
+                queryset=qs.order_by("-start_at", "-pk"),
+                serializer_class=RunOutput,
+            )
+
+        # Resource names come from the calendar's rows.
+        return cached_json(request, (RUNS, CALENDAR), (user.pk, user.is_testbed_admin), listed)
 
 
 class RunDetailApi(APIView):

@@ -47,7 +47,7 @@ from basestation.contract import AGENT_ACTIVE_STATES, AGENT_RUNNING, SAMPLE_FIEL
 from bookings.services import reservation_complete
 from core.live import publish_on_commit, run_channel
 from portal.runs.agents import agent_client_for
-from portal.runs.models import Run, Sample
+from portal.runs.models import RUNS, Run, Sample
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import RUN_ACTIVE_STATES, STATE_FOR_AGENT_END, Cause, RunState
 
@@ -104,7 +104,9 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
             stored = _copy_samples(run.pk, rows)
         else:
             stored = _insert_samples(run, rows)
-        Run.objects.filter(pk=run.pk, last_seq__lt=last_seq).update(last_seq=last_seq)
+        moved = Run.objects.filter(pk=run.pk, last_seq__lt=last_seq).update(last_seq=last_seq)
+        if stored and not moved:  # samples below the last one (a gap filled): counts changed
+            RUNS.changed()
         t_by_seq = {r[_SEQ]: r[_T] for r in rows}
         for first, last in _consecutive(stored):
             publish_on_commit(

@@ -1,0 +1,151 @@
+"""A researcher's lists (own reservations, own runs, quota) are answered from the cache until a
+row they show changes, and never show one user's answer to another (``core.api.cached_json``)."""
+
+from __future__ import annotations
+
+import time
+from datetime import datetime, timedelta
+
+import pytest
+from django.contrib.auth.models import Group
+from django.utils import timezone
+
+from bookings.models import QuotaPolicy
+from bookings.periods import overlap_s
+from portal.runs.models import Run
+from portal.runs.services.booking import booking_create
+from portal.runs.services.collection import samples_ingest
+from portal.runs.services.transitions import run_transition
+from portal.runs.states import Cause, RunState
+from tests.factories import ExperimentFactory
+
+pytestmark = pytest.mark.django_db
+
+JSON = {"HTTP_ACCEPT": "application/json"}
+
+
+def _book(owner, mobile, experiment, *, hours: int = 1):
+    start = timezone.now().replace(microsecond=0) + timedelta(hours=hours)
+    return booking_create(
+        owner=owner,
+        resource=mobile,
+        start_at=start,
+        end_at=start + timedelta(minutes=30),
+        experiment=experiment,
+    )
+
+
+def _ids(answer) -> list[int]:
+    return [row["id"] for row in answer.json()["results"]]
+
+
+def test_own_reservations_show_a_booking_a_cancel_and_a_run_state_at_once(
+    api, owner, mobile, experiment
+):
+    assert _ids(api.get("/api/v1/reservations/", **JSON)) == []
+    first = _book(owner, mobile, experiment)
+    assert _ids(api.get("/api/v1/reservations/", **JSON)) == [first.pk]
+
+    run_transition(run_id=first.run.pk, to_state=RunState.STAGED, cause=Cause.DISPATCH)
+    listed = api.get("/api/v1/reservations/", **JSON).json()["results"]
+    assert listed[0]["run"] == {"id": first.run.pk, "state": "staged"}
+
+    second = _book(owner, mobile, experiment, hours=3)
+    assert _ids(api.get("/api/v1/reservations/", **JSON)) == [first.pk, second.pk]
+    assert api.delete(f"/api/v1/reservations/{second.pk}/").status_code == 200
+    listed = api.get("/api/v1/reservations/", **JSON).json()["results"]
+    assert [row["state"] for row in listed] == ["confirmed", "cancelled"]
+
+
+def test_one_users_list_is_never_anothers(client_for, owner, other, admin_user, mobile):
+    mine = _book(owner, mobile, ExperimentFactory(owner=owner))
+    theirs = _book(other, mobile, ExperimentFactory(owner=other), hours=3)
+    # The same URL for each of them, one after the other.
+    assert _ids(client_for(owner).get("/api/v1/reservations/", **JSON)) == [mine.pk]
+    assert _ids(client_for(other).get("/api/v1/reservations/", **JSON)) == [theirs.pk]
+    everyone = _ids(client_for(admin_user).get("/api/v1/reservations/", **JSON))
+    assert everyone == [mine.pk, theirs.pk]
+    runs = client_for(other).get("/api/v1/runs/", **JSON).json()["results"]
+    assert [run["id"] for run in runs] == [theirs.run.pk]
+
+
+def test_filters_and_pages_are_answers_of_their_own(api, owner, mobile, experiment):
+    first = _book(owner, mobile, experiment)
+    second = _book(owner, mobile, experiment, hours=3)
+    assert _ids(api.get("/api/v1/reservations/?limit=1", **JSON)) == [first.pk]
+    assert _ids(api.get("/api/v1/reservations/?limit=1&offset=1", **JSON)) == [second.pk]
+    assert _ids(api.get(f"/api/v1/reservations/?resource={mobile.name}", **JSON)) == [
+        first.pk,
+        second.pk,
+    ]
+    assert _ids(api.get("/api/v1/reservations/?resource=elsewhere", **JSON)) == []
+
+
+def test_an_invalid_query_is_refused_every_time_and_keeps_nothing(api):
+    for _ in range(2):
+        refused = api.get("/api/v1/runs/?state=flying", **JSON)
+        assert refused.status_code == 400
+        assert refused.json()["fields"]["state"]
+
+
+def test_own_runs_show_new_samples_and_a_filled_gap(api, owner, mobile, experiment):
+    run = _book(owner, mobile, experiment).run
+
+    def count() -> int:
+        return api.get("/api/v1/runs/", **JSON).json()["results"][0]["sample_count"]
+
+    t0 = time.time()
+
+    def page(seqs):
+        return [
+            {"seq": i, "t": t0 + i / 20, "segment": 0, "commanded_velocity_mps": 0.5,
+             "velocity_mps": 0.49, "direction": "cw", "battery_v": 60.1, "track_m": i / 40,
+             "fix_quality": 4, "lat_deg": 40.6343, "lon_deg": -8.6601, "grid_id": "B2",
+             "lap": 0}
+            for i in seqs
+        ]  # fmt: skip
+
+    assert count() == 0
+    samples_ingest(run=run, samples=page([1, 2, 3, 10]))
+    assert count() == 4
+    # Below the last sequence number: the run's row does not change, the count does.
+    samples_ingest(run=Run.objects.get(pk=run.pk), samples=page([4, 5]))
+    assert count() == 6
+
+
+def test_quota_follows_policies_groups_and_bookings(api, owner, mobile, experiment):
+    assert api.get("/api/v1/quota/", **JSON).json() == {"policies": []}
+    staff = Group.objects.create(name="students")
+    policy = QuotaPolicy.objects.create(
+        name="students' week", group=staff, max_hours=2, period="week"
+    )
+    assert api.get("/api/v1/quota/", **JSON).json() == {"policies": []}, "not in the group yet"
+    owner.groups.add(staff)
+    (use,) = api.get("/api/v1/quota/", **JSON).json()["policies"]
+    assert use["policy"] == "students' week"
+    assert use["scope"] == "group students"
+    assert use["used_hours"] == 0
+    booked = _book(owner, mobile, experiment)
+    (use,) = api.get("/api/v1/quota/", **JSON).json()["policies"]
+    # The part of the booking in this week (all of it, unless the week ends within the hour).
+    week = (datetime.fromisoformat(use["period_start"]), datetime.fromisoformat(use["period_end"]))
+    assert use["used_hours"] == round(overlap_s(booked.start_at, booked.end_at, *week) / 3600, 3)
+    staff.name = "masters"
+    staff.save()
+    (use,) = api.get("/api/v1/quota/", **JSON).json()["policies"]
+    assert use["scope"] == "group masters"
+    QuotaPolicy.objects.filter(pk=policy.pk).update(max_hours=5)
+    (use,) = api.get("/api/v1/quota/", **JSON).json()["policies"]
+    assert use["max_hours"] == 5
+    owner.groups.remove(staff)
+    assert api.get("/api/v1/quota/", **JSON).json() == {"policies": []}
+
+
+def test_the_browsable_api_is_answered_afresh_and_json_stays_cached(api, owner, mobile, experiment):
+    _book(owner, mobile, experiment)
+    page = api.get("/api/v1/reservations/", HTTP_ACCEPT="text/html")
+    assert page.status_code == 200
+    assert page["Content-Type"].startswith("text/html")
+    answer = api.get("/api/v1/reservations/", **JSON)
+    assert answer["Content-Type"] == "application/json"
+    assert answer.json()["count"] == 1
