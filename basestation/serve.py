@@ -6,6 +6,7 @@ import argparse
 import gc
 import json
 import logging
+import os
 import signal
 import sys
 import types
@@ -18,6 +19,7 @@ from waitress.utilities import Error
 from basestation.api.limits import too_large_detail
 from basestation.app import MAX_BODY_BYTES, create_app
 from basestation.config import AgentConfig, ConfigError
+from basestation.logs import LOG_FORMATS, configure_logging
 from basestation.runtime import get_runtime
 
 logger = logging.getLogger("basestation.serve")
@@ -66,6 +68,12 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--threads", type=int, default=8, help="HTTP worker threads")
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ...")
     parser.add_argument(
+        "--log-format",
+        choices=LOG_FORMATS,
+        default=os.environ.get("AGENT_LOG_FORMAT", "plain"),
+        help="plain text or one JSON object a line (default: AGENT_LOG_FORMAT, else plain)",
+    )
+    parser.add_argument(
         "--gil-switch-ms",
         type=float,
         default=GIL_SWITCH_INTERVAL_S * 1000,
@@ -84,11 +92,7 @@ def _raise_stop(signum: int, frame: types.FrameType | None) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parse_args(argv)
-    logging.basicConfig(
-        stream=sys.stderr,
-        level=args.log_level.upper(),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    configure_logging(level=args.log_level, log_format=args.log_format)
     try:
         config = AgentConfig.from_env()
     except ConfigError as exc:
