@@ -18,6 +18,7 @@ from waitress.utilities import Error
 
 from basestation.api.limits import too_large_detail
 from basestation.app import MAX_BODY_BYTES, create_app
+from basestation.backup import AgentRunning, data_dir_lock
 from basestation.config import AgentConfig, ConfigError
 from basestation.logs import LOG_FORMATS, configure_logging
 from basestation.runtime import get_runtime
@@ -103,6 +104,17 @@ def main(argv: list[str] | None = None) -> int:
         print("amazing-agent: --gil-switch-ms must be between 0.1 and 100", file=sys.stderr)
         return EXIT_CONFIG_ERROR
     sys.setswitchinterval(args.gil_switch_ms / 1000)
+    try:
+        # Held for the agent's life: a second agent, or a restore of the store
+        # (basestation/backup.py), on the same data directory is refused while it runs.
+        with data_dir_lock(config.data_dir):
+            return _serve(args, config)
+    except AgentRunning as exc:
+        print(f"amazing-agent: {exc}", file=sys.stderr)
+        return 1
+
+
+def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
     try:
         # The loop's process builds the robot: it reads the rail file and starts the radio,
         # and both can be wrong.
