@@ -8,6 +8,7 @@ allowed hosts and the agent token.
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -459,6 +460,9 @@ if LOG_FORMAT not in ("json", "plain"):
     raise ImproperlyConfigured(f"LOG_FORMAT={LOG_FORMAT!r}: give json or plain")
 LOG_JSON = LOG_FORMAT == "json"
 LOGGING = logging_config(json_lines=LOG_JSON, level=env.str("LOG_LEVEL", default="INFO"))
+if LOG_JSON:
+    # Python's warnings (a library's at start-up) as log records, so JSON lines too.
+    logging.captureWarnings(True)
 # A line per request from the portal itself (with its request id, view and duration); off in
 # development, where the web server's own access line is printed.
 ACCESS_LOG = env.bool("ACCESS_LOG", default=not DEBUG)
