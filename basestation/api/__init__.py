@@ -5,10 +5,10 @@ from __future__ import annotations
 from flask import Blueprint, Flask
 
 from basestation.api import battery, control, health, logs, metrics, runs, status
+from basestation.api.access import register_request_ids
 from basestation.api.auth import require_bearer_token
 from basestation.api.errors import register_error_handlers
 from basestation.api.limits import refuse_oversized_body
-from basestation.logs import register_request_ids
 
 API_PREFIX = "/api/v1"
 
