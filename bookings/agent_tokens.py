@@ -200,14 +200,18 @@ def agent_token_rotation_finish(*, robot: str) -> AgentTokens:
         return _tokens(resource, credential)
 
 
-def agent_token_revoke(*, robot: str) -> AgentTokens:
-    """Forget ``robot``'s stored tokens; returns the digests to remove from its agent."""
+def agent_token_revoke(*, robot: str) -> AgentTokens | None:
+    """Forget ``robot``'s stored tokens; returns the digests to remove from its agent (None
+    when they can no longer be read: the token goes all the same)."""
     with transaction.atomic():
         resource = Resource.objects.select_for_update().get(pk=_robot(robot).pk)
         credential = AgentCredential.objects.filter(resource=resource).first()
         if credential is None:
             raise AgentTokenError(f"{robot} has no stored agent token")
-        tokens = _tokens(resource, credential)
+        try:
+            tokens: AgentTokens | None = _tokens(resource, credential)
+        except AgentTokenUnreadable:
+            tokens = None
         credential.delete()
         return tokens
 

@@ -183,6 +183,10 @@ def test_a_token_stored_under_another_secret_key_is_a_clear_error_until_its_fall
         agent_token_for(one)
     settings.SECRET_KEY_FALLBACKS = [old_key]
     assert agent_token_for(one) == token
+    # Unreadable for good (its key lost): it can still be revoked.
+    settings.SECRET_KEY_FALLBACKS = []
+    assert "could not be decrypted" in _command("revoke", "mobile-1")
+    assert not AgentCredential.objects.filter(resource=one).exists()
 
 
 @pytest.mark.parametrize(

@@ -84,13 +84,18 @@ class Command(BaseCommand):
                     tokens,
                 )
             elif action == "revoke":
-                tokens = agent_token_revoke(robot=robot)
+                revoked = agent_token_revoke(robot=robot)
                 self.stdout.write(
                     f"{robot}'s stored agent token is gone: the portal falls back to the "
                     "environment's token for it (AGENT_TOKEN/AGENT_TOKENS), if any.\n"
-                    "On the base station, remove these digests from AGENT_TOKEN_SHA256:\n"
-                    + "".join(f"    {digest}\n" for digest in tokens.agent_digests)
                 )
+                if revoked is None:
+                    self.stdout.write("(it could not be decrypted: its digest is unknown)\n")
+                else:
+                    self.stdout.write(
+                        "On the base station, remove these digests from AGENT_TOKEN_SHA256:\n"
+                        + "".join(f"    {digest}\n" for digest in revoked.agent_digests)
+                    )
             else:
                 shown = agent_tokens_show(robot=robot)
                 if shown is None:
