@@ -7,12 +7,14 @@ says whether trying again later can help: connection errors, timeouts and 5xx ca
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import date
 from typing import Any
 from urllib.parse import quote
 
 import requests
+
+from basestation.contract import REQUEST_ID_HEADER, request_id_or_new
 
 API_PREFIX = "/api/v1"
 
@@ -72,10 +74,23 @@ _BY_STATUS: dict[int, type[AgentError]] = {
 
 
 class AgentClient:
-    def __init__(self, base_url: str, token: str, timeout_s: float = 5.0) -> None:
-        """``base_url`` is the agent's root, e.g. ``http://10.0.0.5:8700`` (no ``/api/v1``)."""
+    def __init__(
+        self,
+        base_url: str,
+        token: str,
+        timeout_s: float = 5.0,
+        *,
+        request_id: Callable[[], str | None] | None = None,
+    ) -> None:
+        """``base_url`` is the agent's root, e.g. ``http://10.0.0.5:8700`` (no ``/api/v1``).
+
+        ``request_id`` gives the id of the work under way (the portal's request or task),
+        sent with every call as ``X-Request-ID`` so that the agent's log line names it; a
+        call made outside any (or without ``request_id``) gets an id of its own.
+        """
         self.base_url = base_url.rstrip("/")
         self.timeout_s = timeout_s
+        self._request_id = request_id
         self._session = requests.Session()
         self._session.headers["Authorization"] = f"Bearer {token}"
         self._session.headers["Accept"] = "application/json"
@@ -193,9 +208,11 @@ class AgentClient:
         self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
     ) -> dict[str, Any]:
         url = self.base_url + path
+        current = self._request_id() if self._request_id is not None else None
+        headers = {REQUEST_ID_HEADER: request_id_or_new(current)}
         try:
             response = self._session.request(
-                method, url, timeout=timeout or self.timeout_s, **kwargs
+                method, url, timeout=timeout or self.timeout_s, headers=headers, **kwargs
             )
         except (
             requests.ConnectionError,

@@ -16,6 +16,7 @@ from pathlib import Path
 
 ENV_PREFIX = "AGENT_"
 DEFAULT_DATA_DIR = Path("./var/agent")
+STORE_FILE_NAME = "runs.sqlite3"
 DEFAULT_CPU_TEMP_PATH = Path("/sys/class/thermal/thermal_zone0/temp")
 # Five 12 V lead-acid batteries in series: 50 V is 10 V a block, the deep-discharge limit
 # that shortens their life; the robot still has enough to brake and reach its dock.
@@ -117,7 +118,7 @@ class AgentConfig:
 
     @property
     def store_path(self) -> Path:
-        return self.data_dir / "runs.sqlite3"
+        return self.data_dir / STORE_FILE_NAME
 
     def __repr__(self) -> str:
         # Never print the token (logs, tracebacks).
@@ -141,7 +142,7 @@ class AgentConfig:
         return cls(
             token=_token_from_env(env, required=not _digests_from_env(env)),
             token_sha256=_digests_from_env(env),
-            data_dir=Path(env.get(f"{ENV_PREFIX}DATA_DIR", "").strip() or DEFAULT_DATA_DIR),
+            data_dir=data_dir_from_env(env),
             control_hz=_float_env(env, "CONTROL_HZ", 20.0, low=1.0, high=200.0),
             max_velocity_mps=_float_env(env, "MAX_VELOCITY_MPS", 2.0, low=0.01, high=10.0),
             max_accel_mps2=_float_env(env, "MAX_ACCEL_MPS2", 1.0, low=0.01, high=20.0),
@@ -169,6 +170,13 @@ class AgentConfig:
     @property
     def retention_s(self) -> float | None:
         return None if self.retention_days == 0 else self.retention_days * 86_400.0
+
+
+def data_dir_from_env(env: Mapping[str, str] | None = None) -> Path:
+    """``AGENT_DATA_DIR``: where the run store lives (also read by the backup command,
+    which needs nothing else of the configuration)."""
+    env = os.environ if env is None else env
+    return Path(env.get(f"{ENV_PREFIX}DATA_DIR", "").strip() or DEFAULT_DATA_DIR)
 
 
 def _digests_from_env(env: Mapping[str, str]) -> tuple[str, ...]:

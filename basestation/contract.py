@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import math
 import operator
+import re
+import uuid
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Literal
@@ -271,3 +273,24 @@ PORTAL_STATE_FOR_AGENT_END: Final[Mapping[str, str]] = {
     AGENT_CANCELLED: "cancelled",
     AGENT_FAILED: "failed",
 }
+
+
+# --- Request ids ----------------------------------------------------------------------------
+
+# One id follows a piece of work across processes: a portal request or task sets it, the
+# portal's agent client sends it, the agent logs it in its line for that call.
+REQUEST_ID_HEADER: Final = "X-Request-ID"
+# Taken from a caller only when it is a plain token: nothing a log reader could trip on.
+_REQUEST_ID: Final = re.compile(r"[A-Za-z0-9][A-Za-z0-9._:-]{0,63}")
+
+
+def new_request_id() -> str:
+    return uuid.uuid4().hex
+
+
+def request_id_or_new(value: str | None) -> str:
+    """``value`` when it is a usable request id (letters, digits, ``.``, ``_``, ``:``, ``-``,
+    at most 64), else a new one."""
+    if value is not None and _REQUEST_ID.fullmatch(value):
+        return value
+    return new_request_id()

@@ -59,6 +59,7 @@ from basestation.control import (
     window_of,
 )
 from basestation.errors import RunConflict
+from basestation.logs import configure_logging, current_log_format
 from basestation.manager import AgentSnapshot, EstopLatch, ManualDrive, RunManager
 from basestation.robot import Direction, RobotLimits
 from basestation.robots import build_robot
@@ -84,7 +85,6 @@ STALE_AFTER_S = 1.0
 MAX_TIMINGS_PER_STATE = 1000
 # Linux prctl(2) option: the signal this process gets when its parent thread dies.
 PR_SET_PDEATHSIG = 1
-LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
 def pick_cpu(requested: int | None) -> int | None:
@@ -249,9 +249,10 @@ def loop_main(
     parent_pid: int,
     log_level: int,
     restart: bool = False,
+    log_format: str = "plain",
 ) -> None:
     """The loop process: open the store and the robot, say ready, tick until told to stop."""
-    logging.basicConfig(stream=sys.stderr, level=log_level, format=LOG_FORMAT)
+    configure_logging(level=log_level, log_format=log_format)
     # Ctrl-C reaches the whole process group: the agent stops us in order, robot first.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # A signal wakes the main thread's select() through this socket.
@@ -473,6 +474,7 @@ class LoopProcess:
                 os.getpid(),
                 logging.getLogger().getEffectiveLevel(),
                 self.restarts > 0,
+                current_log_format(),
             ),
             name="amazing-agent-loop",
             daemon=True,

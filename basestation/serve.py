@@ -6,6 +6,7 @@ import argparse
 import gc
 import json
 import logging
+import os
 import signal
 import sys
 import types
@@ -17,7 +18,9 @@ from waitress.utilities import Error
 
 from basestation.api.limits import too_large_detail
 from basestation.app import MAX_BODY_BYTES, create_app
+from basestation.backup import AgentRunning, data_dir_lock
 from basestation.config import AgentConfig, ConfigError
+from basestation.logs import LOG_FORMATS, configure_logging
 from basestation.runtime import get_runtime
 
 logger = logging.getLogger("basestation.serve")
@@ -66,6 +69,12 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--threads", type=int, default=8, help="HTTP worker threads")
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ...")
     parser.add_argument(
+        "--log-format",
+        choices=LOG_FORMATS,
+        default=os.environ.get("AGENT_LOG_FORMAT", "plain"),
+        help="plain text or one JSON object a line (default: AGENT_LOG_FORMAT, else plain)",
+    )
+    parser.add_argument(
         "--gil-switch-ms",
         type=float,
         default=GIL_SWITCH_INTERVAL_S * 1000,
@@ -84,11 +93,7 @@ def _raise_stop(signum: int, frame: types.FrameType | None) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parse_args(argv)
-    logging.basicConfig(
-        stream=sys.stderr,
-        level=args.log_level.upper(),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    configure_logging(level=args.log_level, log_format=args.log_format)
     try:
         config = AgentConfig.from_env()
     except ConfigError as exc:
@@ -99,6 +104,17 @@ def main(argv: list[str] | None = None) -> int:
         print("amazing-agent: --gil-switch-ms must be between 0.1 and 100", file=sys.stderr)
         return EXIT_CONFIG_ERROR
     sys.setswitchinterval(args.gil_switch_ms / 1000)
+    try:
+        # Held for the agent's life: a second agent, or a restore of the store
+        # (basestation/backup.py), on the same data directory is refused while it runs.
+        with data_dir_lock(config.data_dir):
+            return _serve(args, config)
+    except AgentRunning as exc:
+        print(f"amazing-agent: {exc}", file=sys.stderr)
+        return 1
+
+
+def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
     try:
         # The loop's process builds the robot: it reads the rail file and starts the radio,
         # and both can be wrong.

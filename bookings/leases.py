@@ -42,6 +42,7 @@ from bookings.scheduler import (
     SchedulerUnavailable,
     build_scheduler,
 )
+from core.audit.counters import event_count
 from core.errors import Conflict, DomainError
 
 logger = logging.getLogger(__name__)
@@ -467,6 +468,7 @@ def scheduler_sweep(*, now: datetime | None = None) -> SweepResult | None:
         link.last_error = exc.message
         link.last_error_at = now
         link.save()
+        event_count("scheduler_link_errors")
         logger.warning("scheduler sweep failed: %s", exc)
         return None
     with transaction.atomic():

@@ -149,6 +149,28 @@ class Resource(models.Model):
         return self.enabled and not self.hold_reason
 
 
+class AgentCredential(models.Model):
+    """The bearer token the portal presents to one robot's agent, encrypted at rest.
+
+    The portal must send the token, so it keeps the token itself, not a hash; a database
+    dump or backup alone does not give it away (``bookings/agent_tokens.py`` encrypts it
+    with a key derived from ``DJANGO_SECRET_KEY``). The agent keeps only digests. During a
+    rotation ``next_token_encrypted`` holds the new token: the portal still presents the
+    current one until the rotation is finished, the agent accepts both.
+    """
+
+    resource = models.OneToOneField(
+        Resource, on_delete=models.CASCADE, related_name="agent_credential"
+    )
+    token_encrypted = models.TextField()
+    next_token_encrypted = models.TextField(blank=True, default="")
+    issued_at = models.DateTimeField()
+    rotation_started_at = models.DateTimeField(null=True, blank=True)
+
+    def __str__(self) -> str:
+        return f"agent token of {self.resource_id}"
+
+
 class Reservation(models.Model):
     """One or more resources held by a user for ``[start_at, end_at)``."""
 

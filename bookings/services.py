@@ -61,6 +61,7 @@ from bookings.rules import (
 from bookings.scheduler import Lease, SchedulerError
 from bookings.tasks import lease_cancel, reservation_notify
 from core.accounts.models import User
+from core.audit.counters import event_count
 from core.audit.services import audit_record
 from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 
@@ -550,12 +551,9 @@ def resource_hold(*, resource_id: int, reason: str) -> bool:
             hold_notified_at=None,
         )
         if held:
-            audit_record(
-                actor=None,
-                action="resource.hold",
-                target=Resource.objects.get(pk=resource_id),
-                reason=reason,
-            )
+            resource = Resource.objects.get(pk=resource_id)
+            audit_record(actor=None, action="resource.hold", target=resource, reason=reason)
+            event_count("robot_holds", resource=resource.name)
     return bool(held)
 
 

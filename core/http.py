@@ -1,11 +1,53 @@
-"""Response headers every page and answer carries, beside Django's own and the CSP's."""
+"""Response headers every page and answer carries, beside Django's own and the CSP's, and
+the request id each request runs under."""
 
 from __future__ import annotations
 
+import logging
+import time
 from collections.abc import Callable
 
 from django.conf import settings
 from django.http import HttpRequest, HttpResponse
+
+from basestation.contract import REQUEST_ID_HEADER
+from core.logs import request_id_bound
+
+access_log = logging.getLogger("portal.access")
+
+
+class RequestIdMiddleware:
+    """Runs each request under a request id: the caller's ``X-Request-ID`` (a proxy's) when it
+    is a plain token, else a new one. Every log line of the request names it, the agent
+    calls made for it carry it, and the answer returns it. With ``ACCESS_LOG`` on (production)
+    one line per request says what was answered, how fast."""
+
+    def __init__(self, get_response: Callable[[HttpRequest], HttpResponse]) -> None:
+        self.get_response = get_response
+        self.access_log = settings.ACCESS_LOG
+
+    def __call__(self, request: HttpRequest) -> HttpResponse:
+        started_s = time.perf_counter()
+        with request_id_bound(request.headers.get(REQUEST_ID_HEADER)) as request_id:
+            response = self.get_response(request)
+            response[REQUEST_ID_HEADER] = request_id
+            if self.access_log:
+                match = request.resolver_match
+                access_log.info(
+                    "%s %s %s",
+                    request.method,
+                    request.path,
+                    response.status_code,
+                    extra={
+                        "method": request.method,
+                        "path": request.path,
+                        "status": response.status_code,
+                        "view": match.view_name if match is not None else None,
+                        "duration_ms": round((time.perf_counter() - started_s) * 1000, 1),
+                        "client": request.META.get("REMOTE_ADDR"),
+                    },
+                )
+        return response
 
 
 class PermissionsPolicyMiddleware:

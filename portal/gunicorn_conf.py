@@ -24,6 +24,8 @@ timeout = 120
 graceful_timeout = 10
 # TLS ends at the proxy in front; it says who the client is and how it came.
 forwarded_allow_ips = "*"
+# In production the server's own lines (start, workers, errors) are JSON like the portal's.
+logconfig_dict = settings.LOGGING if settings.LOG_JSON else {}
 
 # Prometheus: the processes' HTTP metrics add up in one folder of this server's own, emptied
 # at its start (core/metrics.py). Set before any worker imports prometheus-client.

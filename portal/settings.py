@@ -8,6 +8,7 @@ allowed hosts and the agent token.
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from csp import constants as csp_constants
 from django.core.exceptions import ImproperlyConfigured
 
 from bookings.scheduler import config as scheduler_config
+from core.logs import logging_config
 from portal.processes import MAIL_QUEUE, RUNS_QUEUE
 
 BASE_DIR = Path(__file__).resolve().parent.parent
@@ -56,6 +58,9 @@ if _secret_key is None:
         _key_file.chmod(0o600)
     _secret_key = _key_file.read_text().strip()
 SECRET_KEY: str = _secret_key
+# Earlier secret keys, still accepted for signatures and for reading the agent tokens stored
+# under them (bookings/agent_tokens.py), while a new key takes over.
+SECRET_KEY_FALLBACKS: list[str] = env.list("DJANGO_SECRET_KEY_FALLBACKS", default=[])
 
 ALLOWED_HOSTS: list[str] = env.list(
     "DJANGO_ALLOWED_HOSTS", default=["127.0.0.1", "localhost"] if DEBUG else []
@@ -64,15 +69,12 @@ if not DEBUG and not ALLOWED_HOSTS:
     raise ImproperlyConfigured("DJANGO_ALLOWED_HOSTS is required when DJANGO_DEBUG is off")
 CSRF_TRUSTED_ORIGINS: list[str] = env.list("DJANGO_CSRF_TRUSTED_ORIGINS", default=[])
 
-# The bearer token the portal presents to base-station agents. Resources name a token by
-# reference (``Resource.agent_token_name``); "default" is this one.
+# Each robot's own agent token is stored by the portal (``manage.py agent_token``,
+# bookings/agent_tokens.py). A robot without one uses a token from here, named by reference
+# (``Resource.agent_token_name``): "default" is AGENT_TOKEN, the others AGENT_TOKENS'.
 AGENT_TOKEN = env_secret("AGENT_TOKEN")
 # Prometheus scrapes /metrics with this bearer token; without one, /metrics is off (404).
 METRICS_TOKEN = env_secret("METRICS_TOKEN")
-if AGENT_TOKEN is None and not DEBUG:
-    raise ImproperlyConfigured(
-        "AGENT_TOKEN (or AGENT_TOKEN_FILE) is required when DJANGO_DEBUG is off"
-    )
 AGENT_TOKENS: dict[str, str] = {"default": AGENT_TOKEN or ""}
 
 
@@ -124,6 +126,7 @@ INSTALLED_APPS = [
 ]
 
 MIDDLEWARE = [
+    "core.http.RequestIdMiddleware",
     "django.middleware.security.SecurityMiddleware",
     "csp.middleware.CSPMiddleware",
     "core.http.PermissionsPolicyMiddleware",
@@ -450,12 +453,17 @@ if not DEBUG:
     SECURE_HSTS_INCLUDE_SUBDOMAINS = env.bool("DJANGO_HSTS_INCLUDE_SUBDOMAINS", default=True)
     SECURE_HSTS_PRELOAD = env.bool("DJANGO_HSTS_PRELOAD", default=False)
 
-LOGGING = {
-    "version": 1,
-    "disable_existing_loggers": False,
-    "formatters": {"plain": {"format": "%(asctime)s %(levelname)s %(name)s: %(message)s"}},
-    "handlers": {"console": {"class": "logging.StreamHandler", "formatter": "plain"}},
-    "root": {"handlers": ["console"], "level": env.str("LOG_LEVEL", default="INFO")},
-    "loggers": {"django.db.backends": {"level": "WARNING"}},
-}
+# One JSON object a line in production (LOG_FORMAT=json), plain text in development; every
+# line names the request id of its request or task (core/logs.py).
+LOG_FORMAT = env.str("LOG_FORMAT", default="plain" if DEBUG else "json")
+if LOG_FORMAT not in ("json", "plain"):
+    raise ImproperlyConfigured(f"LOG_FORMAT={LOG_FORMAT!r}: give json or plain")
+LOG_JSON = LOG_FORMAT == "json"
+LOGGING = logging_config(json_lines=LOG_JSON, level=env.str("LOG_LEVEL", default="INFO"))
+if LOG_JSON:
+    # Python's warnings (a library's at start-up) as log records, so JSON lines too.
+    logging.captureWarnings(True)
+# A line per request from the portal itself (with its request id, view and duration); off in
+# development, where the web server's own access line is printed.
+ACCESS_LOG = env.bool("ACCESS_LOG", default=not DEBUG)
 RESERVATION_MAX_S = env.float("RESERVATION_MAX_S", default=4 * 3600.0)

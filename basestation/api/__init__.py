@@ -5,6 +5,7 @@ from __future__ import annotations
 from flask import Blueprint, Flask
 
 from basestation.api import battery, control, health, logs, metrics, runs, status
+from basestation.api.access import register_request_ids
 from basestation.api.auth import require_bearer_token
 from basestation.api.errors import register_error_handlers
 from basestation.api.limits import refuse_oversized_body
@@ -14,6 +15,7 @@ API_PREFIX = "/api/v1"
 
 def register_api(app: Flask) -> None:
     register_error_handlers(app)
+    register_request_ids(app)
     # App-level, not per blueprint: it must also guard /api/v1 URLs that match no route,
     # so an unauthenticated caller cannot probe which endpoints and methods exist.
     app.before_request(require_bearer_token)

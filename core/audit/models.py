@@ -79,3 +79,28 @@ class TaskOnce(models.Model):
 
     def __str__(self) -> str:
         return self.key
+
+
+class EventCount(models.Model):
+    """How often an event happened, by name and labels: Prometheus counters that every
+    process of the portal adds to (workers, beat, collector, web) and ``/metrics`` reads.
+
+    In the database because it is the one store every process shares in every deployment:
+    the workers run in containers of their own (no shared folder for prometheus-client's
+    multiprocess files, whose names are process ids that repeat across containers). The
+    events counted are rare (failures, holds), so a row update each costs nothing.
+    """
+
+    name = models.CharField(max_length=100)
+    # Canonical JSON of the labels ({"resource": "mobile-1"}), sorted keys.
+    labels = models.CharField(max_length=300, default="{}")
+    value = models.BigIntegerField(default=0)
+    updated_at = models.DateTimeField(auto_now=True)
+
+    class Meta:
+        constraints = [
+            models.UniqueConstraint(fields=["name", "labels"], name="event_count_unique"),
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.name}{self.labels} = {self.value}"

@@ -2,8 +2,10 @@
 the robots' last health checks, beside the web server's HTTP metrics (``core/metrics.py``).
 
 Runs by state, how far behind the collection of each running run is, robots held out of
-booking, each robot's battery, e-stop, radio link and reachability, and the testbed
-scheduler link's last success and error. docs/operations.md lists the alerts to set.
+booking, each robot's battery, e-stop, radio link and reachability, the testbed scheduler
+link's last success and error, and the counters every process adds to (staging failures,
+scheduler-link errors, health holds: ``core/audit/counters.py``, kept in the database, so
+the workers' counts reach this scrape). docs/operations.md lists the alerts to set.
 """
 
 from __future__ import annotations
@@ -14,11 +16,12 @@ from typing import Any
 
 from django.db.models import Count, OuterRef, Subquery
 from django.http import HttpRequest, HttpResponse
-from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 from bookings.choices import ResourceKind
 from bookings.models import Resource, SchedulerLink
+from core.audit.counters import COUNTERS, event_counts
 from core.metrics import metrics_response
 from portal.runs.models import Run, Sample
 from portal.runs.services.health import robot_health_cached
@@ -89,6 +92,8 @@ class SystemCollector(Collector):
                 )
         yield from (held, battery, estop, link, reachable, checked)
 
+        yield from _counters()
+
         scheduler = SchedulerLink.objects.first()
         if scheduler is not None:
             for name, at in (
@@ -101,6 +106,21 @@ class SystemCollector(Collector):
                         "The testbed scheduler link's sweeps.",
                         value=at.timestamp(),
                     )
+
+
+def _counters() -> Iterator[CounterMetricFamily]:
+    counted: dict[str, list[tuple[dict[str, str], int]]] = {name: [] for name in COUNTERS}
+    for count in event_counts():
+        if count.name in counted:
+            counted[count.name].append((count.labels, count.value))
+    for name, values in counted.items():
+        label_names = sorted({key for labels, _ in values for key in labels})
+        family = CounterMetricFamily(f"amazing_{name}", COUNTERS[name], labels=label_names)
+        if not values and not label_names:
+            family.add_metric([], 0)  # an unlabelled counter is there from the start
+        for labels, value in values:
+            family.add_metric([labels.get(key, "") for key in label_names], value)
+        yield family
 
 
 def metrics_view(request: HttpRequest) -> HttpResponse:

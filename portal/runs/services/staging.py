@@ -19,6 +19,7 @@ from django.utils import timezone
 from basestation.client import AgentConflict, AgentError, AgentRejected
 from bookings.choices import ReservationState
 from bookings.rules import velocity_limit
+from core.audit.counters import event_count
 from portal.runs.agents import agent_client_for
 from portal.runs.models import Run
 from portal.runs.services.transitions import run_transition
@@ -103,12 +104,15 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
     try:
         client.put_run(run.agent_run_id, run_agent_body(run))
     except (AgentConflict, AgentRejected) as exc:
+        event_count("run_staging_failures", resource=run.resource.name, outcome="failed")
         _fail(run, f"the base station refused the run: {exc}")
         return
     except AgentError as exc:
         grace_s = settings.RUN_START_GRACE_S
         if exc.retryable and now <= run.start_at + timedelta(seconds=grace_s):
+            event_count("run_staging_failures", resource=run.resource.name, outcome="retrying")
             raise
+        event_count("run_staging_failures", resource=run.resource.name, outcome="failed")
         _fail(
             run,
             f"the base station could not be reached by {grace_s:g} s after the run's start: "
