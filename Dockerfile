@@ -27,4 +27,4 @@ RUN DJANGO_DEBUG=1 AMAZING_VAR_DIR=/tmp/build python manage.py collectstatic --n
     && chown amazing /var/lib/amazing
 USER amazing
 EXPOSE 8000 8001 8700
-CMD ["gunicorn", "-c", "python:portal.gunicorn_conf", "--bind", "0.0.0.0:8000", "portal.wsgi:application"]
+CMD ["python", "-m", "portal.serve", "--bind", "0.0.0.0:8000"]

@@ -1,6 +1,6 @@
 """The portal under load: the researcher's API mix (``bench/locustfile.py``) from many users,
 each with a token of their own, against the web server as ``docker-compose.yml`` runs it
-(``portal/processes.py`` ``web_process``: gunicorn threads, pooled PostgreSQL connections,
+(``portal/processes.py`` ``web_process``: granian's threads, pooled PostgreSQL connections,
 production settings, throttles as configured), with one web process and with one per core.
 
 The load generator (locust, headless) runs on the same machine and takes CPU from the server:
@@ -176,7 +176,7 @@ def run(
             f"locust (headless, {duration_s:g} s a round) on the same machine, each user with "
             "a token of its own calling back to back (resources, a week of busy slots, a week "
             "of availability, own reservations, own runs, quota — weights 1:2:2:2:2:1); the "
-            "web server as docker-compose.yml runs it (gunicorn gthread, WEB_THREADS threads "
+            "web server as docker-compose.yml runs it (granian, WEB_THREADS threads "
             "a process, PostgreSQL through the pool, production settings, throttles as "
             "configured).",
             "",

@@ -66,7 +66,7 @@ class RequestIdFilter(logging.Filter):
 
 def logging_config(*, json_lines: bool, level: str) -> dict[str, Any]:
     """The ``LOGGING`` dict: JSON lines (production) or plain text (development), each with
-    the request id. Also takes over the servers' own loggers (gunicorn, uvicorn), so that a
+    the request id. Also takes over the servers' own loggers (granian, uvicorn), so that a
     production process writes only JSON."""
     formatter: dict[str, Any]
     if json_lines:
@@ -94,13 +94,14 @@ def logging_config(*, json_lines: bool, level: str) -> dict[str, Any]:
     }
     if json_lines:
         # The servers configure these before Django does; here they become JSON too.
-        for name in ("gunicorn.error", "gunicorn.access", "uvicorn", "uvicorn.error"):
+        for name in ("_granian", "uvicorn", "uvicorn.error"):
             config["loggers"][name] = {"handlers": ["console"], "propagate": False}
-        config["loggers"]["uvicorn.access"] = {
-            "handlers": ["console"],
-            "propagate": False,
-            "level": "INFO",
-        }
+        for name in ("granian.access", "uvicorn.access"):
+            config["loggers"][name] = {
+                "handlers": ["console"],
+                "propagate": False,
+                "level": "INFO",
+            }
     return config
 
 

@@ -1,8 +1,8 @@
 """Prometheus metrics of the portal: HTTP rate and latency per view, and ``/metrics``.
 
-The web server runs several processes (``portal/gunicorn_conf.py``); prometheus-client's
+The web server runs several processes (``portal/serve.py``); prometheus-client's
 multiprocess mode adds their counts up when ``PROMETHEUS_MULTIPROC_DIR`` names a folder the
-processes share (the gunicorn configuration sets one and empties it at start). Without it
+processes share (``portal/serve.py`` sets one and empties it at start). Without it
 (a single process, the tests) the process's own registry is served.
 
 ``/metrics`` answers only with ``Authorization: Bearer <METRICS_TOKEN>`` (Prometheus's

@@ -68,12 +68,10 @@ STREAMS_GRACEFUL_SHUTDOWN_S = 3
 def web_process(
     *, python: str, port: int, host: str = DEFAULT_HOST, access_log: bool = True
 ) -> ProcessSpec:
-    """The pages and the API on the WSGI server (``portal/gunicorn_conf.py``)."""
-    argv = [python, "-m", "gunicorn", "-c", "python:portal.gunicorn_conf"]
-    argv += ["--bind", f"{host}:{port}"]
+    """The pages and the API on the WSGI server (``portal/serve.py``)."""
+    argv = [python, "-m", "portal.serve", "--bind", f"{host}:{port}"]
     if access_log:
-        argv += ["--access-logfile", "-"]
-    argv.append("portal.wsgi:application")
+        argv.append("--access-log")
     return ProcessSpec("web", tuple(argv))
 
 

@@ -244,7 +244,7 @@ CACHES = {
     )
 }
 
-# How the portal is served (portal/gunicorn_conf.py, portal/processes.py): pages and API on
+# How the portal is served (portal/serve.py, portal/processes.py): pages and API on
 # the WSGI server, WEB_WORKERS processes of WEB_THREADS threads (default: a process per core);
 # the live streams on the ASGI server. LIVE_STREAM_PORT: where the pages open their streams
 # when the ASGI server listens on its own port of the same host (make run, tests); empty
