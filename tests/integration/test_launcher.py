@@ -12,7 +12,8 @@ import pytest
 import requests
 from django.utils import timezone
 
-from tests.integration.processes import Proc, free_port, processes_matching_env, python
+from bench.stack import Proc, free_port, python
+from tests.integration.processes import processes_matching_env
 
 pytestmark = pytest.mark.integration
 
