@@ -31,7 +31,11 @@ from django.conf import settings
 from django.db import connection, transaction
 from django.utils import timezone
 
-from bookings.choices import RESERVATION_ACTIVE_STATES, ResourceKind
+from bookings.choices import (
+    RESERVATION_ACTIVE_STATES,
+    RESERVATION_WITHDRAWN_STATES,
+    ResourceKind,
+)
 from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import (
     ALL_STATUSES,
@@ -365,10 +369,14 @@ def _orphan(lease: Lease, *, now: datetime, booking: bool = False) -> bool:
         return False
     if not lease.status.holds_nodes and lease.status.value != "pending":
         return False
-    active = Reservation.objects.filter(
-        public_id=public_id, lease_uuid=lease.uuid, state__in=RESERVATION_ACTIVE_STATES
-    ).exists()
-    if active:
+    # A booking holds its lease to the end of its slot unless withdrawn: one whose run
+    # completed early keeps its fixed nodes (the experiment on them may go on).
+    held = (
+        Reservation.objects.filter(public_id=public_id, lease_uuid=lease.uuid)
+        .exclude(state__in=RESERVATION_WITHDRAWN_STATES)
+        .exists()
+    )
+    if held:
         return False
     if connection.vendor == "postgresql":
         return _not_being_booked(public_id)

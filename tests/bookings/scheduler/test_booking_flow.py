@@ -22,7 +22,11 @@ from bookings.choices import ReservationState
 from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import LeaseStatus
 from bookings.selectors import resource_free_intervals
-from bookings.services import fixed_node_names_from_scheduler, reservation_create
+from bookings.services import (
+    fixed_node_names_from_scheduler,
+    reservation_complete,
+    reservation_create,
+)
 from bookings.tasks import lease_cancel, scheduler_sweep
 from core.errors import Conflict, NotAllowed
 from portal.runs.models import Run
@@ -232,6 +236,25 @@ def test_the_sweep_cancels_an_orphan_but_never_a_lease_still_being_booked(linked
     # Once that booking is over (here: it never committed), the next sweep cancels it too.
     assert leases.scheduler_sweep().orphans_cancelled == 1
     assert _live(linked) == []
+
+
+def test_the_sweep_leaves_the_lease_of_a_booking_whose_run_completed_before_its_end(
+    linked, owner, slot
+):
+    """Found by the soak: a run that completed early marks its booking completed, and the
+    sweep took that booking's lease for an orphan and cancelled it — the fixed nodes given
+    away in the middle of the researcher's slot."""
+    kept = reservation_create(owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1])
+    withdrawn = reservation_create(
+        owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
+    )
+    assert reservation_complete(reservation_id=kept.pk)
+    # A cancelled booking whose lease could not be given back at once: the sweep's to cancel.
+    Reservation.objects.filter(pk=withdrawn.pk).update(state=ReservationState.CANCELLED)
+    result = leases.scheduler_sweep()
+    assert result is not None
+    assert result.orphans_cancelled == 1
+    assert [lease.uuid for lease in _live(linked)] == [kept.lease_uuid]
 
 
 def test_a_booking_cancels_the_portals_own_orphan_in_its_way_but_no_other_lease(
