@@ -7,6 +7,7 @@ here against the test database.
 from __future__ import annotations
 
 import threading
+import time
 import uuid
 from dataclasses import replace
 from datetime import datetime, timedelta
@@ -255,6 +256,58 @@ def test_the_sweep_leaves_the_lease_of_a_booking_whose_run_completed_before_its_
     assert result is not None
     assert result.orphans_cancelled == 1
     assert [lease.uuid for lease in _live(linked)] == [kept.lease_uuid]
+
+
+# Its threads' connections commit: the test's rows must be committed for them, and flushed.
+@pytest.mark.django_db(transaction=True)
+def test_the_sweep_waits_for_a_bookings_mirror_of_the_leases_to_commit(linked, slot):
+    """A booking mirrors the leases inside its transaction, the sweep inside its own: each
+    locks many lease rows, and two at once deadlocked. The sweep now waits for the booking's
+    transaction to end before it mirrors."""
+    linked.seed(
+        name="elsewhere",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-03"}],
+        account_attributes={"name": "someone"},
+    )
+    mirrored, release, swept = threading.Event(), threading.Event(), threading.Event()
+
+    def booking() -> None:
+        with transaction.atomic():
+            leases.leases_refresh(start_at=slot[0], end_at=slot[1])
+            mirrored.set()
+            release.wait(30)
+        connection.close()
+
+    def sweep() -> None:
+        leases.scheduler_sweep()
+        swept.set()
+        connection.close()
+
+    def sweep_waiting() -> bool:
+        with connection.cursor() as cursor:
+            cursor.execute(
+                "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND NOT granted"
+            )
+            return bool(cursor.fetchone()[0])
+
+    threads = [threading.Thread(target=booking), threading.Thread(target=sweep)]
+    threads[0].start()
+    try:
+        assert mirrored.wait(30)
+        threads[1].start()
+        deadline = time.monotonic() + 30
+        while not sweep_waiting():
+            assert not swept.is_set(), "the sweep mirrored while the booking's mirror stood"
+            assert time.monotonic() < deadline, "the sweep never waited"
+            time.sleep(0.05)
+    finally:
+        release.set()
+        for thread in threads:
+            thread.join(30)
+    assert swept.is_set()
+    assert SchedulerLease.objects.filter(name="elsewhere", holds=True).count() == 1
 
 
 def test_a_booking_cancels_the_portals_own_orphan_in_its_way_but_no_other_lease(
