@@ -130,7 +130,9 @@ class Api:
         if response.status_code >= 400:
             message = _message(response)
             response.close()
-            raise CliError(message, exit_code=_exit_code(response.status_code))
+            raise CliError(
+                message, exit_code=_exit_code(response.status_code), status=response.status_code
+            )
         return response
 
     def call(self, operation: str, **kwargs: Any) -> Any:
@@ -144,11 +146,13 @@ class Api:
                 exit_code=UNAVAILABLE,
             ) from exc
 
-    def create(self, operation: str, body: dict[str, Any]) -> Any:
-        """A creating POST, safe to retry: the portal replays the answer to a repeated key."""
-        return self.call(
-            operation, json=body, headers={"X-Idempotency-Key": f"amazing-cli-{uuid.uuid4()}"}
-        )
+    def create(self, operation: str, body: dict[str, Any], *, key: str | None = None) -> Any:
+        """A creating POST, safe to retry: the portal replays the answer to a repeated key.
+
+        ``key``: the ``X-Idempotency-Key`` to send (a fresh one by default); a script that
+        retries a POST whose answer it lost sends the same key again."""
+        key = key or f"amazing-cli-{uuid.uuid4()}"
+        return self.call(operation, json=body, headers={"X-Idempotency-Key": key})
 
     def pages(
         self, operation: str, *, params: dict[str, Any] | None = None, limit: int | None = None

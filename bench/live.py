@@ -27,14 +27,9 @@ import os
 import re
 import secrets
 import shutil
-import signal
-import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import timedelta
 from pathlib import Path
@@ -43,71 +38,17 @@ from typing import Any
 import requests
 
 from basestation.client import AgentClient
+from bench.stack import RedisServer, Stack, running_stack
 
-REPO = Path(__file__).resolve().parent.parent
-REDIS_SERVER = "/usr/bin/redis-server"
 PROGRAM_S = 30.0
 POLL_S = 2.0  # the run page's polling interval before live pushes
 OPEN_STREAMS = 200
 PROBES = 100
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def _percentile(values: list[float], fraction: float) -> float:
     ordered = sorted(values)
     return ordered[max(0, math.ceil(fraction * len(ordered)) - 1)]
-
-
-class _Children:
-    """The system's processes, each in its own process group, logging to files."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: list[subprocess.Popen[bytes]] = []
-
-    def start(self, name: str, argv: list[str], env: dict[str, str]) -> None:
-        # The child writes to its own copy of the file; this process needs none.
-        with (self.log_dir / f"{name}.log").open("wb") as log:
-            self.procs.append(
-                subprocess.Popen(
-                    argv,
-                    cwd=REPO,
-                    env=env,
-                    stdout=log,
-                    stderr=subprocess.STDOUT,
-                    stdin=subprocess.DEVNULL,
-                    start_new_session=True,
-                )
-            )
-
-    def stop(self) -> None:
-        for proc in reversed(self.procs):
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGTERM)
-        for proc in self.procs:
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-
-
-def _wait(what: str, check: Callable[[], Any], timeout_s: float) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        try:
-            value = check()
-        except (requests.RequestException, OSError):
-            value = None
-        if value:
-            return value
-        time.sleep(0.2)
-    raise RuntimeError(f"timed out waiting for {what}")
 
 
 def _login(web: str, username: str, password: str) -> requests.Session:
@@ -244,159 +185,131 @@ def run(
 ) -> str:
     """Run the benchmark against ``database_url`` (migrated, empty); the report's markdown."""
     import django
-    from django.utils import timezone
 
     os.environ.setdefault("DJANGO_SETTINGS_MODULE", "portal.settings")
     django.setup()
+    work = Path(tempfile.mkdtemp(prefix="bench-live-"))
+    server = None
+    try:
+        if redis_url is None:
+            server = RedisServer(work / "redis")
+            server.start()
+            redis_url = f"redis://127.0.0.1:{server.port}"
+        with running_stack(
+            work / "var",
+            database_url=database_url,
+            broker_url=f"{redis_url}/1",
+            redis_url=f"{redis_url}/0",
+            # The default sweep, and the web server's default threads.
+            extra_env={"RUN_SWEEP_INTERVAL_S": "2", "WEB_THREADS": "8"},
+            log_dir=work / "logs",
+            access_log=False,
+        ) as stack:
+            return _measure(stack, program_s=program_s, open_streams=open_streams, probes=probes)
+    finally:
+        if server is not None:
+            server.stop()
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _measure(stack: Stack, *, program_s: float, open_streams: int, probes: int) -> str:
+    from django.utils import timezone
+
     from bookings.models import Resource
     from core.accounts.models import User
     from portal.experiments.models import Experiment
-    from portal.processes import system_processes
     from portal.runs.services.booking import booking_create
 
-    work = Path(tempfile.mkdtemp(prefix="bench-live-"))
-    children = _Children(work)
-    redis_proc = None
-    try:
-        if redis_url is None:
-            assert shutil.which(REDIS_SERVER), "the live benchmark needs redis-server"
-            redis_port = _free_port()
-            redis_proc = subprocess.Popen(
-                [REDIS_SERVER, "--port", str(redis_port), "--save", "", "--appendonly", "no"],
-                cwd=work,
-                stdout=subprocess.DEVNULL,
-                start_new_session=True,
-            )
-            redis_url = f"redis://127.0.0.1:{redis_port}"
-        token = secrets.token_urlsafe(24)
-        web_port, streams_port, agent_port = _free_port(), _free_port(), _free_port()
-        env = dict(os.environ)
-        env.update(
-            {
-                "DJANGO_DEBUG": "1",
-                "DATABASE_URL": database_url,
-                "REDIS_URL": f"{redis_url}/0",
-                "CELERY_BROKER_URL": f"{redis_url}/1",
-                "AGENT_TOKEN": token,
-                "AGENT_DATA_DIR": str(work / "agent"),
-                "AMAZING_VAR_DIR": str(work / "var"),
-                "PYTHONUNBUFFERED": "1",
-                "LOG_LEVEL": "WARNING",
-            }
-        )
-        env.pop("AGENT_TOKEN_FILE", None)
-        specs = system_processes(
-            python=sys.executable,
-            portal_port=web_port,
-            streams_port=streams_port,
-            agent_port=agent_port,
-            var_dir=work / "var",
-            access_log=False,
-            log_level="WARNING",
-        )
-        for spec in specs:
-            children.start(spec.name, list(spec.argv), {**env, **spec.env})
-        web, agent = f"http://127.0.0.1:{web_port}", f"http://127.0.0.1:{agent_port}"
-        streams_base = f"http://127.0.0.1:{streams_port}"
-        _wait("the agent", lambda: requests.get(f"{agent}/healthz", timeout=2).ok, 60)
-        _wait("the web server", lambda: requests.get(f"{web}/healthz", timeout=5).ok, 60)
+    web, agent, token, streams_base = stack.web, stack.agent_url, stack.token, stack.streams
+    password = secrets.token_urlsafe(12)
+    user = User.objects.create_user(username="bench", password=password)
+    robot = Resource.objects.create(
+        name="mobile-1", kind="mobile", agent_url=agent, max_velocity_mps=2, max_accel_mps2=1
+    )
+    experiment = Experiment.objects.create(
+        owner=user,
+        title="live bench",
+        segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": program_s}],
+    )
+    start = timezone.now() + timedelta(seconds=8)
+    reservation = booking_create(
+        owner=user,
+        resource=robot,
+        start_at=start,
+        end_at=start + timedelta(seconds=program_s + 5),
+        experiment=experiment,
+    )
+    run_id = reservation.run.pk
 
-        password = secrets.token_urlsafe(12)
-        user = User.objects.create_user(username="bench", password=password)
-        robot = Resource.objects.create(
-            name="mobile-1", kind="mobile", agent_url=agent, max_velocity_mps=2, max_accel_mps2=1
-        )
-        experiment = Experiment.objects.create(
-            owner=user,
-            title="live bench",
-            segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": program_s}],
-        )
-        start = timezone.now() + timedelta(seconds=8)
-        reservation = booking_create(
-            owner=user,
-            resource=robot,
-            start_at=start,
-            end_at=start + timedelta(seconds=program_s + 5),
-            experiment=experiment,
-        )
-        run_id = reservation.run.pk
+    sse, read, polled = Watcher(), Watcher(), Watcher()
+    stop = threading.Event()
+    threads = [
+        threading.Thread(
+            target=_follow_stream,
+            args=(web, streams_base, _login(web, "bench", password), run_id, sse, read, stop),
+        ),
+        threading.Thread(
+            target=_poll, args=(web, _login(web, "bench", password), run_id, polled, stop)
+        ),
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=program_s + 120)
+    stop.set()
 
-        sse, read, polled = Watcher(), Watcher(), Watcher()
-        stop = threading.Event()
-        threads = [
-            threading.Thread(
-                target=_follow_stream,
-                args=(web, streams_base, _login(web, "bench", password), run_id, sse, read, stop),
-            ),
-            threading.Thread(
-                target=_poll, args=(web, _login(web, "bench", password), run_id, polled, stop)
-            ),
+    with AgentClient(agent, token) as client:
+        stored_at = {int(s["seq"]): float(s["t"]) for s in client.iter_samples(f"run-{run_id}")}
+    assert stored_at, "the run recorded nothing"
+    rows = []
+    for name, watcher in (
+        ("SSE event", sse),
+        ("SSE event + page data read", read),
+        (f"polling every {POLL_S:g} s (before)", polled),
+    ):
+        p50, p95, count = _delays(watcher, stored_at)
+        rows.append(
+            f"| {name} | {p50 * 1000:.0f} ms | {p95 * 1000:.0f} ms | {count} of {len(stored_at)} |"
+        )
+    once = sum(1 for seq in stored_at if sse.announced.get(seq) == 1)
+    twice = sum(1 for seq in stored_at if sse.announced.get(seq, 0) > 1)
+    never = sum(1 for seq in stored_at if seq not in sse.announced)
+
+    probe_session = _login(web, "bench", password)
+    probe_url = f"{web}/api/v1/resources/"
+    quiet = _probe(probe_session, probe_url, probes)
+    streams = _open_streams(streams_base, _login(web, "bench", password), open_streams)
+    loaded = _probe(probe_session, probe_url, probes)
+    for response in streams:
+        response.close()
+    sweep_s = 2.0
+    return "\n".join(
+        [
+            "## Live pushes: sample to browser (SSE against polling)",
+            "",
+            "The whole system (agent with the simulated robot, uvicorn, Celery workers, "
+            f"the collector, beat sweeping every {sweep_s:g} s — the default — "
+            "PostgreSQL, Redis); one "
+            f"{program_s:g} s run at 20 Hz ({len(stored_at)} samples). Delay = when the "
+            "client had the sample minus the sample's `t` (the agent's clock at the tick "
+            "that recorded it).",
+            "",
+            "| client | p50 | p95 | samples seen |",
+            "| --- | --- | --- | --- |",
+            *rows,
+            "",
+            f"Over SSE, {once} of {len(stored_at)} samples were announced exactly once "
+            f"({twice} more than once, {never} never). The collector long-polls the agent "
+            "(`GET …/samples?after=SEQ&wait_s=N` answers as soon as the store writer has "
+            "committed the next samples), stores them by the same idempotent ingest as the "
+            "sweep and publishes what it stored after the commit; the sweep stays the "
+            "safety net. Before it, a sample waited up to one sweep (2 s) on the base "
+            "station: p50 1.06 s, p95 1.92 s on 2026-11-24.",
+            "",
+            f"With {open_streams} event streams open, {probes} sequential "
+            f"`GET /api/v1/resources/` took p50 {loaded[0]:.1f} ms / p95 {loaded[1]:.1f} ms "
+            f"({loaded[2]} failed), against p50 {quiet[0]:.1f} ms / p95 {quiet[1]:.1f} ms "
+            f"({quiet[2]} failed) with none open: an open stream waits on Redis in the "
+            "event loop and holds no thread.",
         ]
-        for thread in threads:
-            thread.start()
-        for thread in threads:
-            thread.join(timeout=program_s + 120)
-        stop.set()
-
-        with AgentClient(agent, token) as client:
-            stored_at = {int(s["seq"]): float(s["t"]) for s in client.iter_samples(f"run-{run_id}")}
-        assert stored_at, "the run recorded nothing"
-        rows = []
-        for name, watcher in (
-            ("SSE event", sse),
-            ("SSE event + page data read", read),
-            (f"polling every {POLL_S:g} s (before)", polled),
-        ):
-            p50, p95, count = _delays(watcher, stored_at)
-            rows.append(
-                f"| {name} | {p50 * 1000:.0f} ms | {p95 * 1000:.0f} ms "
-                f"| {count} of {len(stored_at)} |"
-            )
-        once = sum(1 for seq in stored_at if sse.announced.get(seq) == 1)
-        twice = sum(1 for seq in stored_at if sse.announced.get(seq, 0) > 1)
-        never = sum(1 for seq in stored_at if seq not in sse.announced)
-
-        probe_session = _login(web, "bench", password)
-        probe_url = f"{web}/api/v1/resources/"
-        quiet = _probe(probe_session, probe_url, probes)
-        streams = _open_streams(streams_base, _login(web, "bench", password), open_streams)
-        loaded = _probe(probe_session, probe_url, probes)
-        for response in streams:
-            response.close()
-        sweep_s = 2.0
-        return "\n".join(
-            [
-                "## Live pushes: sample to browser (SSE against polling)",
-                "",
-                "The whole system (agent with the simulated robot, uvicorn, Celery workers, "
-                f"the collector, beat sweeping every {sweep_s:g} s — the default — "
-                "PostgreSQL, Redis); one "
-                f"{program_s:g} s run at 20 Hz ({len(stored_at)} samples). Delay = when the "
-                "client had the sample minus the sample's `t` (the agent's clock at the tick "
-                "that recorded it).",
-                "",
-                "| client | p50 | p95 | samples seen |",
-                "| --- | --- | --- | --- |",
-                *rows,
-                "",
-                f"Over SSE, {once} of {len(stored_at)} samples were announced exactly once "
-                f"({twice} more than once, {never} never). The collector long-polls the agent "
-                "(`GET …/samples?after=SEQ&wait_s=N` answers as soon as the store writer has "
-                "committed the next samples), stores them by the same idempotent ingest as the "
-                "sweep and publishes what it stored after the commit; the sweep stays the "
-                "safety net. Before it, a sample waited up to one sweep (2 s) on the base "
-                "station: p50 1.06 s, p95 1.92 s on 2026-11-24.",
-                "",
-                f"With {open_streams} event streams open, {probes} sequential "
-                f"`GET /api/v1/resources/` took p50 {loaded[0]:.1f} ms / p95 {loaded[1]:.1f} ms "
-                f"({loaded[2]} failed), against p50 {quiet[0]:.1f} ms / p95 {quiet[1]:.1f} ms "
-                f"({quiet[2]} failed) with none open: an open stream waits on Redis in the "
-                "event loop and holds no thread.",
-            ]
-        )
-    finally:
-        children.stop()
-        if redis_proc is not None:
-            redis_proc.terminate()
-            redis_proc.wait(timeout=10)
-        shutil.rmtree(work, ignore_errors=True)
+    )

@@ -21,39 +21,29 @@ import math
 import os
 import secrets
 import shutil
-import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import timedelta
 from functools import partial
 from pathlib import Path
-from typing import Any, BinaryIO
 
 import redis
 import requests
 
 from basestation.client import AgentClient
+from bench.stack import Proc, RedisServer, free_port, wait_until
 
 REPO = Path(__file__).resolve().parent.parent
-REDIS_SERVER = "/usr/bin/redis-server"
 HZ = 20.0
 ROBOTS = (1, 4, 8)
 PROGRAM_S = 30.0
 LEAD_S = 10.0  # booking to start: staged by the next sweeps, followed by the collector
 LAG_TARGET_S = 1.0
 CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _percentile(values: Sequence[float], fraction: float) -> float:
@@ -66,56 +56,6 @@ def _cpu_s(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     # After the ")": state is field 3 of stat(5); utime, stime, cutime, cstime are 14-17.
     return sum(int(fields[i]) for i in range(11, 15)) / CLK_TCK
-
-
-class _Children:
-    """Processes, each in its own process group, logging to files."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        self._logs: list[BinaryIO] = []
-
-    def start(self, name: str, argv: Sequence[str], env: dict[str, str]) -> None:
-        log = (self.log_dir / f"{name}.log").open("wb")
-        self._logs.append(log)
-        self.procs[name] = subprocess.Popen(
-            list(argv),
-            cwd=REPO,
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            start_new_session=True,
-        )
-
-    def stop(self) -> None:
-        for proc in reversed(list(self.procs.values())):
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGTERM)
-        for proc in self.procs.values():
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-        self.procs = {}
-        for log in self._logs:
-            log.close()
-        self._logs = []
-
-
-def _wait(what: str, check: Callable[[], Any], timeout_s: float) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        try:
-            value = check()
-        except (requests.RequestException, redis.RedisError, OSError):
-            value = None
-        if value:
-            return value
-        time.sleep(0.2)
-    raise RuntimeError(f"timed out waiting for {what}")
 
 
 def _healthy(url: str) -> bool:
@@ -207,10 +147,14 @@ def _round(
     python = sys.executable
     round_dir = work / f"n{robots}"
     round_dir.mkdir()
-    children = _Children(round_dir)
+    children: dict[str, Proc] = {}
+
+    def launch(name: str, argv: Sequence[str], env: dict[str, str]) -> None:
+        children[name] = Proc(name, list(argv), env, log_path=round_dir / f"{name}.log")
+
     listener = _Announcements(redis_url)
     try:
-        ports = [_free_port() for _ in range(robots)]
+        ports = [free_port() for _ in range(robots)]
         for k, port in enumerate(ports, start=1):
             spec = agent_process(python=python, port=port)
             agent_env = {
@@ -219,7 +163,7 @@ def _round(
                 "AGENT_DATA_DIR": str(round_dir / f"agent-{k}"),
                 "AGENT_CONTROL_HZ": f"{HZ:g}",
             }
-            children.start(f"agent-{k}", spec.argv, agent_env)
+            launch(f"agent-{k}", spec.argv, agent_env)
         for spec in (
             worker_process(python=python, log_level="WARNING"),
             collector_process(python=python),
@@ -227,9 +171,9 @@ def _round(
                 python=python, schedule_file=round_dir / "celerybeat-schedule", log_level="WARNING"
             ),
         ):
-            children.start(spec.name, spec.argv, {**env, **spec.env})
+            launch(spec.name, spec.argv, {**env, **spec.env})
         for port in ports:
-            _wait("an agent", partial(_healthy, f"http://127.0.0.1:{port}/healthz"), 60)
+            wait_until("an agent", partial(_healthy, f"http://127.0.0.1:{port}/healthz"), 60)
 
         user = User.objects.get_or_create(username="bench-scale")[0]
         start = timezone.now() + timedelta(seconds=LEAD_S)
@@ -258,7 +202,7 @@ def _round(
             )
             run_ids.append(reservation.run.pk)
 
-        pids = {name: proc.pid for name, proc in children.procs.items()}
+        pids = {name: proc.popen.pid for name, proc in children.items()}
         # CPU is counted over the programs: from their start to their end.
         time.sleep(max(0.0, (start - timezone.now()).total_seconds()))
         cpu_before = {name: _cpu_s(pid) for name, pid in pids.items()}
@@ -272,7 +216,7 @@ def _round(
                 pk__in=run_ids, state__in=["staged", "running", "collecting"]
             ).exists()
 
-        _wait("every run to end", all_ended, 120 + program_s)
+        wait_until("every run to end", all_ended, 120 + program_s)
         connections.close_all()
         listener.close()
 
@@ -307,7 +251,8 @@ def _round(
         )
     finally:
         listener.close()
-        children.stop()
+        for proc in reversed(list(children.values())):
+            proc.stop()
 
 
 def run(
@@ -325,19 +270,12 @@ def run(
     django.setup()
 
     work = Path(tempfile.mkdtemp(prefix="bench-scale-"))
-    redis_proc = None
+    server = None
     try:
         if redis_url is None:
-            assert shutil.which(REDIS_SERVER), "the scale benchmark needs redis-server"
-            redis_port = _free_port()
-            redis_proc = subprocess.Popen(
-                [REDIS_SERVER, "--port", str(redis_port), "--save", "", "--appendonly", "no"],
-                cwd=work,
-                stdout=subprocess.DEVNULL,
-                start_new_session=True,
-            )
-            redis_url = f"redis://127.0.0.1:{redis_port}"
-            _wait("redis", lambda: redis.Redis.from_url(redis_url).ping(), 15)
+            server = RedisServer(work / "redis")
+            server.start()
+            redis_url = f"redis://127.0.0.1:{server.port}"
         token = secrets.token_urlsafe(24)
         env = dict(os.environ)
         env.update(
@@ -366,9 +304,8 @@ def run(
             for n in robots
         ]
     finally:
-        if redis_proc is not None:
-            redis_proc.terminate()
-            redis_proc.wait(timeout=10)
+        if server is not None:
+            server.stop()
         shutil.rmtree(work, ignore_errors=True)
     report = "\n".join(
         [

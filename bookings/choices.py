@@ -16,6 +16,8 @@ class ReservationState(models.TextChoices):
 
 # A requested reservation holds its slot while an admin decides, so nobody else can take it.
 RESERVATION_ACTIVE_STATES = (ReservationState.REQUESTED, ReservationState.CONFIRMED)
+# Withdrawn: the slot (and a lease of fixed nodes with it) is given back.
+RESERVATION_WITHDRAWN_STATES = (ReservationState.REJECTED, ReservationState.CANCELLED)
 # What counts against a quota: everything not withdrawn.
 RESERVATION_COUNTED_STATES = (
     ReservationState.REQUESTED,

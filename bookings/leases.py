@@ -31,7 +31,11 @@ from django.conf import settings
 from django.db import connection, transaction
 from django.utils import timezone
 
-from bookings.choices import RESERVATION_ACTIVE_STATES, ResourceKind
+from bookings.choices import (
+    RESERVATION_ACTIVE_STATES,
+    RESERVATION_WITHDRAWN_STATES,
+    ResourceKind,
+)
 from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import (
     ALL_STATUSES,
@@ -305,9 +309,28 @@ class SweepResult:
     notices: tuple[tuple[str, int], ...]
 
 
+# The advisory lock that lets one mirror run at a time (PostgreSQL).
+MIRROR_LOCK_KEY = int.from_bytes(b"leasemir", "big", signed=True)
+
+
 def _mirror(leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, datetime]) -> None:
     """Upsert what the scheduler listed at ``now``; what it no longer lists in the window is
-    gone — unless a newer look (another process's) saw it after ``now``."""
+    gone — unless a newer look (another process's) saw it after ``now``.
+
+    One mirror at a time, until its transaction ends: a booking mirrors inside its own
+    transaction (the API's, with the idempotency key), the sweep in its; each locks many lease
+    rows in the order the scheduler listed them, and two at once deadlocked (a booking
+    answered 500 while the sweep ran)."""
+    with transaction.atomic():
+        if connection.vendor == "postgresql":
+            with connection.cursor() as cursor:
+                cursor.execute("SELECT pg_advisory_xact_lock(%s)", [MIRROR_LOCK_KEY])
+        _mirror_locked(leases, now=now, window=window)
+
+
+def _mirror_locked(
+    leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, datetime]
+) -> None:
     by_name = {r.name: r for r in Resource.objects.all()}
     own = {
         str(public_id): pk
@@ -366,10 +389,14 @@ def _orphan(lease: Lease, *, now: datetime, booking: bool = False) -> bool:
         return False
     if not lease.status.holds_nodes and lease.status.value != "pending":
         return False
-    active = Reservation.objects.filter(
-        public_id=public_id, lease_uuid=lease.uuid, state__in=RESERVATION_ACTIVE_STATES
-    ).exists()
-    if active:
+    # A booking holds its lease to the end of its slot unless withdrawn: one whose run
+    # completed early keeps its fixed nodes (the experiment on them may go on).
+    held = (
+        Reservation.objects.filter(public_id=public_id, lease_uuid=lease.uuid)
+        .exclude(state__in=RESERVATION_WITHDRAWN_STATES)
+        .exists()
+    )
+    if held:
         return False
     if connection.vendor == "postgresql":
         return _not_being_booked(public_id)

@@ -34,6 +34,8 @@ STOP_GRACE_S = 10.0
 RESTART_DELAYS_S = (1.0, 2.0, 4.0, 8.0, 16.0, 30.0)
 RESTART_LIMIT = 5
 RESTART_WINDOW_S = 600.0
+# How often the children are looked at (a death is noticed, a pause found over).
+WATCH_INTERVAL_S = 0.5
 
 
 @dataclass
@@ -209,6 +211,12 @@ def _watch(children: list[Child], env: dict[str, str]) -> int:
     return 0
 
 
+class _Stopping:
+    """Set by SIGINT or SIGTERM; the watch loop reads it between looks."""
+
+    requested = False
+
+
 def main() -> int:
     var_dir = Path(os.environ.get("AMAZING_VAR_DIR", BASE_DIR / "var")).resolve()
     var_dir.mkdir(parents=True, exist_ok=True)
@@ -261,10 +269,13 @@ def main() -> int:
         )
     ]
 
-    stopping = threading.Event()
+    # A plain flag, not a threading.Event: Ctrl-C and a SIGTERM together (or a SIGTERM to the
+    # whole group) run the handler again while it is inside Event.set, whose lock is not
+    # reentrant, and the launcher would hang with every child running.
+    stopping = _Stopping()
 
     def on_signal(signum: int, _frame: object) -> None:
-        stopping.set()
+        stopping.requested = True
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
@@ -296,11 +307,11 @@ def main() -> int:
                 "launch",
                 f"API docs at http://127.0.0.1:{portal_port}/api/docs/ ; Ctrl-C stops everything",
             )
-        while not stopping.is_set():
+        while not stopping.requested:
             exit_code = _watch(children, env)
             if exit_code:
-                stopping.set()
-            stopping.wait(0.5)
+                break
+            time.sleep(WATCH_INTERVAL_S)
     finally:
         _say("launch", "stopping…")
         _stop(children)

@@ -111,6 +111,12 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _StopFlag:
+    """Set by SIGTERM or SIGINT; the robot's loop reads it between steps."""
+
+    requested = False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     for name in ("radio_port", "peer_port", "inspect_port"):
@@ -154,10 +160,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     threading.Thread(target=inspector.serve_forever, name="sim-inspect", daemon=True).start()
 
-    stop = threading.Event()
+    # A plain flag, not a threading.Event: a second signal can arrive while the handler of the
+    # first is inside Event.set, whose lock is not reentrant, and the process would hang there.
+    stop = _StopFlag()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        stop.requested = True
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
@@ -169,7 +177,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.monotonic()
     next_log = started + args.log_interval_s
     try:
-        while not stop.is_set():
+        while not stop.requested:
             now = time.monotonic()
             robot.advance_to(now)
             state = robot.state()

@@ -44,10 +44,18 @@ class Collector:
         self.scan_interval_s = scan_interval_s
         self.wait_s = wait_s
         self.stopping = threading.Event()
+        # Set from a signal handler: a plain attribute, which the scan loop turns into
+        # ``stopping`` (an Event's lock is not reentrant, and a second signal arriving while
+        # the handler of the first is inside ``Event.set`` would hang the process).
+        self.stop_requested = False
         self._followers: dict[int, threading.Thread] = {}
 
     def stop(self) -> None:
         self.stopping.set()
+
+    def request_stop(self) -> None:
+        """Stop soon: safe to call from a signal handler (the scan loop stops the rest)."""
+        self.stop_requested = True
 
     @property
     def following(self) -> list[int]:
@@ -61,6 +69,9 @@ class Collector:
             self.wait_s,
         )
         while not self.stopping.is_set():
+            if self.stop_requested:
+                self.stopping.set()
+                break
             self.scan()
             self.stopping.wait(self.scan_interval_s)
         for thread in self._followers.values():

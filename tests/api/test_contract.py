@@ -28,6 +28,7 @@ import pytest
 from django.utils import timezone
 from rest_framework.authtoken.models import Token
 
+from bench.stack import REPO, free_port
 from portal.runs.services.booking import booking_create
 from tests.api.contract_hooks import DATA_DEPENDENT_FIELDS
 from tests.factories import (
@@ -37,7 +38,6 @@ from tests.factories import (
     UserFactory,
 )
 from tests.integration.live import live_portal
-from tests.integration.processes import REPO, free_port
 from tests.runs.driving import completed_run
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]

@@ -20,8 +20,10 @@ from django.utils import timezone
 from rest_framework.authtoken.models import Token
 from typer.testing import CliRunner
 
-from amazing_cli.api import OPERATIONS
+from amazing_cli.api import OPERATIONS, Api
+from amazing_cli.errors import CliError
 from amazing_cli.main import app
+from bookings.models import Reservation
 from portal.runs.services.booking import booking_create
 from tests.cli.schema_paths import undocumented
 from tests.factories import (
@@ -282,3 +284,26 @@ def test_another_users_run_is_not_found(portal):
     )
     _one_line_error(amazing("watch", str(theirs.run.pk)), 4)
     _one_line_error(amazing("cancel", str(theirs.run.pk)), 4)
+
+
+def test_a_script_retrying_with_its_key_books_once_and_sees_the_portals_status(portal):
+    """The client's ``create`` with a key of the script's own: sent again (its answer lost),
+    the portal replays the first booking instead of making a second; a refusal carries the
+    portal's status, which tells a taken slot (409) from a portal that did not answer."""
+    api = Api(portal["url"], Token.objects.get(user=portal["erin"]).key)
+    start = (timezone.now() + timedelta(hours=3)).replace(microsecond=0)
+    body = {
+        "resources": ["node-01"],
+        "start_at": start.isoformat(),
+        "end_at": (start + timedelta(minutes=30)).isoformat(),
+    }
+    first = api.create("reservation_create", body, key="campaign-7-slot-1")
+    again = api.create("reservation_create", body, key="campaign-7-slot-1")
+    assert again == first
+    assert Reservation.objects.filter(owner=portal["erin"]).count() == 1
+    with pytest.raises(CliError) as taken:
+        api.create("reservation_create", body, key="campaign-7-slot-2")
+    assert taken.value.status == 409
+    with pytest.raises(CliError) as down:
+        Api("http://127.0.0.1:9", "token").call("me")
+    assert down.value.status is None

@@ -20,9 +20,9 @@ import pytest
 import requests
 from rest_framework.authtoken.models import Token
 
+from bench.stack import REPO
 from tests.cli.schema_paths import requests_in_access_log, undocumented
 from tests.factories import MobileResourceFactory, UserFactory
-from tests.integration.processes import REPO
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 

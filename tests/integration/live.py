@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from django.conf import settings
 
+from bench.stack import Proc, free_port, python, wait_http
 from portal.processes import agent_process, web_process
-from tests.integration.processes import Proc, free_port, python, wait_http
 
 
 @dataclass

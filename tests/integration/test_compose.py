@@ -37,7 +37,7 @@ from django.conf import settings
 from django.utils import timezone
 from prometheus_client.parser import text_string_to_metric_families
 
-from tests.integration.processes import REPO, Proc, free_port, wait_http
+from bench.stack import REPO, Proc, free_port, wait_http
 
 pytestmark = pytest.mark.integration
 

@@ -23,11 +23,11 @@ from django.utils import timezone
 from rest_framework.authtoken.models import Token
 
 from basestation.client import AgentClient, AgentError
+from bench.stack import Proc
 from bookings.models import Resource
 from portal.runs.models import Run, Sample
 from portal.runs.services.collection import MissingRange
 from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
-from tests.integration.processes import Proc
 from tests.integration.stack import FAULT_ENV, Stack
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]

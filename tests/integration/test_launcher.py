@@ -12,7 +12,8 @@ import pytest
 import requests
 from django.utils import timezone
 
-from tests.integration.processes import Proc, free_port, processes_matching_env, python
+from bench.stack import Proc, free_port, python
+from tests.integration.processes import processes_matching_env
 
 pytestmark = pytest.mark.integration
 
@@ -312,7 +313,14 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
         rails = {_json(session, f"{url}/data.json", launcher)["rail_length_m"] for url in run_urls}
         assert len(rails) == 2  # two robots, two rails
 
+        # Ctrl-C, then a burst of SIGTERMs (a supervisor's stop on top): signals arriving
+        # while the handler of the one before runs must still stop it, not hang it.
         launcher.popen.send_signal(signal.SIGINT)
+        for _ in range(500):
+            try:
+                os.kill(launcher.popen.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                break
         assert launcher.popen.wait(timeout=30) == 0, launcher.output()
     finally:
         launcher.stop(signal.SIGKILL)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.integration.processes import REPO, python
+from bench.stack import REPO, python
 from tests.portal.broker_peer import connection
 
 MESSAGES = 10_000

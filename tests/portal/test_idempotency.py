@@ -17,13 +17,13 @@ from django.db import connection
 from django.test.utils import CaptureQueriesContext
 from django.utils import timezone
 
+from bench.stack import Proc
 from bookings.models import Reservation
 from core.audit import tasks
 from core.audit.idempotency import UNANSWERED_LEASE_S, idempotency_keys_delete_expired
 from core.audit.models import IdempotencyKey
 from core.cache import Generation
 from tests.factories import FixedResourceFactory
-from tests.integration.processes import Proc
 from tests.sqlite import run_on_sqlite
 
 URL = "/api/v1/reservations/"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import queue
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -128,3 +129,26 @@ def test_a_bad_config_stops_the_process_with_a_clear_error(tmp_path: Any) -> Non
     )  # fmt: skip
     assert result.returncode == 2
     assert "physics.mass_kg = 0 not in 1..1000" in result.stderr
+
+
+def test_a_burst_of_signals_stops_the_robot_process(
+    spi_and_robot: tuple[Any, subprocess.Popen[str], int, queue.Queue[str]],
+) -> None:
+    """Signals arriving while the handler of the one before runs (a stop of the process
+    group on top of its supervisor's) must end the process, not hang it in the handler."""
+    _, process, _, lines = spi_and_robot
+    for n in range(2000):
+        try:
+            process.send_signal(signal.SIGTERM if n % 2 else signal.SIGINT)
+        except ProcessLookupError:
+            break
+    assert process.wait(timeout=15) == 0
+    logged = []
+    while True:
+        try:
+            logged.append(lines.get(timeout=5))
+        except queue.Empty:
+            break
+        if "robot stopped" in logged[-1]:
+            break
+    assert "amazing-sim: robot stopped" in logged[-1], logged

@@ -16,9 +16,9 @@ from typing import Any
 import pytest
 import requests
 
+from bench.stack import Proc, free_port, python
 from bookings.scheduler.config import SchedulerConfig
 from bookings.scheduler.omf import OmfScheduler, wire_time
-from tests.integration.processes import Proc, free_port, python
 
 TOKEN = "standin-test-token"
 LISTENING = re.compile(r"listening on http://127\.0\.0\.1:(\d+)")

@@ -7,6 +7,7 @@ here against the test database.
 from __future__ import annotations
 
 import threading
+import time
 import uuid
 from dataclasses import replace
 from datetime import datetime, timedelta
@@ -22,7 +23,11 @@ from bookings.choices import ReservationState
 from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import LeaseStatus
 from bookings.selectors import resource_free_intervals
-from bookings.services import fixed_node_names_from_scheduler, reservation_create
+from bookings.services import (
+    fixed_node_names_from_scheduler,
+    reservation_complete,
+    reservation_create,
+)
 from bookings.tasks import lease_cancel, scheduler_sweep
 from core.errors import Conflict, NotAllowed
 from portal.runs.models import Run
@@ -232,6 +237,77 @@ def test_the_sweep_cancels_an_orphan_but_never_a_lease_still_being_booked(linked
     # Once that booking is over (here: it never committed), the next sweep cancels it too.
     assert leases.scheduler_sweep().orphans_cancelled == 1
     assert _live(linked) == []
+
+
+def test_the_sweep_leaves_the_lease_of_a_booking_whose_run_completed_before_its_end(
+    linked, owner, slot
+):
+    """Found by the soak: a run that completed early marks its booking completed, and the
+    sweep took that booking's lease for an orphan and cancelled it — the fixed nodes given
+    away in the middle of the researcher's slot."""
+    kept = reservation_create(owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1])
+    withdrawn = reservation_create(
+        owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
+    )
+    assert reservation_complete(reservation_id=kept.pk)
+    # A cancelled booking whose lease could not be given back at once: the sweep's to cancel.
+    Reservation.objects.filter(pk=withdrawn.pk).update(state=ReservationState.CANCELLED)
+    result = leases.scheduler_sweep()
+    assert result is not None
+    assert result.orphans_cancelled == 1
+    assert [lease.uuid for lease in _live(linked)] == [kept.lease_uuid]
+
+
+# Its threads' connections commit: the test's rows must be committed for them, and flushed.
+@pytest.mark.django_db(transaction=True)
+def test_the_sweep_waits_for_a_bookings_mirror_of_the_leases_to_commit(linked, slot):
+    """A booking mirrors the leases inside its transaction, the sweep inside its own: each
+    locks many lease rows, and two at once deadlocked. The sweep now waits for the booking's
+    transaction to end before it mirrors."""
+    linked.seed(
+        name="elsewhere",
+        valid_from=slot[0].isoformat(),
+        valid_until=slot[1].isoformat(),
+        components=[{"name": "node-03"}],
+        account_attributes={"name": "someone"},
+    )
+    mirrored, release, swept = threading.Event(), threading.Event(), threading.Event()
+
+    def booking() -> None:
+        with transaction.atomic():
+            leases.leases_refresh(start_at=slot[0], end_at=slot[1])
+            mirrored.set()
+            release.wait(30)
+        connection.close()
+
+    def sweep() -> None:
+        leases.scheduler_sweep()
+        swept.set()
+        connection.close()
+
+    def sweep_waiting() -> bool:
+        with connection.cursor() as cursor:
+            cursor.execute(
+                "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND NOT granted"
+            )
+            return bool(cursor.fetchone()[0])
+
+    threads = [threading.Thread(target=booking), threading.Thread(target=sweep)]
+    threads[0].start()
+    try:
+        assert mirrored.wait(30)
+        threads[1].start()
+        deadline = time.monotonic() + 30
+        while not sweep_waiting():
+            assert not swept.is_set(), "the sweep mirrored while the booking's mirror stood"
+            assert time.monotonic() < deadline, "the sweep never waited"
+            time.sleep(0.05)
+    finally:
+        release.set()
+        for thread in threads:
+            thread.join(30)
+    assert swept.is_set()
+    assert SchedulerLease.objects.filter(name="elsewhere", holds=True).count() == 1
 
 
 def test_a_booking_cancels_the_portals_own_orphan_in_its_way_but_no_other_lease(

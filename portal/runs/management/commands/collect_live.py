@@ -18,7 +18,7 @@ class Command(BaseCommand):
         collector = collector_from_settings()
 
         def stop(signum: int, frame: types.FrameType | None) -> None:
-            collector.stop()
+            collector.request_stop()
 
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, stop)
