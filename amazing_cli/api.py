@@ -32,6 +32,8 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "run": ("GET", "/api/v1/runs/{id}/"),
     "samples_csv": ("GET", "/api/v1/runs/{id}/samples.csv"),
     "samples_json": ("GET", "/api/v1/runs/{id}/samples.json"),
+    "run_package": ("GET", "/api/v1/runs/{id}/package.zip"),
+    "run_again": ("POST", "/api/v1/runs/{id}/again/"),
     "schema": ("GET", "/api/schema/"),
 }
 
@@ -144,10 +146,13 @@ class Api:
                 exit_code=UNAVAILABLE,
             ) from exc
 
-    def create(self, operation: str, body: dict[str, Any]) -> Any:
+    def create(self, operation: str, body: dict[str, Any] | None = None, **kwargs: Any) -> Any:
         """A creating POST, safe to retry: the portal replays the answer to a repeated key."""
         return self.call(
-            operation, json=body, headers={"X-Idempotency-Key": f"amazing-cli-{uuid.uuid4()}"}
+            operation,
+            json=body,
+            headers={"X-Idempotency-Key": f"amazing-cli-{uuid.uuid4()}"},
+            **kwargs,
         )
 
     def pages(

@@ -4,7 +4,7 @@ from typing import Any
 
 from django.http import StreamingHttpResponse
 from django.shortcuts import get_object_or_404
-from drf_spectacular.utils import OpenApiResponse, extend_schema
+from drf_spectacular.utils import OpenApiResponse, extend_schema, extend_schema_field
 from rest_framework import serializers
 from rest_framework.renderers import BaseRenderer
 from rest_framework.request import Request
@@ -14,8 +14,13 @@ from rest_framework.views import APIView
 from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
 from core.api import Pagination, paginated_response, request_user, valid_query
 from portal.experiments.apis import SegmentOutput
-from portal.runs.downloads import samples_csv_response, samples_json_response
+from portal.runs.downloads import (
+    run_package_response,
+    samples_csv_response,
+    samples_json_response,
+)
 from portal.runs.models import Run
+from portal.runs.provenance import provenance_view
 from portal.runs.selectors import run_report, run_report_json, run_samples, runs_visible
 from portal.runs.states import RunState
 
@@ -43,6 +48,102 @@ class MissingRangeOutput(serializers.Serializer):
     to_s = serializers.FloatField(allow_null=True)
 
 
+class RailOutput(serializers.Serializer):
+    name = serializers.CharField(allow_null=True)
+    file = serializers.CharField(allow_null=True, help_text="Null: the agent's built-in rail.")
+    sha256 = serializers.CharField(allow_null=True, help_text="SHA-256 of the rail file's bytes.")
+    length_m = serializers.FloatField(allow_null=True)
+
+
+class AgentFactsOutput(serializers.Serializer):
+    """The base-station agent that drove the run, as it described itself."""
+
+    version = serializers.CharField(allow_null=True)
+    resource = serializers.CharField(allow_null=True)
+    interface = serializers.CharField(
+        allow_null=True, help_text="How the agent reaches the robot: radio, sim, sim-udp, simple."
+    )
+    control_hz = serializers.FloatField(allow_null=True, help_text="Commands per second.")
+    max_velocity_mps = serializers.FloatField(allow_null=True)
+    max_accel_mps2 = serializers.FloatField(allow_null=True)
+    robot_hard_max_velocity_mps = serializers.FloatField(allow_null=True)
+    robot_confirmed_limits = serializers.BooleanField(allow_null=True)
+    low_battery_v = serializers.FloatField(allow_null=True)
+    rail = RailOutput(allow_null=True)
+
+
+class FirmwareOutput(serializers.Serializer):
+    """What the robot's firmware said of itself (its identity frame)."""
+
+    build_id = serializers.CharField(allow_null=True)
+    protocol_version = serializers.IntegerField(allow_null=True)
+    config = serializers.DictField(
+        child=serializers.IntegerField(),
+        help_text="The compiled-in configuration; units in the names (mm_s, ms, 10mv).",
+    )
+
+
+class ClockOutput(serializers.Serializer):
+    """The base station's clock as its kernel reported it."""
+
+    synchronized = serializers.BooleanField(allow_null=True)
+    offset_s = serializers.FloatField(allow_null=True, help_text="The NTP daemon's last offset.")
+    max_error_s = serializers.FloatField(allow_null=True)
+    estimated_error_s = serializers.FloatField(allow_null=True)
+
+
+class RssiOutput(serializers.Serializer):
+    min = serializers.FloatField(allow_null=True)
+    mean = serializers.FloatField(allow_null=True)
+    max = serializers.FloatField(allow_null=True)
+
+
+class LinkOutput(serializers.Serializer):
+    """The radio link over the run: one exchange per control tick."""
+
+    exchanges = serializers.IntegerField(allow_null=True)
+    answered = serializers.IntegerField(allow_null=True)
+    lost = serializers.IntegerField(allow_null=True)
+    loss_pct = serializers.FloatField(allow_null=True)
+    rssi_dbm = RssiOutput(allow_null=True, help_text="The base station's, of each answer.")
+    robot_rssi_dbm = RssiOutput(allow_null=True, help_text="The robot's, of each command.")
+
+
+class RunLimitsOutput(serializers.Serializer):
+    max_velocity_mps = serializers.FloatField(allow_null=True)
+    max_accel_mps2 = serializers.FloatField(allow_null=True)
+
+
+class StagedOutput(serializers.Serializer):
+    at = serializers.DateTimeField()
+    portal_version = serializers.CharField()
+    limits = RunLimitsOutput(help_text="The limits sent with the run.")
+    agent = AgentFactsOutput(allow_null=True)
+    firmware = FirmwareOutput(allow_null=True)
+
+
+class CollectedOutput(serializers.Serializer):
+    at = serializers.DateTimeField()
+    portal_version = serializers.CharField()
+    started_at = serializers.DateTimeField(
+        allow_null=True, help_text="When the agent started it; null: it never started."
+    )
+    ended_at = serializers.DateTimeField(allow_null=True)
+    agent = AgentFactsOutput(allow_null=True, help_text="As the agent recorded it at the start.")
+    firmware = FirmwareOutput(allow_null=True)
+    clock_at_start = ClockOutput(allow_null=True)
+    clock_at_end = ClockOutput(allow_null=True)
+    link = LinkOutput(allow_null=True)
+
+
+class RunProvenanceOutput(serializers.Serializer):
+    """How the run was made, as recorded when it was staged and when it was collected."""
+
+    format_version = serializers.IntegerField()
+    staged = StagedOutput(allow_null=True)
+    collected = CollectedOutput(allow_null=True)
+
+
 class RunOutput(serializers.ModelSerializer):
     reservation = serializers.IntegerField(source="reservation_id")
     resource = serializers.CharField(source="resource.name")
@@ -51,6 +152,13 @@ class RunOutput(serializers.ModelSerializer):
     sample_count = serializers.SerializerMethodField(help_text="Samples stored in the portal.")
     events = RunEventOutput(many=True)
     missing = MissingRangeOutput(many=True, read_only=True)
+    repeat_of = serializers.IntegerField(
+        source="repeat_of_id", allow_null=True, help_text="The run this one repeats."
+    )
+    limits = RunLimitsOutput(
+        allow_null=True, help_text="Limits asked for at booking; null: the robot's."
+    )
+    provenance = serializers.SerializerMethodField()
 
     class Meta:
         model = Run
@@ -71,11 +179,18 @@ class RunOutput(serializers.ModelSerializer):
             "agent_sample_count",
             "rail_length_m",
             "missing",
+            "repeat_of",
+            "limits",
+            "provenance",
             "events",
         ]
 
     def get_sample_count(self, run: Run) -> int:
         return run.samples.count()
+
+    @extend_schema_field(RunProvenanceOutput)
+    def get_provenance(self, run: Run) -> dict[str, Any]:
+        return provenance_view(run.provenance)
 
 
 class RunFilter(serializers.Serializer):
@@ -197,7 +312,7 @@ class DownloadApi(APIView):
 
     def perform_content_negotiation(self, request: Request, force: bool = False) -> Any:
         renderer, media_type = super().perform_content_negotiation(request, force=True)
-        if isinstance(renderer, CsvRenderer):
+        if isinstance(renderer, CsvRenderer | ZipRenderer):
             json_renderer = self.get_renderers()[0]
             return json_renderer, json_renderer.media_type
         return renderer, media_type
@@ -223,6 +338,38 @@ class RunSamplesJsonApi(DownloadApi):
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
         return samples_json_response(request, run)
+
+
+class ZipRenderer(BaseRenderer):
+    """Names application/zip for content negotiation; the zip is streamed by the view."""
+
+    media_type = "application/zip"
+    format = "zip"
+
+    def render(
+        self, data: Any, accepted_media_type: str | None = None, renderer_context: Any = None
+    ) -> bytes:
+        raise NotImplementedError  # never reached: errors are rendered as JSON
+
+
+class RunPackageApi(DownloadApi):
+    """The run as one self-describing zip: `samples.csv`, `datapackage.json` (a Frictionless
+    Data Package: the CSV's Table Schema with units, and under `amazing` the run, program,
+    reservation, owner, provenance and analysis summary, with the format's version) and a
+    `README.md` naming every column (docs/run-package.md)."""
+
+    renderer_classes = [*APIView.renderer_classes, ZipRenderer]
+
+    @extend_schema(
+        responses={
+            (200, "application/zip"): OpenApiResponse(
+                bytes, description="README.md, samples.csv, then datapackage.json."
+            )
+        }
+    )
+    def get(self, request: Request, pk: int) -> StreamingHttpResponse:
+        run = _run(request, pk)
+        return run_package_response(request, run)
 
 
 class AnalysisQuery(serializers.Serializer):
