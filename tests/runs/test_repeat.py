@@ -116,3 +116,10 @@ def test_run_again_through_the_api_for_the_owner_the_admin_and_nobody_else(
     theirs = client_for(admin_user).post(url)
     assert theirs.status_code == 201, theirs.json()
     assert theirs.json()["owner"] == "alice"
+
+
+def test_an_empty_idempotency_key_is_refused_and_books_nothing(client_for, owner, original):
+    answer = client_for(owner).post(f"/api/v1/runs/{original.pk}/again/", HTTP_X_IDEMPOTENCY_KEY="")
+    assert answer.status_code == 400
+    assert "X-Idempotency-Key" in answer.json()["detail"]
+    assert Run.objects.count() == 1
