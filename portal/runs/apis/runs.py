@@ -48,100 +48,116 @@ class MissingRangeOutput(serializers.Serializer):
     to_s = serializers.FloatField(allow_null=True)
 
 
-class RailOutput(serializers.Serializer):
-    name = serializers.CharField(allow_null=True)
-    file = serializers.CharField(allow_null=True, help_text="Null: the agent's built-in rail.")
-    sha256 = serializers.CharField(allow_null=True, help_text="SHA-256 of the rail file's bytes.")
-    length_m = serializers.FloatField(allow_null=True)
+# How a run was made (``portal/runs/provenance.py``), as one inline schema: nested objects
+# written out in place, not as components behind nullable references, which made the API
+# docs page (Swagger UI) take several times as long to draw.
+def _nullable(kind: str, description: str = "") -> dict[str, Any]:
+    schema: dict[str, Any] = {"type": kind, "nullable": True}
+    if description:
+        schema["description"] = description
+    return schema
 
 
-class AgentFactsOutput(serializers.Serializer):
-    """The base-station agent that drove the run, as it described itself."""
-
-    version = serializers.CharField(allow_null=True)
-    resource = serializers.CharField(allow_null=True)
-    interface = serializers.CharField(
-        allow_null=True, help_text="How the agent reaches the robot: radio, sim, sim-udp, simple."
-    )
-    control_hz = serializers.FloatField(allow_null=True, help_text="Commands per second.")
-    max_velocity_mps = serializers.FloatField(allow_null=True)
-    max_accel_mps2 = serializers.FloatField(allow_null=True)
-    robot_hard_max_velocity_mps = serializers.FloatField(allow_null=True)
-    robot_confirmed_limits = serializers.BooleanField(allow_null=True)
-    low_battery_v = serializers.FloatField(allow_null=True)
-    rail = RailOutput(allow_null=True)
+def _object(properties: dict[str, Any], description: str = "") -> dict[str, Any]:
+    schema = {
+        "type": "object",
+        "nullable": True,
+        "required": list(properties),
+        "properties": properties,
+    }
+    if description:
+        schema["description"] = description
+    return schema
 
 
-class FirmwareOutput(serializers.Serializer):
-    """What the robot's firmware said of itself (its identity frame)."""
-
-    build_id = serializers.CharField(allow_null=True)
-    protocol_version = serializers.IntegerField(allow_null=True)
-    config = serializers.DictField(
-        child=serializers.IntegerField(),
-        help_text="The compiled-in configuration; units in the names (mm_s, ms, 10mv).",
-    )
-
-
-class ClockOutput(serializers.Serializer):
-    """The base station's clock as its kernel reported it."""
-
-    synchronized = serializers.BooleanField(allow_null=True)
-    offset_s = serializers.FloatField(allow_null=True, help_text="The NTP daemon's last offset.")
-    max_error_s = serializers.FloatField(allow_null=True)
-    estimated_error_s = serializers.FloatField(allow_null=True)
-
-
-class RssiOutput(serializers.Serializer):
-    min = serializers.FloatField(allow_null=True)
-    mean = serializers.FloatField(allow_null=True)
-    max = serializers.FloatField(allow_null=True)
-
-
-class LinkOutput(serializers.Serializer):
-    """The radio link over the run: one exchange per control tick."""
-
-    exchanges = serializers.IntegerField(allow_null=True)
-    answered = serializers.IntegerField(allow_null=True)
-    lost = serializers.IntegerField(allow_null=True)
-    loss_pct = serializers.FloatField(allow_null=True)
-    rssi_dbm = RssiOutput(allow_null=True, help_text="The base station's, of each answer.")
-    robot_rssi_dbm = RssiOutput(allow_null=True, help_text="The robot's, of each command.")
-
-
-class RunLimitsOutput(serializers.Serializer):
-    max_velocity_mps = serializers.FloatField(allow_null=True)
-    max_accel_mps2 = serializers.FloatField(allow_null=True)
-
-
-class StagedOutput(serializers.Serializer):
-    at = serializers.DateTimeField()
-    portal_version = serializers.CharField()
-    limits = RunLimitsOutput(help_text="The limits sent with the run.")
-    agent = AgentFactsOutput(allow_null=True)
-    firmware = FirmwareOutput(allow_null=True)
-
-
-class CollectedOutput(serializers.Serializer):
-    at = serializers.DateTimeField()
-    portal_version = serializers.CharField()
-    started_at = serializers.DateTimeField(
-        allow_null=True, help_text="When the agent started it; null: it never started."
-    )
-    ended_at = serializers.DateTimeField(allow_null=True)
-    agent = AgentFactsOutput(allow_null=True, help_text="As the agent recorded it at the start.")
-    firmware = FirmwareOutput(allow_null=True)
-    clock_at_start = ClockOutput(allow_null=True)
-    clock_at_end = ClockOutput(allow_null=True)
-    link = LinkOutput(allow_null=True)
-
-
-class RunProvenanceOutput(serializers.Serializer):
-    """How the run was made, as recorded when it was staged and when it was collected."""
-
-    format_version = serializers.IntegerField()
-    staged = StagedOutput(allow_null=True)
-    collected = CollectedOutput(allow_null=True)
+_TEXT, _NUMBER, _INTEGER = _nullable("string"), _nullable("number"), _nullable("integer")
+_RSSI = _object({"min": _NUMBER, "mean": _NUMBER, "max": _NUMBER})
+_AGENT = _object(
+    {
+        "version": _TEXT,
+        "resource": _TEXT,
+        "interface": _nullable("string", "How the agent reaches the robot: radio, sim, …"),
+        "control_hz": _nullable("number", "Commands per second."),
+        "max_velocity_mps": _NUMBER,
+        "max_accel_mps2": _NUMBER,
+        "robot_hard_max_velocity_mps": _NUMBER,
+        "robot_confirmed_limits": _nullable("boolean"),
+        "low_battery_v": _NUMBER,
+        "rail": _object(
+            {
+                "name": _TEXT,
+                "file": _nullable("string", "Null: the agent's built-in rail."),
+                "sha256": _nullable("string", "SHA-256 of the rail file's bytes."),
+                "length_m": _NUMBER,
+            }
+        ),
+    },
+    "The base-station agent, as it described itself.",
+)
+_FIRMWARE = _object(
+    {
+        "build_id": _TEXT,
+        "protocol_version": _INTEGER,
+        "config": {
+            "type": "object",
+            "additionalProperties": {"type": "integer"},
+            "description": "The compiled-in configuration; units in the names (mm_s, ms, 10mv).",
+        },
+    },
+    "What the robot's firmware said of itself (its identity frame).",
+)
+_CLOCK = _object(
+    {
+        "synchronized": _nullable("boolean"),
+        "offset_s": _nullable("number", "The NTP daemon's last offset."),
+        "max_error_s": _NUMBER,
+        "estimated_error_s": _NUMBER,
+    },
+    "The base station's clock as its kernel reported it.",
+)
+_LIMITS = _object({"max_velocity_mps": _NUMBER, "max_accel_mps2": _NUMBER})
+_INSTANT = {"type": "string", "format": "date-time"}
+RUN_PROVENANCE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "How the run was made, as recorded when it was staged and when it was "
+    "collected (docs/run-package.md).",
+    "required": ["format_version", "staged", "collected"],
+    "properties": {
+        "format_version": {"type": "integer"},
+        "staged": _object(
+            {
+                "at": _INSTANT,
+                "portal_version": {"type": "string"},
+                "limits": {**_LIMITS, "description": "The limits sent with the run."},
+                "agent": _AGENT,
+                "firmware": _FIRMWARE,
+            }
+        ),
+        "collected": _object(
+            {
+                "at": _INSTANT,
+                "portal_version": {"type": "string"},
+                "started_at": {**_INSTANT, "nullable": True},
+                "ended_at": {**_INSTANT, "nullable": True},
+                "agent": {**_AGENT, "description": "As the agent recorded it at the start."},
+                "firmware": _FIRMWARE,
+                "clock_at_start": _CLOCK,
+                "clock_at_end": _CLOCK,
+                "link": _object(
+                    {
+                        "exchanges": _INTEGER,
+                        "answered": _INTEGER,
+                        "lost": _INTEGER,
+                        "loss_pct": _NUMBER,
+                        "rssi_dbm": _RSSI,
+                        "robot_rssi_dbm": _RSSI,
+                    },
+                    "The radio link over the run: one exchange per control tick.",
+                ),
+            }
+        ),
+    },
+}
 
 
 class RunOutput(serializers.ModelSerializer):
@@ -155,9 +171,7 @@ class RunOutput(serializers.ModelSerializer):
     repeat_of = serializers.IntegerField(
         source="repeat_of_id", allow_null=True, help_text="The run this one repeats."
     )
-    limits = RunLimitsOutput(
-        allow_null=True, help_text="Limits asked for at booking; null: the robot's."
-    )
+    limits = serializers.SerializerMethodField()
     provenance = serializers.SerializerMethodField()
 
     class Meta:
@@ -188,7 +202,13 @@ class RunOutput(serializers.ModelSerializer):
     def get_sample_count(self, run: Run) -> int:
         return run.samples.count()
 
-    @extend_schema_field(RunProvenanceOutput)
+    @extend_schema_field(
+        {**_LIMITS, "description": "Limits asked for at booking; null: the robot's."}
+    )
+    def get_limits(self, run: Run) -> dict[str, Any] | None:
+        return run.limits
+
+    @extend_schema_field(RUN_PROVENANCE_SCHEMA)
     def get_provenance(self, run: Run) -> dict[str, Any]:
         return provenance_view(run.provenance)
 
