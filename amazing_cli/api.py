@@ -32,6 +32,8 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "run": ("GET", "/api/v1/runs/{id}/"),
     "samples_csv": ("GET", "/api/v1/runs/{id}/samples.csv"),
     "samples_json": ("GET", "/api/v1/runs/{id}/samples.json"),
+    "run_package": ("GET", "/api/v1/runs/{id}/package.zip"),
+    "run_again": ("POST", "/api/v1/runs/{id}/again/"),
     "schema": ("GET", "/api/schema/"),
 }
 
@@ -146,13 +148,20 @@ class Api:
                 exit_code=UNAVAILABLE,
             ) from exc
 
-    def create(self, operation: str, body: dict[str, Any], *, key: str | None = None) -> Any:
+    def create(
+        self,
+        operation: str,
+        body: dict[str, Any] | None = None,
+        *,
+        key: str | None = None,
+        **kwargs: Any,
+    ) -> Any:
         """A creating POST, safe to retry: the portal replays the answer to a repeated key.
 
         ``key``: the ``X-Idempotency-Key`` to send (a fresh one by default); a script that
         retries a POST whose answer it lost sends the same key again."""
         key = key or f"amazing-cli-{uuid.uuid4()}"
-        return self.call(operation, json=body, headers={"X-Idempotency-Key": key})
+        return self.call(operation, json=body, headers={"X-Idempotency-Key": key}, **kwargs)
 
     def pages(
         self, operation: str, *, params: dict[str, Any] | None = None, limit: int | None = None

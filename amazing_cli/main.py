@@ -43,6 +43,7 @@ from amazing_cli.errors import (
     CliError,
     bad_input,
 )
+from amazing_cli.package import read_package
 
 RUN_END_STATES = ("completed", "cancelled", "failed", "interrupted")
 # Added to a program's length when no --duration is given: the robot's last ramp down.
@@ -366,8 +367,9 @@ def _first_slot(
 def book(
     ctx: typer.Context,
     experiment: Annotated[
-        int, typer.Option("--experiment", "-e", metavar="ID", help="The experiment the robot runs.")
-    ],
+        int | None,
+        typer.Option("--experiment", "-e", metavar="ID", help="The experiment the robot runs."),
+    ] = None,
     resource: Annotated[
         str | None,
         typer.Argument(metavar="ROBOT", help="The robot to book; default: the only one."),
@@ -415,10 +417,39 @@ def book(
             "would not (exit code 3).",
         ),
     ] = False,
+    again: Annotated[
+        int | None,
+        typer.Option(
+            "--again",
+            metavar="RUN",
+            help="Run this run again: its program and limits on its robot, in the next free "
+            "slot of its length. The new run links to it.",
+        ),
+    ] = None,
     as_json: JsonOption = False,
     quiet: QuietOption = False,
 ) -> None:
-    """Book a robot (and fixed nodes) to run an experiment."""
+    """Book a robot (and fixed nodes) to run an experiment, or run a run again."""
+    if again is not None:
+        _book_again(
+            ctx,
+            again,
+            given={
+                "--experiment": experiment is not None,
+                "ROBOT": resource is not None,
+                "--start": start != "asap",
+                "--duration": duration is not None,
+                "--node": bool(node),
+                "--title": title is not None,
+                "--after": after is not None,
+                "--check": check,
+            },
+            as_json=as_json,
+            quiet=quiet,
+        )
+        return
+    if experiment is None:
+        raise bad_input("give --experiment ID (or --again RUN)")
     api = _api(ctx)
     program = api.call("experiment", path={"id": experiment})
     robot = resource or _only_mobile(api)
@@ -459,6 +490,29 @@ def book(
             f"Booked reservation {booked['id']} ({what}): {', '.join(booked['resources'])}, "
             f"{times.local(booked['start_at'])} to {times.local(booked['end_at'])}, "
             f"{booked['state']}."
+        )
+
+
+def _book_again(
+    ctx: typer.Context, run: int, *, given: dict[str, bool], as_json: bool, quiet: bool
+) -> None:
+    """``book --again RUN``: the portal finds the slot and books it (``POST …/again/``)."""
+    extra = [name for name, present in given.items() if present]
+    if extra:
+        raise bad_input(
+            f"--again takes the run's own program, robot and length: drop {', '.join(extra)}"
+        )
+    booked = _api(ctx).create("run_again", path={"id": run})
+    new_run = booked.get("run") or {}
+    if as_json:
+        _print_json(booked)
+    elif quiet:
+        out.print(new_run.get("id", booked["id"]))
+    else:
+        out.print(
+            f"Booked reservation {booked['id']} (run {new_run.get('id')}, repeating run {run}): "
+            f"{', '.join(booked['resources'])}, {times.local(booked['start_at'])} to "
+            f"{times.local(booked['end_at'])}, {booked['state']}."
         )
 
 
@@ -641,14 +695,18 @@ def download(
     ] = None,
     as_json: JsonOption = False,
 ) -> None:
-    """Download every sample of a run, streamed, with a progress bar."""
-    if format not in ("csv", "json"):
-        raise bad_input(f"--format {format!r}: give csv or json")
+    """Download every sample of a run, streamed, with a progress bar; `--format zip` is the
+    self-describing package (samples, metadata, a README of every column)."""
+    if format not in ("csv", "json", "zip"):
+        raise bad_input(f"--format {format!r}: give csv, json or zip")
     api = _api(ctx)
     details = api.call("run", path={"id": run})
     target = output or Path(f"amazing-run-{run}.{format}")
     to_stdout = str(target) == "-"
-    response = api.stream("samples_csv" if format == "csv" else "samples_json", path={"id": run})
+    if format == "zip" and to_stdout:
+        raise bad_input("--format zip: give a file with --output (a zip is not for a terminal)")
+    operation = {"csv": "samples_csv", "json": "samples_json", "zip": "run_package"}[format]
+    response = api.stream(operation, path={"id": run})
     total = details["sample_count"] if format == "csv" else None
     newlines = 0
     size = 0
@@ -696,11 +754,13 @@ def download(
         response.close()
     if partial is not None:
         partial.replace(target)
-    samples = (
-        max(0, newlines - 1)
-        if format == "csv"
-        else (len(json.loads(target.read_bytes())["samples"]) if not to_stdout else None)
-    )
+    if format == "zip":
+        # Checked as a reader would: a format it knows, the columns, every sample.
+        samples: int | None = read_package(target).rows
+    elif format == "csv":
+        samples = max(0, newlines - 1)
+    else:
+        samples = len(json.loads(target.read_bytes())["samples"]) if not to_stdout else None
     if (
         details["state"] in RUN_END_STATES
         and samples is not None

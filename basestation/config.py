@@ -79,6 +79,9 @@ class AgentConfig:
     radio_aes_key: str | None = field(default=None, repr=False)
     # The rail's geometry (JSON or TOML, see basestation/telemetry/default_rail.json).
     rail_file: Path | None = None
+    # sim: the simulated robot's configuration file (docs/simulator.md; its rail is this
+    # agent's), e.g. to give its firmware another build identifier.
+    sim_config: Path | None = None
 
     def __post_init__(self) -> None:
         # Checked here too so that configs built in code (tests, benchmarks) obey the same rules.
@@ -131,7 +134,8 @@ class AgentConfig:
             f"min_free_disk_mb={self.min_free_disk_mb}, retention_days={self.retention_days}, "
             f"cpu_temp_path={self.cpu_temp_path!r}, rt_priority={self.rt_priority}, "
             f"control_cpu={self.control_cpu}, "
-            f"robot={self.robot!r}, rail_file={self.rail_file!r})"
+            f"robot={self.robot!r}, rail_file={self.rail_file!r}, "
+            f"sim_config={self.sim_config!r})"
         )
 
     @classmethod
@@ -165,6 +169,7 @@ class AgentConfig:
             rail_file=Path(env[f"{ENV_PREFIX}RAIL_FILE"])
             if env.get(f"{ENV_PREFIX}RAIL_FILE")
             else None,
+            sim_config=_optional_path(env, "SIM_CONFIG"),
         )
 
     @property

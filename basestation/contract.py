@@ -73,7 +73,8 @@ class SampleColumn:
     ``epoch`` is seconds since 1970 (UTC) on the agent's clock; the portal stores it as a
     timestamp. ``max_length`` bounds a text column; ``choices`` lists the values it may take;
     ``minimum`` is the least value of a number. ``doc`` is the column's description in both
-    APIs' schemas.
+    APIs' schemas, ``unit`` its unit (SI symbols; empty for a count, a code or a text): the
+    downloads' README and data package describe every column by these two.
     """
 
     name: str
@@ -83,6 +84,7 @@ class SampleColumn:
     choices: tuple[str, ...] | None = None
     minimum: float | None = None
     doc: str = ""
+    unit: str = ""
 
     def parse(self, value: Any) -> Any:
         """The JSON ``value`` checked against this column; ``ValueError`` names the column."""
@@ -124,23 +126,37 @@ SAMPLE_COLUMNS: Final[tuple[SampleColumn, ...]] = (
     SampleColumn(
         "seq", "int", minimum=1, doc="sequence number within the run, from 1, no gaps on the agent"
     ),
-    SampleColumn("t", "epoch", doc="when the agent recorded it (control tick)"),
+    SampleColumn("t", "epoch", doc="when the agent recorded it (control tick)", unit="UTC"),
     SampleColumn(
         "segment", "int", nullable=True, doc="program segment (0-based); null once it is over"
     ),
-    SampleColumn("commanded_velocity_mps", "float", doc="what the program asked for"),
-    SampleColumn("velocity_mps", "float", minimum=0, doc="what the robot measured"),
+    SampleColumn("commanded_velocity_mps", "float", doc="what the program asked for", unit="m/s"),
+    SampleColumn("velocity_mps", "float", minimum=0, doc="what the robot measured", unit="m/s"),
     SampleColumn("direction", "text", max_length=3, choices=DIRECTIONS, doc="cw or ccw"),
-    SampleColumn("battery_v", "float", doc="median-filtered battery voltage"),
-    SampleColumn("track_m", "float", doc="position along the rail, wraps at rail_length_m"),
+    SampleColumn("battery_v", "float", doc="median-filtered battery voltage", unit="V"),
+    SampleColumn(
+        "track_m", "float", doc="position along the rail, wraps at rail_length_m", unit="m"
+    ),
     SampleColumn(
         "fix_quality",
         "int",
         nullable=True,
         doc="GPS fix: 0 none, 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK float; null without a GPS",
     ),
-    SampleColumn("lat_deg", "float", nullable=True, doc="null while the position is unknown"),
-    SampleColumn("lon_deg", "float", nullable=True, doc="null while the position is unknown"),
+    SampleColumn(
+        "lat_deg",
+        "float",
+        nullable=True,
+        doc="latitude (WGS 84); null while the position is unknown",
+        unit="°",
+    ),
+    SampleColumn(
+        "lon_deg",
+        "float",
+        nullable=True,
+        doc="longitude (WGS 84); null while the position is unknown",
+        unit="°",
+    ),
     SampleColumn("grid_id", "text", nullable=True, max_length=8, doc="thesis grid cell, e.g. A2"),
     SampleColumn(
         "lap", "int", nullable=True, doc="whole laps since the run started; negative: ccw"

@@ -106,6 +106,9 @@ class LoopInfo:
     pid: int
     rail_length_m: float
     robot_limits: RobotLimits | None
+    # How runs are made here (basestation/provenance.py), as the loop's manager records it.
+    agent_facts: dict[str, Any] | None = None
+    firmware_facts: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -286,6 +289,8 @@ def loop_main(
                 pid=os.getpid(),
                 rail_length_m=manager.rail_length_m,
                 robot_limits=limits if isinstance(limits, RobotLimits) else None,
+                agent_facts=manager.agent_facts,
+                firmware_facts=manager.firmware_facts,
             ),
         )
     )
@@ -644,6 +649,16 @@ class LoopProcess:
     def robot_limits(self) -> RobotLimits | None:
         info = self.info
         return None if info is None else info.robot_limits
+
+    @property
+    def agent_facts(self) -> dict[str, Any] | None:
+        info = self.info
+        return None if info is None else info.agent_facts
+
+    @property
+    def firmware_facts(self) -> dict[str, Any] | None:
+        info = self.info
+        return None if info is None else info.firmware_facts
 
     @property
     def realtime(self) -> bool:

@@ -37,10 +37,18 @@ from typing import Any, Protocol
 from basestation.config import AgentConfig
 from basestation.errors import RunConflict
 from basestation.program import format_epoch
+from basestation.provenance import (
+    RunLinkTally,
+    agent_facts,
+    clock_facts,
+    firmware_facts,
+)
 from basestation.robot import (
     Command,
     Direction,
     Robot,
+    RobotIdentity,
+    RobotLimits,
     RobotLinkError,
     Telemetry,
     signed_velocity_mps,
@@ -58,6 +66,7 @@ from basestation.store import (
 )
 from basestation.telemetry.battery import BatteryFilter
 from basestation.telemetry.laps import LapCounter
+from basestation.telemetry.rail import Rail
 from basestation.writer import StoreWriter, WriterFull
 
 logger = logging.getLogger(__name__)
@@ -383,6 +392,20 @@ class RunManager:
         # released again before the next tick.
         self._estop_frame_owed = self._estop is not None
         self.snapshot = AgentSnapshot()
+        # What every run records of how it was made (basestation/provenance.py): this
+        # agent and its robot's firmware as they are now, and the link over the running run.
+        limits = getattr(robot, "limits", None)
+        rail = getattr(robot, "rail", None)
+        identity = getattr(robot, "identity", None)
+        self.agent_facts = agent_facts(
+            config,
+            limits=limits if isinstance(limits, RobotLimits) else None,
+            rail=rail if isinstance(rail, Rail) else None,
+        )
+        self.firmware_facts = firmware_facts(
+            identity if isinstance(identity, RobotIdentity) else None
+        )
+        self._link_tally: RunLinkTally | None = None
 
     @property
     def estop(self) -> EstopLatch | None:
@@ -445,6 +468,7 @@ class RunManager:
             if self._active is not None:
                 self._transition(self._active.id, RUNNING, INTERRUPTED, reason, now_s)
                 self._active = None
+            self._follow_provenance(now_s)
             self.writer.flush()
 
     # -- operations called by HTTP threads ---------------------------------------------------
@@ -590,6 +614,7 @@ class RunManager:
         command = self._command(decision, now_s)
         telemetry = self._exchange(command, now_s)
         self._record_tick(decision, command, telemetry, now_s)
+        self._follow_provenance(now_s)
 
     def _decide(self, now_s: float) -> TickDecision:
         snapshot = self.snapshot
@@ -628,6 +653,7 @@ class RunManager:
                 return False
             self._active = start.run
             self._next_seq = 1
+            self._provenance_started(start.run.id, now_s)
         manual = decision.end_manual
         if manual is not None and self._take_manual(manual) is manual:
             session_id = manual.session_id
@@ -678,6 +704,9 @@ class RunManager:
         """Keep what the tick saw: the battery, the run's sample (finishing the run once its
         program is over and the robot has stopped), and the snapshot for /status."""
         run = decision.run
+        tally = self._link_tally
+        if tally is not None and run is not None and run.id == tally.run_id:
+            tally.add(telemetry)
         if telemetry is not None:
             # 0 V is the robot's "not measured yet" (before its first ADC reading after a
             # reset, docs/protocol.md): no real pack reads 0 V, and a median must not take it.
@@ -791,6 +820,30 @@ class RunManager:
         rail = getattr(self.robot, "rail", None)  # the radio link knows the configured rail
         length = getattr(rail, "length_m", None)
         return float(length) if length else self.config.rail_length_m
+
+    # -- provenance ------------------------------------------------------------------------------
+
+    def _provenance_started(self, run_id: str, now_s: float) -> None:
+        """Record how the run is made as it starts (in order with its samples)."""
+        self._link_tally = RunLinkTally(run_id)
+        started = {
+            "at": format_epoch(now_s),
+            "agent": self.agent_facts,
+            "firmware": self.firmware_facts,
+            "clock": clock_facts(),
+        }
+        self.writer.submit(lambda: self.store.run_provenance_set(run_id, "started", started))
+
+    def _follow_provenance(self, now_s: float) -> None:
+        """Once the run whose link is tallied no longer holds the robot (ended here, or by an
+        HTTP thread: abort, e-stop), record its end: the clock, and the link over the run."""
+        tally = self._link_tally
+        if tally is None or (self._active is not None and self._active.id == tally.run_id):
+            return
+        self._link_tally = None
+        ended = {"at": format_epoch(now_s), "clock": clock_facts(), "link": tally.to_json_dict()}
+        run_id = tally.run_id
+        self.writer.submit(lambda: self.store.run_provenance_set(run_id, "ended", ended))
 
     # -- the schedule ----------------------------------------------------------------------------
 

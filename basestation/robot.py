@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import math
 import random
-from dataclasses import dataclass
-from typing import Protocol
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 # Re-exported: the robot's interface speaks the contract's directions.
 from basestation.contract import DIRECTIONS as DIRECTIONS
@@ -45,6 +46,23 @@ class RobotLimits:
     max_velocity_mps: float  # applied by the robot
     max_accel_mps2: float  # applied by the robot
     hard_max_velocity_mps: float | None
+
+
+@dataclass(frozen=True)
+class RobotIdentity:
+    """What the robot's firmware says of itself when asked (docs/protocol.md §2.6): its build
+    identifier and its compiled-in configuration (field names and units as on the wire)."""
+
+    build_id: str
+    config: Mapping[str, int] = field(default_factory=dict)
+    protocol_version: int = 1
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "build_id": self.build_id,
+            "protocol_version": self.protocol_version,
+            "config": dict(self.config),
+        }
 
 
 class RobotLinkError(Exception):

@@ -3,10 +3,17 @@
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from typing import Any
 
 from basestation.config import AgentConfig, ConfigError
-from basestation.robot import Robot, RobotLimits, RobotLinkError, SimpleSimulatedRobot
+from basestation.robot import (
+    Robot,
+    RobotIdentity,
+    RobotLimits,
+    RobotLinkError,
+    SimpleSimulatedRobot,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -27,6 +34,8 @@ class RadioRobot:
         self.spi = spi
         # What the robot confirmed of the agent's limits at start-up (None: no answer).
         self.limits: RobotLimits | None = None
+        # Which firmware the robot said it runs, at start-up (None: no answer).
+        self.identity: RobotIdentity | None = None
 
     def exchange(self, command: Any, now_s: float) -> Any:
         return self.link.exchange(command, now_s)
@@ -74,11 +83,20 @@ def build_robot(config: AgentConfig) -> Robot:
     if config.robot == "radio":
         spi: Any = open_spidev(config.spi_bus, config.spi_device)
     else:
-        from basestation.sim import SimConfig, SimulatedSpiConfig, make_simulated_spi
+        from basestation.sim import (
+            SimConfig,
+            SimConfigError,
+            SimulatedSpiConfig,
+            make_simulated_spi,
+        )
 
         if config.robot == "sim":
+            try:
+                sim = SimConfig.load(config.sim_config) if config.sim_config else SimConfig()
+            except SimConfigError as exc:
+                raise ConfigError(f"AGENT_SIM_CONFIG: {exc}") from exc
             # The simulated robot drives the rail the agent projects onto: one file for both.
-            spi = make_simulated_spi(SimulatedSpiConfig(sim=SimConfig(rail=rail)))
+            spi = make_simulated_spi(SimulatedSpiConfig(sim=replace(sim, rail=rail)))
         else:
             spi = make_simulated_spi(
                 SimulatedSpiConfig(
@@ -99,7 +117,26 @@ def build_robot(config: AgentConfig) -> Robot:
     except ConfigError:
         robot.close()
         raise
+    robot.identity = _identify(link)
     return robot
+
+
+def _identify(link: Any) -> RobotIdentity | None:
+    """Which firmware the robot runs, for every run's record; None when it does not say."""
+    for attempt in range(1, CONFIGURE_ATTEMPTS + 1):
+        try:
+            identity: RobotIdentity = link.identify()
+        except RobotLinkError as exc:
+            if attempt == CONFIGURE_ATTEMPTS:
+                logger.warning(
+                    "robot did not report its firmware (%s): runs record it as unknown; a "
+                    "firmware older than the identity frame does not answer",
+                    exc,
+                )
+            continue
+        logger.info("robot firmware: build %s", identity.build_id or "(no id)")
+        return identity
+    return None
 
 
 def _configure(link: Any, config: AgentConfig) -> RobotLimits | None:

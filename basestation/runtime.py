@@ -6,8 +6,8 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import Any
 
 from flask import Flask, current_app
 
@@ -24,11 +24,6 @@ from basestation.system import DiskSpace, disk_space
 logger = logging.getLogger(__name__)
 
 EXTENSION_KEY = "basestation"
-
-try:
-    AGENT_VERSION = version("amazing-mobile-node")
-except PackageNotFoundError:  # running from a source tree that was never installed
-    AGENT_VERSION = "0+unknown"
 
 
 @dataclass
@@ -117,6 +112,14 @@ class AgentRuntime:
             "robot_hard_max_velocity_mps": hard_max,
             "robot_confirmed": confirmed is not None,
         }
+
+    def provenance_facts(self) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+        """How runs are made here now (basestation/provenance.py): this agent's facts and what
+        the robot's firmware said of itself, as the control loop holds them (None, None while
+        a loop process is not ready yet)."""
+        if self.loop is not None:
+            return self.loop.agent_facts, self.loop.firmware_facts
+        return self.manager.agent_facts, self.manager.firmware_facts
 
     def disk(self) -> DiskSpace | None:
         return self.disk_probe(self.config.data_dir)

@@ -51,7 +51,8 @@ logger = logging.getLogger(__name__)
 
 # 2: manual_sessions and agent_state (created on the first start of v2)
 # 3: the robot's position with each sample (fix, lat/lon, grid id, lap), added in place
-SCHEMA_VERSION = 3
+# 4: runs.provenance: what the control loop recorded as each run started and ended
+SCHEMA_VERSION = 4
 # Columns added to ``samples`` after version 1, with their types: an older store gains them
 # on open (nullable, so its existing samples simply have no position).
 SAMPLE_POSITION_COLUMNS = {
@@ -79,7 +80,8 @@ CREATE TABLE IF NOT EXISTS runs (
     created_at REAL NOT NULL,
     updated_at REAL NOT NULL,
     started_at REAL,
-    ended_at REAL
+    ended_at REAL,
+    provenance TEXT                  -- JSON: what the loop recorded at start and end
 );
 CREATE INDEX IF NOT EXISTS runs_state_start ON runs (state, start_at);
 CREATE TABLE IF NOT EXISTS samples (
@@ -159,6 +161,8 @@ class RunRecord:
     updated_at_s: float
     started_at_s: float | None
     ended_at_s: float | None
+    # What the control loop recorded at the run's start and end ({"started", "ended"}).
+    provenance: dict[str, Any] | None = None
 
     def to_json_dict(self, stats: SampleStats) -> dict[str, Any]:
         spec = self.spec.to_json_dict()
@@ -242,6 +246,9 @@ class RunStore:
             for name, kind in SAMPLE_POSITION_COLUMNS.items()
             if name not in present
         ]
+        run_columns = {row["name"] for row in conn.execute("PRAGMA table_info(runs)")}
+        if "provenance" not in run_columns:
+            missing.append("ALTER TABLE runs ADD COLUMN provenance TEXT;")
         conn.executescript(
             f"BEGIN IMMEDIATE; {' '.join(missing)} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
         )
@@ -428,6 +435,21 @@ class RunStore:
             )
         self._signal()
         _log_state_change(run_id, row["state"], to_state, reason)
+        return True
+
+    def run_provenance_set(self, run_id: str, key: str, value: dict[str, Any]) -> bool:
+        """Record ``value`` as the run's provenance ``key`` ("started", "ended"); False when
+        the run is unknown. Whatever else was recorded is kept."""
+        with self._write() as tx:
+            row = tx.execute("SELECT provenance FROM runs WHERE id = ?", (run_id,)).fetchone()
+            if row is None:
+                return False
+            recorded = _provenance(row["provenance"]) or {}
+            recorded[key] = value
+            tx.execute(
+                "UPDATE runs SET provenance = ? WHERE id = ?",
+                (json.dumps(recorded, separators=(",", ":")), run_id),
+            )
         return True
 
     def get_run(self, run_id: str) -> RunRecord | None:
@@ -728,7 +750,19 @@ def _record(row: sqlite3.Row) -> RunRecord:
         updated_at_s=row["updated_at"],
         started_at_s=row["started_at"],
         ended_at_s=row["ended_at"],
+        provenance=_provenance(row["provenance"]),
     )
+
+
+def _provenance(text: str | None) -> dict[str, Any] | None:
+    if not text:
+        return None
+    try:
+        value = json.loads(text)
+    except ValueError:
+        logger.warning("unreadable run provenance %r", text[:80])
+        return None
+    return value if isinstance(value, dict) else None
 
 
 def _stats(row: sqlite3.Row) -> SampleStats:

@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 from django.db.models import Prefetch, Q, QuerySet
@@ -83,6 +83,22 @@ def resource_free_intervals(
     ]
     busy += [(x.start_at, x.end_at) for x in external_leases(start_at, end_at, resource)]
     return gaps(busy, start_at, end_at)
+
+
+def resource_first_free(
+    *, resource: Resource, earliest: datetime, length: timedelta, horizon: timedelta
+) -> tuple[datetime, datetime] | None:
+    """The first slot of ``length``, starting on a whole second no sooner than ``earliest``
+    and within ``horizon`` of it, in which ``resource`` could be booked; None if there is
+    none. Booking still checks it under its locks (someone may take it meanwhile)."""
+    for start, end in resource_free_intervals(
+        resource=resource, start_at=earliest, end_at=earliest + horizon
+    ):
+        if start.microsecond:
+            start = start.replace(microsecond=0) + timedelta(seconds=1)
+        if end - start >= length:
+            return start, start + length
+    return None
 
 
 def busy_slots(*, start_at: datetime, end_at: datetime) -> list[dict[str, Any]]:

@@ -305,6 +305,8 @@ CELERY_TIMEZONE = "UTC"
 # ``start_at`` a run is staged on its agent.
 RUN_SWEEP_INTERVAL_S = env.float("RUN_SWEEP_INTERVAL_S", default=2.0)
 RUN_STAGE_LEAD_S = env.float("RUN_STAGE_LEAD_S", default=300.0)
+# "Run again" books the first free slot starting no sooner than this from now.
+RUN_REPEAT_LEAD_S = env.float("RUN_REPEAT_LEAD_S", default=60.0)
 RESERVATION_REMINDER_LEAD_S = env.float("RESERVATION_REMINDER_LEAD_S", default=3600.0)
 # How often the testbed scheduler's leases are mirrored and orphans cancelled, and (SQLite
 # only, which cannot tell a booking in progress) how old an orphan lease must be to go.

@@ -40,8 +40,21 @@ def _run_json(record: RunRecord, stats: SampleStats | None = None) -> dict[str, 
     runtime = get_runtime()
     if stats is None:
         stats = runtime.store.sample_stats(record.id)
-    # The samples' ``track_m`` wraps at this length: whoever analyses them needs it.
-    return {**record.to_json_dict(stats), "rail_length_m": runtime.control.rail_length_m}
+    agent, firmware = runtime.provenance_facts()
+    recorded = record.provenance or {}
+    return {
+        **record.to_json_dict(stats),
+        # The samples' ``track_m`` wraps at this length: whoever analyses them needs it.
+        "rail_length_m": runtime.control.rail_length_m,
+        # How the run is made: this agent and its robot's firmware as they are now, and what
+        # the control loop recorded as the run started and ended (basestation/provenance.py).
+        "provenance": {
+            "agent": agent,
+            "firmware": firmware,
+            "started": recorded.get("started"),
+            "ended": recorded.get("ended"),
+        },
+    }
 
 
 @bp.get("/runs")

@@ -11,8 +11,9 @@ from flask.typing import ResponseReturnValue
 from basestation.api.control import estop_json
 from basestation.control import ControlStats
 from basestation.loop_process import LoopProcess
-from basestation.runtime import AGENT_VERSION, get_runtime
-from basestation.system import clock_synchronized, cpu_temp_c
+from basestation.provenance import AGENT_VERSION
+from basestation.runtime import get_runtime
+from basestation.system import clock_sync, clock_synchronized, cpu_temp_c
 
 bp = Blueprint("status", __name__)
 
@@ -100,10 +101,12 @@ def status_document() -> dict[str, Any]:
     manual = manager.manual(now_s)
     threshold_v = runtime.config.low_battery_v
     control = runtime.control_stats()
+    agent, firmware = runtime.provenance_facts()
     return {
         "version": AGENT_VERSION,
         "clock": now_s,
         "clock_synchronized": clock_synchronized(),
+        "clock_sync": clock_sync().to_json_dict(),
         "resource": runtime.config.resource,
         "battery_v": snapshot.battery_v,
         "battery": {
@@ -114,6 +117,8 @@ def status_document() -> dict[str, Any]:
         },
         "robot": robot,
         "limits": runtime.limits_json(),
+        "firmware": firmware,
+        "rail": None if agent is None else agent["rail"],
         "link": {
             "state": "up" if age_s is not None and age_s <= LINK_DOWN_AFTER_S else "down",
             "age_s": age_s,

@@ -8,11 +8,15 @@ from typing import Final
 from basestation.protocol.errors import FrameError
 from basestation.protocol.frames import (
     ACCEL_LIMIT_MM_S2,
+    BUILD_ID_SIZE,
     COMMAND_FLAGS_DEFINED,
     COMMAND_FRAME_SIZE,
     CONFIG_ACK_FRAME_SIZE,
     CONFIG_FRAME_SIZE,
     HEADER_SIZE,
+    IDENTIFY_FRAME_SIZE,
+    IDENTITY_CONFIG_FIELDS,
+    IDENTITY_FRAME_SIZE,
     LAT_LIMIT_E7,
     LON_LIMIT_E7,
     PROTOCOL_VERSION,
@@ -26,6 +30,8 @@ from basestation.protocol.frames import (
     FixQuality,
     Frame,
     FrameType,
+    IdentifyFrame,
+    IdentityFrame,
     TelemetryFrame,
     TelemetryStatus,
 )
@@ -37,12 +43,17 @@ _COMMAND: Final = struct.Struct("<HHBBH")  # seq, velocity, direction, flags, tt
 _TELEMETRY: Final = struct.Struct("<HHIHBHiiBBBb")
 _CONFIG: Final = struct.Struct("<HHH")  # seq, max velocity, acceleration
 _CONFIG_ACK: Final = struct.Struct("<HHHH")  # seq, max velocity, acceleration, hard max velocity
+_IDENTIFY: Final = struct.Struct("<H")  # seq
+# seq, build id, then IDENTITY_CONFIG_FIELDS: eleven u16 and the median window (u8)
+_IDENTITY: Final = struct.Struct(f"<H{BUILD_ID_SIZE}s11HB")
 
 _FRAME_SIZE: Final[dict[int, int]] = {
     FrameType.COMMAND: COMMAND_FRAME_SIZE,
     FrameType.TELEMETRY: TELEMETRY_FRAME_SIZE,
     FrameType.CONFIG: CONFIG_FRAME_SIZE,
     FrameType.CONFIG_ACK: CONFIG_ACK_FRAME_SIZE,
+    FrameType.IDENTIFY: IDENTIFY_FRAME_SIZE,
+    FrameType.IDENTITY: IDENTITY_FRAME_SIZE,
 }
 _DIRECTIONS: Final = frozenset(int(d) for d in Direction)
 _FIX_QUALITIES: Final = frozenset(int(q) for q in FixQuality)
@@ -51,6 +62,8 @@ assert HEADER_SIZE + _COMMAND.size == COMMAND_FRAME_SIZE
 assert HEADER_SIZE + _TELEMETRY.size == TELEMETRY_FRAME_SIZE
 assert HEADER_SIZE + _CONFIG.size == CONFIG_FRAME_SIZE
 assert HEADER_SIZE + _CONFIG_ACK.size == CONFIG_ACK_FRAME_SIZE
+assert HEADER_SIZE + _IDENTIFY.size == IDENTIFY_FRAME_SIZE
+assert HEADER_SIZE + _IDENTITY.size == IDENTITY_FRAME_SIZE
 
 
 # --- field checks shared by encoder and decoder ---------------------------------------------
@@ -86,6 +99,33 @@ def _check_fix_quality(fix_quality: int) -> None:
 def _check_accel(accel_mm_s2: int) -> None:
     if not 1 <= accel_mm_s2 <= ACCEL_LIMIT_MM_S2:
         raise FrameError("out_of_range", f"accel_mm_s2 {accel_mm_s2} not in 1..{ACCEL_LIMIT_MM_S2}")
+
+
+def _check_wire_build_id(raw: bytes) -> str:
+    """The identifier in its 16 bytes: printable ASCII up to the first NUL, only NULs after
+    it (one spelling per identifier, so a decoded frame encodes back to the same bytes)."""
+    text, _, padding = raw.partition(b"\0")
+    if padding.strip(b"\0") or not all(0x20 <= b <= 0x7E for b in text):
+        raise FrameError("out_of_range", f"build_id {raw!r} is not printable ASCII, NUL-padded")
+    return text.decode("ascii")
+
+
+def _check_build_id(build_id: str) -> bytes:
+    if not isinstance(build_id, str) or not all(" " <= c <= "~" for c in build_id):
+        raise FrameError("out_of_range", f"build_id {build_id!r} is not printable ASCII")
+    if len(build_id) > BUILD_ID_SIZE:
+        raise FrameError(
+            "out_of_range", f"build_id {build_id!r} is over {BUILD_ID_SIZE} characters"
+        )
+    return build_id.encode("ascii")
+
+
+def _check_identity_numbers(frame: IdentityFrame) -> None:
+    _check_velocity(frame.hard_max_velocity_mm_s, "hard_max_velocity_mm_s")
+    _check_velocity(frame.max_velocity_mm_s, "max_velocity_mm_s")
+    _check_accel(frame.accel_mm_s2)
+    _check_accel(frame.accel_min_mm_s2)
+    _check_accel(frame.accel_max_mm_s2)
 
 
 def _check_width(name: str, value: int, low: int, high: int) -> None:
@@ -172,7 +212,29 @@ def encode_config_ack(frame: ConfigAckFrame) -> bytes:
     return header + body
 
 
+def encode_identify(frame: IdentifyFrame) -> bytes:
+    _check_u16("seq", frame.seq)
+    header = _header(FrameType.IDENTIFY, IDENTIFY_FRAME_SIZE, frame.to_node, frame.from_node)
+    return header + _IDENTIFY.pack(frame.seq)
+
+
+def encode_identity(frame: IdentityFrame) -> bytes:
+    _check_u16("seq", frame.seq)
+    build_id = _check_build_id(frame.build_id)
+    _check_identity_numbers(frame)
+    numbers = [getattr(frame, name) for name in IDENTITY_CONFIG_FIELDS]
+    for name, value in zip(IDENTITY_CONFIG_FIELDS[:-1], numbers[:-1], strict=True):
+        _check_u16(name, value)
+    _check_u8("battery_median_window", frame.battery_median_window)
+    header = _header(FrameType.IDENTITY, IDENTITY_FRAME_SIZE, frame.to_node, frame.from_node)
+    return header + _IDENTITY.pack(frame.seq, build_id, *numbers)
+
+
 def encode_frame(frame: Frame) -> bytes:
+    if isinstance(frame, IdentifyFrame):
+        return encode_identify(frame)
+    if isinstance(frame, IdentityFrame):
+        return encode_identity(frame)
     if isinstance(frame, CommandFrame):
         return encode_command(frame)
     if isinstance(frame, TelemetryFrame):
@@ -288,6 +350,17 @@ def _decode_config_ack_body(raw: bytes, to_node: int, from_node: int) -> ConfigA
     )
 
 
+def _decode_identity_body(raw: bytes, to_node: int, from_node: int) -> IdentityFrame:
+    seq, wire_id, *numbers = _IDENTITY.unpack_from(raw, HEADER_SIZE)
+    build_id = _check_wire_build_id(wire_id)
+    config = dict(zip(IDENTITY_CONFIG_FIELDS, numbers, strict=True))
+    frame = IdentityFrame(
+        seq=seq, build_id=build_id, to_node=to_node, from_node=from_node, **config
+    )
+    _check_identity_numbers(frame)
+    return frame
+
+
 def decode_frame(data: Buffer) -> Frame:
     """Decode any version-1 frame; raise :class:`FrameError` for anything else."""
     raw = bytes(data)
@@ -298,6 +371,11 @@ def decode_frame(data: Buffer) -> Frame:
         return _decode_telemetry_body(raw, to_node, from_node)
     if frame_type is FrameType.CONFIG_ACK:
         return _decode_config_ack_body(raw, to_node, from_node)
+    if frame_type is FrameType.IDENTIFY:
+        (seq,) = _IDENTIFY.unpack_from(raw, HEADER_SIZE)
+        return IdentifyFrame(seq=seq, to_node=to_node, from_node=from_node)
+    if frame_type is FrameType.IDENTITY:
+        return _decode_identity_body(raw, to_node, from_node)
     return _decode_config_body(raw, to_node, from_node)
 
 
@@ -322,6 +400,14 @@ def decode_config_ack(data: Buffer) -> ConfigAckFrame:
     frame = decode_frame(data)
     if not isinstance(frame, ConfigAckFrame):
         raise FrameError("unknown_type", "expected a config acknowledgement")
+    return frame
+
+
+def decode_identity(data: Buffer) -> IdentityFrame:
+    """Decode an identity frame; a valid frame of another type is rejected as ``unknown_type``."""
+    frame = decode_frame(data)
+    if not isinstance(frame, IdentityFrame):
+        raise FrameError("unknown_type", "expected an identity frame")
     return frame
 
 

@@ -17,6 +17,10 @@ COMMAND_FRAME_SIZE: Final = 14
 TELEMETRY_FRAME_SIZE: Final = 31
 CONFIG_FRAME_SIZE: Final = 12
 CONFIG_ACK_FRAME_SIZE: Final = 14
+IDENTIFY_FRAME_SIZE: Final = 8
+IDENTITY_FRAME_SIZE: Final = 47
+#: Bytes of the build identifier on the wire (printable ASCII, NUL-padded).
+BUILD_ID_SIZE: Final = 16
 MAX_FRAME_SIZE: Final = 66
 
 #: The wire limit for a commanded or configured speed; the robot clamps further.
@@ -33,6 +37,8 @@ class FrameType(enum.IntEnum):
     TELEMETRY = 2
     CONFIG = 3
     CONFIG_ACK = 4
+    IDENTIFY = 5
+    IDENTITY = 6
 
 
 class Direction(enum.IntEnum):
@@ -148,4 +154,52 @@ class ConfigAckFrame:
     from_node: int = ROBOT_NODE
 
 
-Frame = CommandFrame | TelemetryFrame | ConfigFrame | ConfigAckFrame
+@dataclass(frozen=True, slots=True)
+class IdentifyFrame:
+    """BS → robot: which firmware are you, built how? (docs/protocol.md §2.5)"""
+
+    seq: int
+    to_node: int = ROBOT_NODE
+    from_node: int = BASESTATION_NODE
+
+
+@dataclass(frozen=True, slots=True)
+class IdentityFrame:
+    """Robot → BS: the firmware's build identifier and its compiled-in configuration
+    (docs/protocol.md §2.6). ``build_id`` is printable ASCII, at most 16 characters."""
+
+    seq: int
+    build_id: str
+    hard_max_velocity_mm_s: int
+    max_velocity_mm_s: int
+    accel_mm_s2: int
+    accel_min_mm_s2: int
+    accel_max_mm_s2: int
+    stop_decel_mm_s2: int
+    dead_man_ms: int
+    reverse_dwell_ms: int
+    full_scale_mm_s: int
+    low_battery_10mv: int
+    gps_stale_ms: int
+    battery_median_window: int
+    to_node: int = BASESTATION_NODE
+    from_node: int = ROBOT_NODE
+
+
+#: The configuration fields of an identity frame, in wire order after the build identifier.
+IDENTITY_CONFIG_FIELDS: Final = (
+    "hard_max_velocity_mm_s",
+    "max_velocity_mm_s",
+    "accel_mm_s2",
+    "accel_min_mm_s2",
+    "accel_max_mm_s2",
+    "stop_decel_mm_s2",
+    "dead_man_ms",
+    "reverse_dwell_ms",
+    "full_scale_mm_s",
+    "low_battery_10mv",
+    "gps_stale_ms",
+    "battery_median_window",
+)
+
+Frame = CommandFrame | TelemetryFrame | ConfigFrame | ConfigAckFrame | IdentifyFrame | IdentityFrame

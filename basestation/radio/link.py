@@ -23,6 +23,8 @@ from typing import Final, Literal, Protocol
 from basestation.protocol import (
     BASESTATION_NODE,
     DEAD_MAN_MS,
+    IDENTITY_CONFIG_FIELDS,
+    PROTOCOL_VERSION,
     ROBOT_NODE,
     VELOCITY_LIMIT_MM_S,
     CommandFlag,
@@ -31,15 +33,19 @@ from basestation.protocol import (
     ConfigFrame,
     Direction,
     FixQuality,
+    Frame,
     FrameError,
+    IdentifyFrame,
+    IdentityFrame,
     TelemetryFrame,
     TelemetryStatus,
     decode_frame,
     encode_command,
     encode_config,
+    encode_identify,
 )
 from basestation.radio.rfm69 import RadioError
-from basestation.robot import Command, RobotLimits, RobotLinkError, Telemetry
+from basestation.robot import Command, RobotIdentity, RobotLimits, RobotLinkError, Telemetry
 from basestation.telemetry.gps import DEFAULT_STALE_AFTER_S, GpsTracker
 from basestation.telemetry.rail import Rail
 
@@ -263,6 +269,33 @@ class RadioRobotLink:
                 )
         raise RobotLinkError(f"no answer to config {frame.seq}")
 
+    def identify(self) -> RobotIdentity:
+        """Ask the robot which firmware it runs (an identify frame) and return its answer:
+        the build identifier and the compiled-in configuration. The agent asks once, at
+        start-up, and records it with every run. Raises :class:`RobotLinkError` without an
+        answer (a robot whose firmware predates the identity frame rejects the request)."""
+        frame = IdentifyFrame(seq=self._take_seq(), to_node=self.robot_node, from_node=self.node)
+        self._drain_stale()
+        try:
+            self.radio.send(encode_identify(frame))
+        except RadioError as exc:
+            self._send_errors += 1
+            raise RobotLinkError(f"identify {frame.seq} not sent: {exc}") from exc
+        self._frames_sent += 1
+        deadline_s = self.clock() + self.reply_timeout_s
+        while (remaining_s := deadline_s - self.clock()) > 0:
+            decoded = self._receive_for_us(remaining_s)
+            if decoded is None:
+                continue
+            reply = decoded[0]
+            if isinstance(reply, IdentityFrame) and reply.seq == frame.seq:
+                return RobotIdentity(
+                    build_id=reply.build_id,
+                    config={name: int(getattr(reply, name)) for name in IDENTITY_CONFIG_FIELDS},
+                    protocol_version=PROTOCOL_VERSION,
+                )
+        raise RobotLinkError(f"no answer to identify {frame.seq}")
+
     def stats(self, now_s: float) -> LinkStats:
         age_s = None if self._last_reply_at_s is None else max(0.0, now_s - self._last_reply_at_s)
         with self._window_lock:
@@ -330,9 +363,7 @@ class RadioRobotLink:
                 return
             logger.debug("dropped a late frame")
 
-    def _receive_for_us(
-        self, timeout_s: float
-    ) -> tuple[TelemetryFrame | ConfigFrame | ConfigAckFrame | CommandFrame, float] | None:
+    def _receive_for_us(self, timeout_s: float) -> tuple[Frame, float] | None:
         try:
             received = self.radio.receive(timeout_s)
         except RadioError as exc:

@@ -11,7 +11,7 @@ rail)::
     [battery]   # BatteryConfig fields
     [gps]       # fix = "rtk_fixed" | "rtk_float" | "dgps" | "gps" | "none", rate_hz, ...
     [radio]     # node, base_node, network_id, aes_key_hex, high_power, processing_delay_s
-    [firmware]  # amz_robot_config fields: max_velocity_mm_s = 3000, accel_mm_s2 = 250, ...
+    [firmware]  # amz_robot_config fields: max_velocity_mm_s = 3000, build_id = "bench-1", ...
 
 The rail is the agent's :class:`~basestation.telemetry.rail.Rail` in the agent's format,
 given either inline as ``[rail]`` or as ``rail_file``, the path of the same rail file that
@@ -93,7 +93,8 @@ class SimConfig:
     battery: BatteryConfig = field(default_factory=BatteryConfig)
     gps: GpsConfig = field(default_factory=GpsConfig)
     radio: RadioConfig = field(default_factory=RadioConfig)
-    firmware: Mapping[str, int] = field(default_factory=dict)  # amz_robot_config overrides
+    # amz_robot_config overrides: numbers, and ``build_id`` (text, as the firmware reports it)
+    firmware: Mapping[str, int | str] = field(default_factory=dict)
     seed: int = 0
     start_track_m: float = 0.0
     wheel_um_per_pulse: int = 0  # 0: no wheel sensor (the default build)
@@ -150,7 +151,7 @@ class SimConfig:
         config.node = self.radio.node
         config.base_node = self.radio.base_node
         for name, value in self.firmware.items():
-            setattr(config, name, value)
+            setattr(config, name, value.encode("ascii") if isinstance(value, str) else value)
         return config
 
 
@@ -312,11 +313,15 @@ def _parse(spec: _Spec, data: Any, where: str) -> dict[str, Any]:
     return out
 
 
-def _parse_firmware(data: Any, where: str) -> dict[str, int]:
+# The longest build identifier the identity frame carries (docs/protocol.md §2.6).
+BUILD_ID_MAX_CHARS: Final = 16
+
+
+def _parse_firmware(data: Any, where: str) -> dict[str, int | str]:
     if not isinstance(data, Mapping):
         raise SimConfigError(f"{where} must be a table")
     sizes = {spec[0]: spec[1] for spec in AmzRobotConfig._fields_}
-    out: dict[str, int] = {}
+    out: dict[str, int | str] = {}
     for name, value in data.items():
         if name not in sizes:
             raise SimConfigError(
@@ -324,6 +329,18 @@ def _parse_firmware(data: Any, where: str) -> dict[str, int]:
             )
         if name in ("node", "base_node"):
             raise SimConfigError(f"{where}.{name}: set radio.{name} instead")
+        if name == "build_id":
+            if (
+                not isinstance(value, str)
+                or len(value) > BUILD_ID_MAX_CHARS
+                or not all(" " <= c <= "~" for c in value)
+            ):
+                raise SimConfigError(
+                    f"{where}.build_id must be printable ASCII of at most "
+                    f"{BUILD_ID_MAX_CHARS} characters, got {value!r}"
+                )
+            out[name] = value
+            continue
         if isinstance(value, bool) or not isinstance(value, int):
             raise SimConfigError(f"{where}.{name} must be an integer, got {value!r}")
         high = 2 ** (8 * _sizeof(sizes[name])) - 1

@@ -1,6 +1,6 @@
 """The robot's firmware core, loaded from ``libamazing_robot.so`` through ctypes.
 
-The structs mirror ``firmware/capi/amazing_robot.h`` (ABI version 2) field for field; the
+The structs mirror ``firmware/capi/amazing_robot.h`` (ABI version 3) field for field; the
 library is built by ``make -C firmware shared`` (g++ only). Nothing here re-implements robot
 logic: :class:`FirmwareRobot` is a thin, typed handle on the C API so that the simulator runs
 the same control code as the Arduino.
@@ -23,7 +23,7 @@ FIRMWARE_DIR: Final = REPO_DIR / "firmware"
 DEFAULT_LIBRARY: Final = FIRMWARE_DIR / "host" / "build" / "libamazing_robot.so"
 #: Overrides the library's path (an installed agent has no firmware tree to build from).
 LIBRARY_ENV: Final = "AMZ_ROBOT_LIBRARY"
-ABI_VERSION: Final = 2
+ABI_VERSION: Final = 3
 #: The RFM69 FIFO: no frame, in or out, is longer.
 MAX_FRAME_SIZE: Final = 66
 
@@ -84,6 +84,35 @@ class AmzConfigAck(ctypes.Structure):
     ]
 
 
+class AmzIdentify(ctypes.Structure):
+    _fields_ = [
+        ("to_node", ctypes.c_uint8),
+        ("from_node", ctypes.c_uint8),
+        ("seq", ctypes.c_uint16),
+    ]
+
+
+class AmzIdentity(ctypes.Structure):
+    _fields_ = [
+        ("to_node", ctypes.c_uint8),
+        ("from_node", ctypes.c_uint8),
+        ("seq", ctypes.c_uint16),
+        ("build_id", ctypes.c_char * 17),
+        ("hard_max_velocity_mm_s", ctypes.c_uint16),
+        ("max_velocity_mm_s", ctypes.c_uint16),
+        ("accel_mm_s2", ctypes.c_uint16),
+        ("accel_min_mm_s2", ctypes.c_uint16),
+        ("accel_max_mm_s2", ctypes.c_uint16),
+        ("stop_decel_mm_s2", ctypes.c_uint16),
+        ("dead_man_ms", ctypes.c_uint16),
+        ("reverse_dwell_ms", ctypes.c_uint16),
+        ("full_scale_mm_s", ctypes.c_uint16),
+        ("low_battery_10mv", ctypes.c_uint16),
+        ("gps_stale_ms", ctypes.c_uint16),
+        ("battery_median_window", ctypes.c_uint8),
+    ]
+
+
 class AmzFrame(ctypes.Structure):
     _fields_ = [
         ("type", ctypes.c_uint8),
@@ -91,6 +120,8 @@ class AmzFrame(ctypes.Structure):
         ("telemetry", AmzTelemetry),
         ("config", AmzConfig),
         ("config_ack", AmzConfigAck),
+        ("identify", AmzIdentify),
+        ("identity", AmzIdentity),
     ]
 
 
@@ -128,6 +159,8 @@ class AmzRobotConfig(ctypes.Structure):
         ("low_battery_hysteresis_10mv", ctypes.c_uint16),
         ("gps_stale_ms", ctypes.c_uint16),
         ("wheel_stale_ms", ctypes.c_uint16),
+        # NUL-terminated, at most 16 printable ASCII characters (AMZ_BUILD_ID).
+        ("build_id", ctypes.c_char * 17),
     ]
 
 

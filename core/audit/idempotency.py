@@ -127,8 +127,9 @@ def idempotent(method: ViewMethod) -> ViewMethod:
     @wraps(method)
     def wrapper(view: Any, request: Request, *args: Any, **kwargs: Any) -> Response:
         key = request.headers.get(HEADER)
-        if not key:
+        if key is None:
             return method(view, request, *args, **kwargs)
+        # Present but empty is refused like any other malformed key (the schema's minLength).
         if len(key) > MAX_KEY_LENGTH or not KEY_PATTERN.fullmatch(key):
             return Response(
                 {

@@ -38,6 +38,9 @@ amz::RobotConfig to_core(const amz_robot_config& c) {
   r.low_battery_hysteresis_10mv = c.low_battery_hysteresis_10mv;
   r.gps_stale_ms = c.gps_stale_ms;
   r.wheel_stale_ms = c.wheel_stale_ms;
+  for (size_t i = 0; i <= amz::kBuildIdSize; ++i) {
+    r.build_id[i] = i < amz::kBuildIdSize ? c.build_id[i] : 0;
+  }
   return r;
 }
 
@@ -77,6 +80,32 @@ amz::ConfigAckFrame to_core(const amz_config_ack& a) {
   return f;
 }
 
+amz::IdentifyFrame to_core(const amz_identify& q) {
+  amz::IdentifyFrame f = {q.to_node, q.from_node, q.seq};
+  return f;
+}
+
+amz::IdentityFrame to_core(const amz_identity& y) {
+  amz::IdentityFrame f;
+  f.to_node = y.to_node;
+  f.from_node = y.from_node;
+  f.seq = y.seq;
+  for (size_t i = 0; i <= amz::kBuildIdSize; ++i) f.build_id[i] = y.build_id[i];
+  f.hard_max_velocity_mm_s = y.hard_max_velocity_mm_s;
+  f.max_velocity_mm_s = y.max_velocity_mm_s;
+  f.accel_mm_s2 = y.accel_mm_s2;
+  f.accel_min_mm_s2 = y.accel_min_mm_s2;
+  f.accel_max_mm_s2 = y.accel_max_mm_s2;
+  f.stop_decel_mm_s2 = y.stop_decel_mm_s2;
+  f.dead_man_ms = y.dead_man_ms;
+  f.reverse_dwell_ms = y.reverse_dwell_ms;
+  f.full_scale_mm_s = y.full_scale_mm_s;
+  f.low_battery_10mv = y.low_battery_10mv;
+  f.gps_stale_ms = y.gps_stale_ms;
+  f.battery_median_window = y.battery_median_window;
+  return f;
+}
+
 int encoded(amz::FrameError e, size_t written) {
   return e == amz::FRAME_OK ? static_cast<int>(written) : -static_cast<int>(e);
 }
@@ -112,6 +141,7 @@ void amz_robot_default_config(amz_robot_config* out) {
   out->low_battery_hysteresis_10mv = r.low_battery_hysteresis_10mv;
   out->gps_stale_ms = r.gps_stale_ms;
   out->wheel_stale_ms = r.wheel_stale_ms;
+  for (size_t i = 0; i <= amz::kBuildIdSize; ++i) out->build_id[i] = r.build_id[i];
 }
 
 amz_robot* amz_robot_create(const amz_robot_config* config, uint32_t now_ms, int e_stop_latched,
@@ -199,6 +229,20 @@ int amz_encode_config_ack(const amz_config_ack* frame, uint8_t* out, size_t cap)
   return encoded(e, written);
 }
 
+int amz_encode_identify(const amz_identify* frame, uint8_t* out, size_t cap) {
+  if (frame == 0) return -AMZ_ERR_BUFFER_TOO_SMALL;
+  size_t written = 0;
+  const amz::FrameError e = amz::encode_identify(to_core(*frame), out, cap, &written);
+  return encoded(e, written);
+}
+
+int amz_encode_identity(const amz_identity* frame, uint8_t* out, size_t cap) {
+  if (frame == 0) return -AMZ_ERR_BUFFER_TOO_SMALL;
+  size_t written = 0;
+  const amz::FrameError e = amz::encode_identity(to_core(*frame), out, cap, &written);
+  return encoded(e, written);
+}
+
 int amz_decode_frame(const uint8_t* data, size_t len, amz_frame* out) {
   amz::Frame f;
   const amz::FrameError e = amz::decode_frame(data, len, &f);
@@ -226,6 +270,28 @@ int amz_decode_frame(const uint8_t* data, size_t len, amz_frame* out) {
     r.satellites = t.satellites;
     r.status = t.status;
     r.rssi_dbm = t.rssi_dbm;
+  } else if (f.type == amz::FRAME_IDENTIFY) {
+    amz_identify r = {f.identify.to_node, f.identify.from_node, f.identify.seq};
+    out->identify = r;
+  } else if (f.type == amz::FRAME_IDENTITY) {
+    const amz::IdentityFrame& y = f.identity;
+    amz_identity& r = out->identity;
+    r.to_node = y.to_node;
+    r.from_node = y.from_node;
+    r.seq = y.seq;
+    for (size_t i = 0; i <= amz::kBuildIdSize; ++i) r.build_id[i] = y.build_id[i];
+    r.hard_max_velocity_mm_s = y.hard_max_velocity_mm_s;
+    r.max_velocity_mm_s = y.max_velocity_mm_s;
+    r.accel_mm_s2 = y.accel_mm_s2;
+    r.accel_min_mm_s2 = y.accel_min_mm_s2;
+    r.accel_max_mm_s2 = y.accel_max_mm_s2;
+    r.stop_decel_mm_s2 = y.stop_decel_mm_s2;
+    r.dead_man_ms = y.dead_man_ms;
+    r.reverse_dwell_ms = y.reverse_dwell_ms;
+    r.full_scale_mm_s = y.full_scale_mm_s;
+    r.low_battery_10mv = y.low_battery_10mv;
+    r.gps_stale_ms = y.gps_stale_ms;
+    r.battery_median_window = y.battery_median_window;
   } else if (f.type == amz::FRAME_CONFIG_ACK) {
     const amz::ConfigAckFrame& a = f.config_ack;
     amz_config_ack r = {a.to_node,           a.from_node,   a.seq,

@@ -12,7 +12,7 @@
 extern "C" {
 #endif
 
-#define AMZ_ABI_VERSION 2u
+#define AMZ_ABI_VERSION 3u
 
 /* Error kinds (docs/protocol.md §3); amz_frame_error_name() gives the shared names. */
 enum {
@@ -51,6 +51,7 @@ typedef struct amz_robot_config {
   uint16_t low_battery_hysteresis_10mv;
   uint16_t gps_stale_ms;
   uint16_t wheel_stale_ms;
+  char build_id[17]; /* NUL-terminated, at most 16 printable ASCII characters */
 } amz_robot_config;
 
 typedef struct amz_motion_output {
@@ -106,12 +107,42 @@ typedef struct amz_config_ack {
   uint16_t hard_max_velocity_mm_s;
 } amz_config_ack;
 
+/* BS -> robot: asks for the robot's identity. */
+typedef struct amz_identify {
+  uint8_t to_node;
+  uint8_t from_node;
+  uint16_t seq;
+} amz_identify;
+
+/* Robot -> BS: the build identifier and the compiled-in configuration. */
+typedef struct amz_identity {
+  uint8_t to_node;
+  uint8_t from_node;
+  uint16_t seq;
+  char build_id[17]; /* NUL-terminated */
+  uint16_t hard_max_velocity_mm_s;
+  uint16_t max_velocity_mm_s;
+  uint16_t accel_mm_s2;
+  uint16_t accel_min_mm_s2;
+  uint16_t accel_max_mm_s2;
+  uint16_t stop_decel_mm_s2;
+  uint16_t dead_man_ms;
+  uint16_t reverse_dwell_ms;
+  uint16_t full_scale_mm_s;
+  uint16_t low_battery_10mv;
+  uint16_t gps_stale_ms;
+  uint8_t battery_median_window;
+} amz_identity;
+
 typedef struct amz_frame {
-  uint8_t type; /* 1 command, 2 telemetry, 3 config, 4 config_ack: the member that is valid */
+  uint8_t type; /* 1 command, 2 telemetry, 3 config, 4 config_ack, 5 identify, 6 identity:
+                   the member that is valid */
   amz_command command;
   amz_telemetry telemetry;
   amz_config config;
   amz_config_ack config_ack;
+  amz_identify identify;
+  amz_identity identity;
 } amz_frame;
 
 typedef struct amz_gga_fix {
@@ -151,6 +182,8 @@ int amz_encode_command(const amz_command* frame, uint8_t* out, size_t cap);
 int amz_encode_telemetry(const amz_telemetry* frame, uint8_t* out, size_t cap);
 int amz_encode_config(const amz_config* frame, uint8_t* out, size_t cap);
 int amz_encode_config_ack(const amz_config_ack* frame, uint8_t* out, size_t cap);
+int amz_encode_identify(const amz_identify* frame, uint8_t* out, size_t cap);
+int amz_encode_identity(const amz_identity* frame, uint8_t* out, size_t cap);
 /* AMZ_OK or an AMZ_ERR_* kind; on AMZ_OK out->type says which member holds the frame. */
 int amz_decode_frame(const uint8_t* data, size_t len, amz_frame* out);
 const char* amz_frame_error_name(int kind);

@@ -80,6 +80,38 @@ FrameError check_config_ack(const ConfigAckFrame& f) {
   return e;
 }
 
+// Printable ASCII up to the first NUL, then only NULs: one spelling per identifier, so a
+// decoded frame encodes back to the same bytes.
+FrameError check_wire_build_id(const uint8_t* p) {
+  bool ended = false;
+  for (uint8_t i = 0; i < kBuildIdSize; ++i) {
+    if (p[i] == 0) {
+      ended = true;
+    } else if (ended || p[i] < 0x20 || p[i] > 0x7e) {
+      return ERR_OUT_OF_RANGE;
+    }
+  }
+  return FRAME_OK;
+}
+
+FrameError check_build_id(const char* id) {
+  for (uint8_t i = 0; i <= kBuildIdSize; ++i) {
+    const uint8_t c = static_cast<uint8_t>(id[i]);
+    if (c == 0) return FRAME_OK;
+    if (i == kBuildIdSize || c < 0x20 || c > 0x7e) return ERR_OUT_OF_RANGE;
+  }
+  return ERR_OUT_OF_RANGE;
+}
+
+FrameError check_identity_numbers(const IdentityFrame& f) {
+  FrameError e = check_velocity(f.hard_max_velocity_mm_s);
+  if (e == FRAME_OK) e = check_velocity(f.max_velocity_mm_s);
+  if (e == FRAME_OK) e = check_accel(f.accel_mm_s2);
+  if (e == FRAME_OK) e = check_accel(f.accel_min_mm_s2);
+  if (e == FRAME_OK) e = check_accel(f.accel_max_mm_s2);
+  return e;
+}
+
 uint8_t frame_size(uint8_t type) {
   switch (type) {
     case FRAME_COMMAND:
@@ -90,6 +122,10 @@ uint8_t frame_size(uint8_t type) {
       return kConfigFrameSize;
     case FRAME_CONFIG_ACK:
       return kConfigAckFrameSize;
+    case FRAME_IDENTIFY:
+      return kIdentifyFrameSize;
+    case FRAME_IDENTITY:
+      return kIdentityFrameSize;
     default:
       return 0;
   }
@@ -147,6 +183,33 @@ FrameError decode_frame(const uint8_t* data, size_t len, Frame* out) {
     t.status = p[23];
     t.rssi_dbm = static_cast<int8_t>(p[24]);
     e = check_telemetry(t);
+  } else if (type == FRAME_IDENTIFY) {
+    IdentifyFrame& q = f.identify;
+    q.to_node = data[1];
+    q.from_node = data[2];
+    q.seq = get_u16(p);
+  } else if (type == FRAME_IDENTITY) {
+    IdentityFrame& y = f.identity;
+    y.to_node = data[1];
+    y.from_node = data[2];
+    y.seq = get_u16(p);
+    e = check_wire_build_id(p + 2);
+    for (uint8_t i = 0; i < kBuildIdSize; ++i) y.build_id[i] = static_cast<char>(p[2 + i]);
+    y.build_id[kBuildIdSize] = 0;
+    const uint8_t* n = p + 2 + kBuildIdSize;
+    y.hard_max_velocity_mm_s = get_u16(n);
+    y.max_velocity_mm_s = get_u16(n + 2);
+    y.accel_mm_s2 = get_u16(n + 4);
+    y.accel_min_mm_s2 = get_u16(n + 6);
+    y.accel_max_mm_s2 = get_u16(n + 8);
+    y.stop_decel_mm_s2 = get_u16(n + 10);
+    y.dead_man_ms = get_u16(n + 12);
+    y.reverse_dwell_ms = get_u16(n + 14);
+    y.full_scale_mm_s = get_u16(n + 16);
+    y.low_battery_10mv = get_u16(n + 18);
+    y.gps_stale_ms = get_u16(n + 20);
+    y.battery_median_window = n[22];
+    if (e == FRAME_OK) e = check_identity_numbers(y);
   } else if (type == FRAME_CONFIG_ACK) {
     ConfigAckFrame& a = f.config_ack;
     a.to_node = data[1];
@@ -235,6 +298,46 @@ FrameError encode_config_ack(const ConfigAckFrame& f, uint8_t* out, size_t cap,
   return FRAME_OK;
 }
 
+FrameError encode_identify(const IdentifyFrame& f, uint8_t* out, size_t cap,
+                           size_t* written) {
+  if (out == 0 || cap < kIdentifyFrameSize) return ERR_BUFFER_TOO_SMALL;
+  put_header(out, FRAME_IDENTIFY, f.to_node, f.from_node);
+  put_u16(out + kHeaderSize, f.seq);
+  if (written != 0) *written = kIdentifyFrameSize;
+  return FRAME_OK;
+}
+
+FrameError encode_identity(const IdentityFrame& f, uint8_t* out, size_t cap,
+                           size_t* written) {
+  FrameError e = check_build_id(f.build_id);
+  if (e == FRAME_OK) e = check_identity_numbers(f);
+  if (e != FRAME_OK) return e;
+  if (out == 0 || cap < kIdentityFrameSize) return ERR_BUFFER_TOO_SMALL;
+  put_header(out, FRAME_IDENTITY, f.to_node, f.from_node);
+  uint8_t* p = out + kHeaderSize;
+  put_u16(p, f.seq);
+  bool ended = false;
+  for (uint8_t i = 0; i < kBuildIdSize; ++i) {
+    if (f.build_id[i] == 0) ended = true;
+    p[2 + i] = ended ? 0 : static_cast<uint8_t>(f.build_id[i]);
+  }
+  uint8_t* n = p + 2 + kBuildIdSize;
+  put_u16(n, f.hard_max_velocity_mm_s);
+  put_u16(n + 2, f.max_velocity_mm_s);
+  put_u16(n + 4, f.accel_mm_s2);
+  put_u16(n + 6, f.accel_min_mm_s2);
+  put_u16(n + 8, f.accel_max_mm_s2);
+  put_u16(n + 10, f.stop_decel_mm_s2);
+  put_u16(n + 12, f.dead_man_ms);
+  put_u16(n + 14, f.reverse_dwell_ms);
+  put_u16(n + 16, f.full_scale_mm_s);
+  put_u16(n + 18, f.low_battery_10mv);
+  put_u16(n + 20, f.gps_stale_ms);
+  n[22] = f.battery_median_window;
+  if (written != 0) *written = kIdentityFrameSize;
+  return FRAME_OK;
+}
+
 FrameError encode_frame(const Frame& f, uint8_t* out, size_t cap, size_t* written) {
   switch (f.type) {
     case FRAME_COMMAND:
@@ -245,6 +348,10 @@ FrameError encode_frame(const Frame& f, uint8_t* out, size_t cap, size_t* writte
       return encode_config(f.config, out, cap, written);
     case FRAME_CONFIG_ACK:
       return encode_config_ack(f.config_ack, out, cap, written);
+    case FRAME_IDENTIFY:
+      return encode_identify(f.identify, out, cap, written);
+    case FRAME_IDENTITY:
+      return encode_identity(f.identity, out, cap, written);
     default:
       return ERR_UNKNOWN_TYPE;
   }

@@ -14,6 +14,10 @@ const uint8_t kCommandFrameSize = 14;
 const uint8_t kTelemetryFrameSize = 31;
 const uint8_t kConfigFrameSize = 12;
 const uint8_t kConfigAckFrameSize = 14;
+const uint8_t kIdentifyFrameSize = 8;
+const uint8_t kIdentityFrameSize = 47;
+// The build identifier on the wire: printable ASCII, NUL-padded to this many bytes.
+const uint8_t kBuildIdSize = 16;
 const uint8_t kMaxFrameSize = 66;  // the RFM69 FIFO
 
 const uint16_t kVelocityLimitMmS = 10000;  // wire limit; the robot clamps further
@@ -23,7 +27,14 @@ const int32_t kLonLimitE7 = 1800000000L;
 
 const uint8_t kBroadcastNode = 255;
 
-enum FrameType { FRAME_COMMAND = 1, FRAME_TELEMETRY = 2, FRAME_CONFIG = 3, FRAME_CONFIG_ACK = 4 };
+enum FrameType {
+  FRAME_COMMAND = 1,
+  FRAME_TELEMETRY = 2,
+  FRAME_CONFIG = 3,
+  FRAME_CONFIG_ACK = 4,
+  FRAME_IDENTIFY = 5,
+  FRAME_IDENTITY = 6
+};
 
 enum Direction { DIR_CCW = 0, DIR_CW = 1 };
 
@@ -109,6 +120,33 @@ struct ConfigAckFrame {
   uint16_t hard_max_velocity_mm_s;
 };
 
+// BS -> robot: "which firmware are you, built how?" (docs/protocol.md §2.5).
+struct IdentifyFrame {
+  uint8_t to_node;
+  uint8_t from_node;
+  uint16_t seq;
+};
+
+// Robot -> BS: the build identifier and the compiled-in configuration (§2.6).
+struct IdentityFrame {
+  uint8_t to_node;
+  uint8_t from_node;
+  uint16_t seq;
+  char build_id[kBuildIdSize + 1];  // NUL-terminated; printable ASCII
+  uint16_t hard_max_velocity_mm_s;
+  uint16_t max_velocity_mm_s;
+  uint16_t accel_mm_s2;
+  uint16_t accel_min_mm_s2;
+  uint16_t accel_max_mm_s2;
+  uint16_t stop_decel_mm_s2;
+  uint16_t dead_man_ms;
+  uint16_t reverse_dwell_ms;
+  uint16_t full_scale_mm_s;
+  uint16_t low_battery_10mv;
+  uint16_t gps_stale_ms;
+  uint8_t battery_median_window;
+};
+
 struct Frame {
   uint8_t type;  // FrameType; selects the member of the union
   union {
@@ -116,6 +154,8 @@ struct Frame {
     TelemetryFrame telemetry;
     ConfigFrame config;
     ConfigAckFrame config_ack;
+    IdentifyFrame identify;
+    IdentityFrame identity;
   };
 };
 
@@ -130,6 +170,10 @@ FrameError encode_telemetry(const TelemetryFrame& frame, uint8_t* out, size_t ca
 FrameError encode_config(const ConfigFrame& frame, uint8_t* out, size_t cap, size_t* written);
 FrameError encode_config_ack(const ConfigAckFrame& frame, uint8_t* out, size_t cap,
                              size_t* written);
+FrameError encode_identify(const IdentifyFrame& frame, uint8_t* out, size_t cap,
+                           size_t* written);
+FrameError encode_identity(const IdentityFrame& frame, uint8_t* out, size_t cap,
+                           size_t* written);
 FrameError encode_frame(const Frame& frame, uint8_t* out, size_t cap, size_t* written);
 
 // "too_short", "length_mismatch", ...; "unknown" for a value outside the enum.

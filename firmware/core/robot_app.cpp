@@ -4,8 +4,13 @@
 
 namespace amz {
 
+// A longer identifier would be cut on the wire: refuse to build instead.
+static_assert(sizeof(AMZ_BUILD_ID) <= kBuildIdSize + 1, "AMZ_BUILD_ID: at most 16 characters");
+
 RobotConfig default_robot_config() {
   RobotConfig c;
+  const char* id = AMZ_BUILD_ID;
+  for (uint8_t i = 0; i <= kBuildIdSize; ++i) c.build_id[i] = i < sizeof(AMZ_BUILD_ID) ? id[i] : 0;
   c.node = AMZ_ROBOT_NODE;
   c.base_node = AMZ_BASE_NODE;
   c.motion.max_velocity_mm_s = AMZ_MAX_VELOCITY_MM_S;
@@ -34,6 +39,7 @@ RobotConfig default_robot_config() {
 void RobotApp::init(const RobotConfig& config, uint32_t now_ms, bool e_stop_latched,
                     bool watchdog_reset) {
   config_ = config;
+  config_.build_id[kBuildIdSize] = 0;
   if (config_.accel_min_mm_s2 == 0) config_.accel_min_mm_s2 = 1;
   if (config_.accel_max_mm_s2 < config_.accel_min_mm_s2) {
     config_.accel_max_mm_s2 = config_.accel_min_mm_s2;
@@ -108,7 +114,31 @@ size_t RobotApp::handle_frame(uint32_t now_ms, const uint8_t* data, size_t len, 
     if (encode_config_ack(answer, reply, reply_cap, &written) != FRAME_OK) return 0;
     return written;
   }
-  return 0;  // telemetry and acknowledgements are not for the robot
+  if (frame.type == FRAME_IDENTIFY) {
+    const IdentifyFrame& request = frame.identify;
+    if (request.to_node != config_.node || request.from_node != config_.base_node) return 0;
+    IdentityFrame answer;
+    answer.to_node = request.from_node;
+    answer.from_node = config_.node;
+    answer.seq = request.seq;
+    for (uint8_t i = 0; i <= kBuildIdSize; ++i) answer.build_id[i] = config_.build_id[i];
+    // The compiled-in configuration, as init() received it: what this build does by itself.
+    answer.hard_max_velocity_mm_s = config_.hard_max_velocity_mm_s;
+    answer.max_velocity_mm_s = config_.motion.max_velocity_mm_s;
+    answer.accel_mm_s2 = config_.motion.accel_mm_s2;
+    answer.accel_min_mm_s2 = config_.accel_min_mm_s2;
+    answer.accel_max_mm_s2 = config_.accel_max_mm_s2;
+    answer.stop_decel_mm_s2 = config_.motion.stop_decel_mm_s2;
+    answer.dead_man_ms = config_.motion.dead_man_ms;
+    answer.reverse_dwell_ms = config_.motion.reverse_dwell_ms;
+    answer.full_scale_mm_s = config_.motion.full_scale_mm_s;
+    answer.low_battery_10mv = config_.low_battery_10mv;
+    answer.gps_stale_ms = config_.gps_stale_ms;
+    answer.battery_median_window = config_.battery_median_window;
+    if (encode_identity(answer, reply, reply_cap, &written) != FRAME_OK) return 0;
+    return written;
+  }
+  return 0;  // telemetry, acknowledgements and identities are not for the robot
 }
 
 MotionOutput RobotApp::step(uint32_t now_ms) { return motion_.step(now_ms); }

@@ -15,6 +15,7 @@
 namespace amz {
 
 struct RobotConfig {
+  char build_id[kBuildIdSize + 1];  // NUL-terminated, reported in the identity frame
   uint8_t node;
   uint8_t base_node;
   MotionConfig motion;

@@ -3,6 +3,13 @@
 #ifndef AMZ_ROBOT_CONFIG_H
 #define AMZ_ROBOT_CONFIG_H
 
+// The build identifier the robot reports in its identity frame (docs/protocol.md §2.6):
+// printable ASCII, at most 16 characters. The Makefiles set it from the last commit of the
+// firmware's sources (`make -C firmware hex AMZ_BUILD_ID=...` names a build by hand).
+#ifndef AMZ_BUILD_ID
+#define AMZ_BUILD_ID "unversioned"
+#endif
+
 // Radio (docs/protocol.md §1).
 #ifndef AMZ_ROBOT_NODE
 #define AMZ_ROBOT_NODE 2

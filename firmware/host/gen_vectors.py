@@ -51,12 +51,37 @@ FIELDS: dict[str, dict[str, str]] = {
         "accel_mm_s2": "uint16_t",
         "hard_max_velocity_mm_s": "uint16_t",
     },
+    "identify": {
+        "to_node": "uint8_t",
+        "from_node": "uint8_t",
+        "seq": "uint16_t",
+    },
+    "identity": {
+        "to_node": "uint8_t",
+        "from_node": "uint8_t",
+        "seq": "uint16_t",
+        "build_id": "char[17]",
+        "hard_max_velocity_mm_s": "uint16_t",
+        "max_velocity_mm_s": "uint16_t",
+        "accel_mm_s2": "uint16_t",
+        "accel_min_mm_s2": "uint16_t",
+        "accel_max_mm_s2": "uint16_t",
+        "stop_decel_mm_s2": "uint16_t",
+        "dead_man_ms": "uint16_t",
+        "reverse_dwell_ms": "uint16_t",
+        "full_scale_mm_s": "uint16_t",
+        "low_battery_10mv": "uint16_t",
+        "gps_stale_ms": "uint16_t",
+        "battery_median_window": "uint8_t",
+    },
 }
 FRAME_TYPE = {
     "command": "FRAME_COMMAND",
     "telemetry": "FRAME_TELEMETRY",
     "config": "FRAME_CONFIG",
     "config_ack": "FRAME_CONFIG_ACK",
+    "identify": "FRAME_IDENTIFY",
+    "identity": "FRAME_IDENTITY",
 }
 ERRORS = {
     "too_short",
@@ -90,6 +115,7 @@ def main(path: str) -> int:
         "#define AMZ_VECTORS_H",
         "#include <stddef.h>",
         "#include <stdint.h>",
+        "#include <string.h>",
         '#include "protocol.h"',
         "namespace vectors {",
         "struct Valid { const char* name; const uint8_t* bytes; size_t len;"
@@ -112,7 +138,14 @@ def main(path: str) -> int:
         out.append(f"static void fill_valid_{index}(amz::Frame* f) {{")
         out.append(f"  f->type = amz::{FRAME_TYPE[kind]};")
         for field, ctype in FIELDS[kind].items():
-            out.append(f"  f->{kind}.{field} = static_cast<{ctype}>({int(fields[field])}LL);")
+            if ctype.startswith("char["):
+                # A text field: the string, NUL-padded to its array (memset by the caller).
+                text = str(fields[field])
+                if len(text) >= int(ctype[5:-1]) or not text.isascii():
+                    raise SystemExit(f"{vector['name']}: {field} does not fit {ctype}")
+                out.append(f"  strcpy(f->{kind}.{field}, {c_string(text)});")
+            else:
+                out.append(f"  f->{kind}.{field} = static_cast<{ctype}>({int(fields[field])}LL);")
         out.append("}")
         valid_rows.append(
             f"  {{{c_string(vector['name'])}, valid_{index}, {length}, &fill_valid_{index}}},"

@@ -35,6 +35,22 @@ bool same_config_ack(const ConfigAckFrame& a, const ConfigAckFrame& b) {
          a.hard_max_velocity_mm_s == b.hard_max_velocity_mm_s;
 }
 
+bool same_identify(const IdentifyFrame& a, const IdentifyFrame& b) {
+  return a.to_node == b.to_node && a.from_node == b.from_node && a.seq == b.seq;
+}
+
+bool same_identity(const IdentityFrame& a, const IdentityFrame& b) {
+  return a.to_node == b.to_node && a.from_node == b.from_node && a.seq == b.seq &&
+         strcmp(a.build_id, b.build_id) == 0 &&
+         a.hard_max_velocity_mm_s == b.hard_max_velocity_mm_s &&
+         a.max_velocity_mm_s == b.max_velocity_mm_s && a.accel_mm_s2 == b.accel_mm_s2 &&
+         a.accel_min_mm_s2 == b.accel_min_mm_s2 && a.accel_max_mm_s2 == b.accel_max_mm_s2 &&
+         a.stop_decel_mm_s2 == b.stop_decel_mm_s2 && a.dead_man_ms == b.dead_man_ms &&
+         a.reverse_dwell_ms == b.reverse_dwell_ms && a.full_scale_mm_s == b.full_scale_mm_s &&
+         a.low_battery_10mv == b.low_battery_10mv && a.gps_stale_ms == b.gps_stale_ms &&
+         a.battery_median_window == b.battery_median_window;
+}
+
 bool same_frame(const Frame& a, const Frame& b) {
   if (a.type != b.type) return false;
   switch (a.type) {
@@ -46,6 +62,10 @@ bool same_frame(const Frame& a, const Frame& b) {
       return same_config(a.config, b.config);
     case FRAME_CONFIG_ACK:
       return same_config_ack(a.config_ack, b.config_ack);
+    case FRAME_IDENTIFY:
+      return same_identify(a.identify, b.identify);
+    case FRAME_IDENTITY:
+      return same_identity(a.identity, b.identity);
     default:
       return false;
   }
@@ -141,6 +161,22 @@ TEST(encoder_refuses_fields_the_decoder_would_reject) {
   t.fix_quality = 0;
   t.lat_e7 = 900000001L;
   CHECK_EQ(encode_telemetry(t, out, sizeof out, &written), ERR_OUT_OF_RANGE);
+  IdentityFrame y;
+  memset(&y, 0, sizeof y);
+  y.accel_mm_s2 = y.accel_min_mm_s2 = y.accel_max_mm_s2 = 100;
+  strcpy(y.build_id, "v1.2");
+  CHECK_EQ(encode_identity(y, out, sizeof out, &written), FRAME_OK);
+  CHECK_EQ(written, kIdentityFrameSize);
+  y.build_id[1] = '\n';  // not printable
+  CHECK_EQ(encode_identity(y, out, sizeof out, &written), ERR_OUT_OF_RANGE);
+  memset(y.build_id, 'x', sizeof y.build_id);  // 17 characters, no room for the end
+  CHECK_EQ(encode_identity(y, out, sizeof out, &written), ERR_OUT_OF_RANGE);
+  strcpy(y.build_id, "v1.2");
+  y.hard_max_velocity_mm_s = 10001;
+  CHECK_EQ(encode_identity(y, out, sizeof out, &written), ERR_OUT_OF_RANGE);
+  y.hard_max_velocity_mm_s = 4000;
+  y.accel_min_mm_s2 = 0;
+  CHECK_EQ(encode_identity(y, out, sizeof out, &written), ERR_OUT_OF_RANGE);
 }
 
 TEST(decoder_survives_arbitrary_bytes) {
@@ -161,7 +197,7 @@ TEST(decoder_survives_arbitrary_bytes) {
     if (len > 5 && (round & 2)) {
       buf[3] = 0;
       buf[4] = 1;
-      buf[5] = static_cast<uint8_t>(1 + (round >> 2) % 3);
+      buf[5] = static_cast<uint8_t>(1 + (round >> 2) % 6);
     }
     const FrameError e = decode_frame(buf, len, &f);
     CHECK(e <= ERR_BAD_ENUM);

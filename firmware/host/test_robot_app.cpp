@@ -196,6 +196,48 @@ TEST(config_is_applied_within_the_hard_limits_and_answered) {
   CHECK_EQ(robot.step(now).velocity_mm_s, 4000);
 }
 
+namespace {
+
+size_t identify(amz_robot* r, uint8_t to, uint8_t from, uint8_t* reply, size_t cap) {
+  amz_identify request = {to, from, 4242};
+  uint8_t frame[66];
+  const int len = amz_encode_identify(&request, frame, sizeof frame);
+  CHECK_EQ(len, 8);
+  return amz_robot_handle_frame(r, 0, frame, static_cast<size_t>(len), -50, reply, cap);
+}
+
+}  // namespace
+
+TEST(identify_is_answered_with_the_build_id_and_the_compiled_configuration) {
+  amz_robot_config c;
+  amz_robot_default_config(&c);
+  CHECK(strcmp(c.build_id, AMZ_BUILD_ID) == 0);  // the Makefile's identifier
+  strcpy(c.build_id, "bench-7");
+  c.hard_max_velocity_mm_s = 3500;
+  c.dead_man_ms = 400;
+  amz_robot* r = amz_robot_create(&c, 0, 0, 0);
+  uint8_t reply[66];
+  const size_t n = identify(r, 2, 1, reply, sizeof reply);
+  CHECK_EQ(n, 47);
+  amz_frame f;
+  memset(&f, 0, sizeof f);
+  CHECK_EQ(amz_decode_frame(reply, n, &f), AMZ_OK);
+  CHECK_EQ(f.type, 6);
+  CHECK_EQ(f.identity.seq, 4242);
+  CHECK_EQ(f.identity.to_node, 1);
+  CHECK(strcmp(f.identity.build_id, "bench-7") == 0);
+  CHECK_EQ(f.identity.hard_max_velocity_mm_s, 3500);
+  CHECK_EQ(f.identity.max_velocity_mm_s, c.max_velocity_mm_s);
+  CHECK_EQ(f.identity.accel_min_mm_s2, c.accel_min_mm_s2);
+  CHECK_EQ(f.identity.dead_man_ms, 400);
+  CHECK_EQ(f.identity.battery_median_window, c.battery_median_window);
+  // Only its own base station is answered, and a full reply buffer gets nothing.
+  CHECK_EQ(identify(r, 2, 9, reply, sizeof reply), 0);
+  CHECK_EQ(identify(r, 3, 1, reply, sizeof reply), 0);
+  CHECK_EQ(identify(r, 2, 1, reply, 46), 0);
+  amz_robot_destroy(r);
+}
+
 TEST(gps_fix_is_reported_and_goes_stale) {
   Robot robot;
   robot.gps(0, "GNGGA,101530.20,4038.05032,N,00839.60090,W,4,14,0.62,32.1,M,50.2,M,1.0,0000");

@@ -13,10 +13,12 @@ from typing import Any
 from asgiref.sync import sync_to_async
 from django.core.handlers.asgi import ASGIRequest
 from django.http import HttpRequest, StreamingHttpResponse
+from django.urls import reverse
 from django.utils.cache import patch_vary_headers
 from rest_framework.request import Request
 
 from portal.runs.models import Run
+from portal.runs.package import run_package_zip
 from portal.runs.selectors import run_samples_csv, run_samples_json
 
 # zlib's fastest level: it keeps up with the database (level 6 takes several times as long
@@ -32,6 +34,15 @@ def samples_csv_response(request: HttpRequest | Request, run: Run) -> StreamingH
 def samples_json_response(request: HttpRequest | Request, run: Run) -> StreamingHttpResponse:
     """All samples of a run as one JSON document, streamed."""
     return _download(request, run_samples_json(run=run), run, "json", "application/json")
+
+
+def run_package_response(request: HttpRequest | Request, run: Run) -> StreamingHttpResponse:
+    """The run as a self-describing zip (``portal/runs/package.py``), streamed. Not gzipped
+    again: its files are deflated inside it."""
+    url = request.build_absolute_uri(reverse("run", args=[run.pk]))
+    return _download(
+        request, run_package_zip(run=run, url=url), run, "zip", "application/zip", gzip=False
+    )
 
 
 def accepts_gzip(accept_encoding: str) -> bool:
@@ -69,17 +80,20 @@ def _download(
     run: Run,
     extension: str,
     media_type: str,
+    *,
+    gzip: bool = True,
 ) -> StreamingHttpResponse:
     """Under ASGI the chunks come through an async iterator that reads the database (and
     compresses) in the request's sync thread, so the server is never blocked and Django
     does not buffer it."""
-    compress = accepts_gzip(request.META.get("HTTP_ACCEPT_ENCODING", ""))
+    compress = gzip and accepts_gzip(request.META.get("HTTP_ACCEPT_ENCODING", ""))
     if compress:
         chunks = gzipped(chunks)
     content: Iterator[bytes] | AsyncIterator[bytes] = (
         _async_chunks(chunks) if _is_asgi(request) else chunks
     )
-    response = StreamingHttpResponse(content, content_type=f"{media_type}; charset=utf-8")
+    charset = "" if media_type == "application/zip" else "; charset=utf-8"
+    response = StreamingHttpResponse(content, content_type=f"{media_type}{charset}")
     response["Content-Disposition"] = f'attachment; filename="amazing-run-{run.pk}.{extension}"'
     if compress:
         response["Content-Encoding"] = "gzip"

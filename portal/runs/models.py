@@ -45,6 +45,19 @@ class Run(models.Model):
     missing = models.JSONField(default=list, blank=True, db_default=Value([], models.JSONField()))
     # When the owner was e-mailed that the run failed or was interrupted (once).
     owner_told_at = models.DateTimeField(null=True, blank=True)
+    # How the run was made: the agent, its robot's firmware, the clock, the link, the portal,
+    # recorded at staging and at collection (``portal/runs/provenance.py``).
+    provenance = models.JSONField(
+        default=dict, blank=True, db_default=Value({}, models.JSONField())
+    )
+    # The run this one repeats ("Run again"): same program, same limits.
+    repeat_of = models.ForeignKey(
+        "self", null=True, blank=True, on_delete=models.SET_NULL, related_name="repeats"
+    )
+    # Limits asked for at booking ({"max_velocity_mps", "max_accel_mps2"}; a repeat takes the
+    # ones its original was staged with). Staging sends them within the robot's current
+    # limits; None: the robot's.
+    limits = models.JSONField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 

@@ -11,6 +11,8 @@ urlpatterns = [
         "runs/<int:pk>/samples.json", runs.RunSamplesJsonApi.as_view(), name="api-run-samples-json"
     ),
     path("runs/<int:pk>/analysis/", runs.RunAnalysisApi.as_view(), name="api-run-analysis"),
+    path("runs/<int:pk>/again/", reservations.RunAgainApi.as_view(), name="api-run-again"),
+    path("runs/<int:pk>/package.zip", runs.RunPackageApi.as_view(), name="api-run-package"),
     path("reservations/", reservations.ReservationListApi.as_view(), name="api-reservations"),
     path(
         "reservations/check/",

@@ -38,15 +38,25 @@ from core.errors import DomainError
 from core.health import health
 from portal.experiments.selectors import experiment_fits, experiments_visible, fits_summary
 from portal.experiments.services import experiment_create, experiment_update
-from portal.runs.downloads import samples_csv_response, samples_json_response
+from portal.runs.downloads import (
+    run_package_response,
+    samples_csv_response,
+    samples_json_response,
+)
 from portal.runs.models import Run
+from portal.runs.provenance import provenance_summary
 from portal.runs.selectors import (
     reservations_with_runs_visible,
     run_ids_by_reservation,
     run_report,
     runs_visible,
 )
-from portal.runs.services.booking import booking_cancel, booking_create, booking_decide
+from portal.runs.services.booking import (
+    booking_cancel,
+    booking_create,
+    booking_decide,
+    booking_repeat,
+)
 from portal.runs.services.collection import missing_described
 from portal.runs.services.health import robots_held
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
@@ -205,12 +215,47 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     }
 
 
+# Where the runs' comparison page answers (`?ids=A,B`): "compare" links from a repeated run.
+RUNS_COMPARE_PATH = "/runs/compare/"
+
+
 @login_required
 def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
     context = _run_context(request, run)
     context["events"] = run.events.all()
+    context["provenance"] = provenance_summary(run.provenance)
+    context["repeats"] = list(run.repeats.order_by("start_at").values_list("pk", flat=True))
+    context["compare_path"] = RUNS_COMPARE_PATH
     return render(request, "web/run.html", context)
+
+
+@login_required
+def run_again(request: HttpRequest, pk: int) -> HttpResponse:
+    """ "Run again": the same program with the same limits, the robot's next free slot."""
+    if request.method != "POST":
+        return redirect("run", pk=pk)
+    user = _user(request)
+    run = get_object_or_404(runs_visible(user=user).select_related("experiment"), pk=pk)
+    try:
+        reservation = booking_repeat(run=run, by=user, ip=client_ip(request))
+    except DomainError as exc:
+        messages.error(request, f"Not booked again: {exc.message}")
+        return redirect("run", pk=pk)
+    again = reservation.run
+    start = timezone.localtime(again.start_at)
+    messages.success(
+        request,
+        f"Booked run {again.pk}, repeating run {run.pk}: {start:%Y-%m-%d %H:%M:%S} on "
+        f"{run.resource.name}.",
+    )
+    return redirect("run", pk=again.pk)
+
+
+@login_required
+def run_package(request: HttpRequest, pk: int) -> StreamingHttpResponse:
+    run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    return run_package_response(request, run)
 
 
 @login_required

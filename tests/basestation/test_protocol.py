@@ -20,29 +20,33 @@ from basestation.protocol import (
     FixQuality,
     Frame,
     FrameError,
+    IdentifyFrame,
+    IdentityFrame,
     TelemetryFrame,
     TelemetryStatus,
     decode_command,
     decode_config,
     decode_config_ack,
     decode_frame,
+    decode_identity,
     decode_telemetry,
     encode_command,
     encode_config,
     encode_config_ack,
     encode_frame,
+    encode_identity,
     encode_telemetry,
 )
 
 VECTORS_PATH = Path(__file__).resolve().parents[1] / "vectors" / "protocol.json"
 VECTORS: dict[str, Any] = json.loads(VECTORS_PATH.read_text(encoding="utf-8"))
-FRAME_CLASS: dict[
-    str, type[CommandFrame] | type[TelemetryFrame] | type[ConfigFrame] | type[ConfigAckFrame]
-] = {
+FRAME_CLASS: dict[str, type[Any]] = {
     "command": CommandFrame,
     "telemetry": TelemetryFrame,
     "config": ConfigFrame,
     "config_ack": ConfigAckFrame,
+    "identify": IdentifyFrame,
+    "identity": IdentityFrame,
 }
 
 
@@ -92,6 +96,8 @@ def test_typed_decoders_reject_a_valid_frame_of_another_type() -> None:
         decode_config(data)
     with pytest.raises(FrameError):
         decode_config_ack(data)
+    with pytest.raises(FrameError):
+        decode_identity(data)
     assert decode_telemetry(data).seq == telemetry["fields"]["seq"]
 
 
@@ -129,6 +135,28 @@ def test_it_refuses_to_encode_what_it_would_refuse_to_decode() -> None:
     with pytest.raises(FrameError) as caught:
         encode_command(CommandFrame(seq=65_536, velocity_mm_s=0, direction=Direction.CW))
     assert caught.value.kind == "out_of_range"
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ({"build_id": "x" * 17}, "over 16 characters"),
+        ({"build_id": "v1\n"}, "not printable ASCII"),
+        ({"build_id": "café"}, "not printable ASCII"),
+        ({"hard_max_velocity_mm_s": 10_001}, "hard_max_velocity_mm_s"),
+        ({"accel_min_mm_s2": 0}, "accel_mm_s2 0"),
+        ({"battery_median_window": 256}, "battery_median_window"),
+    ],
+)
+def test_an_identity_the_decoder_would_refuse_is_not_encoded(
+    change: dict[str, Any], says: str
+) -> None:
+    vector = next(v for v in VECTORS["valid"] if v["type"] == "identity")
+    fields = {**vector["fields"], **change}
+    with pytest.raises(FrameError) as caught:
+        encode_identity(IdentityFrame(**fields))
+    assert caught.value.kind == "out_of_range"
+    assert says in caught.value.message
 
 
 # --- properties ---------------------------------------------------------------------------
@@ -181,8 +209,29 @@ config_acks = st.builds(
     from_node=u8,
 )
 
+identifies = st.builds(IdentifyFrame, seq=u16, to_node=u8, from_node=u8)
+identities = st.builds(
+    IdentityFrame,
+    seq=u16,
+    build_id=st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E), max_size=16),
+    hard_max_velocity_mm_s=st.integers(0, 10_000),
+    max_velocity_mm_s=st.integers(0, 10_000),
+    accel_mm_s2=st.integers(1, 10_000),
+    accel_min_mm_s2=st.integers(1, 10_000),
+    accel_max_mm_s2=st.integers(1, 10_000),
+    stop_decel_mm_s2=u16,
+    dead_man_ms=u16,
+    reverse_dwell_ms=u16,
+    full_scale_mm_s=u16,
+    low_battery_10mv=u16,
+    gps_stale_ms=u16,
+    battery_median_window=u8,
+    to_node=u8,
+    from_node=u8,
+)
 
-@given(st.one_of(commands, telemetries, configs, config_acks))
+
+@given(st.one_of(commands, telemetries, configs, config_acks, identifies, identities))
 def test_every_valid_frame_survives_a_round_trip(frame: Frame) -> None:
     data = encode_frame(frame)
 

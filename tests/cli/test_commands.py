@@ -11,6 +11,7 @@ import json
 import stat
 import subprocess
 import sys
+import zipfile
 from datetime import timedelta
 from pathlib import Path
 
@@ -23,7 +24,7 @@ from typer.testing import CliRunner
 from amazing_cli.api import OPERATIONS, Api
 from amazing_cli.errors import CliError
 from amazing_cli.main import app
-from bookings.models import Reservation
+from bookings.models import Reservation, Resource
 from portal.runs.services.booking import booking_create
 from tests.cli.schema_paths import undocumented
 from tests.factories import (
@@ -227,7 +228,7 @@ def test_watch_follows_a_run_to_its_end_and_download_streams_every_sample(portal
         ("no token", 3, "no token: run `amazing login` or set AMAZING_TOKEN"),
         ("portal down", 5, "cannot reach the portal at http://127.0.0.1:9"),
         ("unknown run", 4, "No Run matches the given query."),
-        ("unknown format", 2, "--format 'xml': give csv or json"),
+        ("unknown format", 2, "--format 'xml': give csv, json or zip"),
         ("bad time", 2, "--start 'tomorrow'"),
     ],
 )
@@ -307,3 +308,34 @@ def test_a_script_retrying_with_its_key_books_once_and_sees_the_portals_status(p
     with pytest.raises(CliError) as down:
         Api("http://127.0.0.1:9", "token").call("me")
     assert down.value.status is None
+
+
+def test_book_again_books_the_next_free_slot_and_the_new_run_links_the_old_one(portal):
+    from portal.runs.models import Run
+    from tests.runs.driving import completed_run
+
+    robot = Resource.objects.get(name="mobile-1")
+    run = completed_run(portal["erin"], robot, [(0.5, "cw", 2.0)])
+    booked = amazing("book", "--again", str(run.pk), "--quiet")
+    assert booked.exit_code == 0, booked.stderr
+    again = Run.objects.get(pk=int(booked.stdout.strip()))
+    assert again.repeat_of_id == run.pk
+    assert again.segments == run.segments
+    assert again.resource_id == robot.pk
+    assert again.end_at - again.start_at == run.end_at - run.start_at
+    # The first free slot: the robot is free now, so as soon as the lead allows.
+    assert again.start_at < run.start_at
+    line = _one_line_error(amazing("book", "--again", str(run.pk), "--start", "+1h"), 2)
+    assert "--again takes the run's own program, robot and length: drop --start" in line
+    _one_line_error(amazing("book", "--again", "999999"), 4)
+
+
+def test_download_zip_writes_the_package_and_checks_it(portal, tmp_path):
+    from tests.runs.driving import completed_run
+
+    run = completed_run(portal["erin"], Resource.objects.get(name="mobile-1"), [(0.5, "cw", 2.0)])
+    downloaded = amazing("download", str(run.pk), "--format", "zip")
+    assert downloaded.exit_code == 0, downloaded.stderr
+    assert f"Wrote amazing-run-{run.pk}.zip: 40 samples" in downloaded.stdout
+    with zipfile.ZipFile(tmp_path / f"amazing-run-{run.pk}.zip") as package:
+        assert sorted(package.namelist()) == ["README.md", "datapackage.json", "samples.csv"]

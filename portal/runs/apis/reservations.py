@@ -38,7 +38,7 @@ from core.openapi import errors
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
 from portal.runs.models import RUNS
-from portal.runs.selectors import reservations_with_runs_visible
+from portal.runs.selectors import reservations_with_runs_visible, runs_visible
 from portal.runs.services import booking
 from portal.runs.states import RunState
 
@@ -218,6 +218,38 @@ class CancelInput(serializers.Serializer):
         default="",
         help_text="Why; required when an admin cancels someone else's reservation.",
     )
+
+
+class RunAgainApi(APIView):
+    """Run again: book the run's program with its limits on its robot, in the first free
+    slot of its reservation's length (from `RUN_REPEAT_LEAD_S` on). The new run's
+    `repeat_of` is this run."""
+
+    @extend_schema(
+        request=None,
+        responses={
+            201: ReservationOutput,
+            **errors(
+                404,
+                409,
+                502,
+                503,
+                e404="The run is not found.",
+                e409="No free slot, or the booking is refused (quota, robot out of service).",
+                e502=SCHEDULER_REFUSED,
+                e503=SCHEDULER_DOWN,
+            ),
+        },
+    )
+    @idempotent
+    def post(self, request: Request, pk: int) -> Response:
+        user = request_user(request)
+        run = get_object_or_404(runs_visible(user=user).select_related("experiment"), pk=pk)
+        reservation = booking.booking_repeat(run=run, by=user, ip=client_ip(request))
+        prefetch_related_objects(
+            [reservation], Prefetch("items", ReservationItem.objects.select_related("resource"))
+        )
+        return Response(ReservationOutput(reservation).data, status=status.HTTP_201_CREATED)
 
 
 class ReservationDetailApi(APIView):

@@ -4,7 +4,7 @@ from typing import Any
 
 from django.http import HttpResponse, StreamingHttpResponse
 from django.shortcuts import get_object_or_404
-from drf_spectacular.utils import OpenApiResponse, extend_schema
+from drf_spectacular.utils import OpenApiResponse, extend_schema, extend_schema_field
 from rest_framework import serializers
 from rest_framework.renderers import BaseRenderer
 from rest_framework.request import Request
@@ -15,8 +15,13 @@ from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
 from bookings.models import CALENDAR
 from core.api import Pagination, cached_json, paginated_data, request_user, valid_query
 from portal.experiments.apis import SegmentOutput
-from portal.runs.downloads import samples_csv_response, samples_json_response
+from portal.runs.downloads import (
+    run_package_response,
+    samples_csv_response,
+    samples_json_response,
+)
 from portal.runs.models import RUNS, Run
+from portal.runs.provenance import provenance_view
 from portal.runs.selectors import run_report, run_report_json, run_samples, runs_visible
 from portal.runs.states import RunState
 
@@ -44,6 +49,118 @@ class MissingRangeOutput(serializers.Serializer):
     to_s = serializers.FloatField(allow_null=True)
 
 
+# How a run was made (``portal/runs/provenance.py``), as one inline schema: nested objects
+# written out in place, not as components behind nullable references, which made the API
+# docs page (Swagger UI) take several times as long to draw.
+def _nullable(kind: str, description: str = "") -> dict[str, Any]:
+    schema: dict[str, Any] = {"type": kind, "nullable": True}
+    if description:
+        schema["description"] = description
+    return schema
+
+
+def _object(properties: dict[str, Any], description: str = "") -> dict[str, Any]:
+    schema = {
+        "type": "object",
+        "nullable": True,
+        "required": list(properties),
+        "properties": properties,
+    }
+    if description:
+        schema["description"] = description
+    return schema
+
+
+_TEXT, _NUMBER, _INTEGER = _nullable("string"), _nullable("number"), _nullable("integer")
+_RSSI = _object({"min": _NUMBER, "mean": _NUMBER, "max": _NUMBER})
+_AGENT = _object(
+    {
+        "version": _TEXT,
+        "resource": _TEXT,
+        "interface": _nullable("string", "How the agent reaches the robot: radio, sim, …"),
+        "control_hz": _nullable("number", "Commands per second."),
+        "max_velocity_mps": _NUMBER,
+        "max_accel_mps2": _NUMBER,
+        "robot_hard_max_velocity_mps": _NUMBER,
+        "robot_confirmed_limits": _nullable("boolean"),
+        "low_battery_v": _NUMBER,
+        "rail": _object(
+            {
+                "name": _TEXT,
+                "file": _nullable("string", "Null: the agent's built-in rail."),
+                "sha256": _nullable("string", "SHA-256 of the rail file's bytes."),
+                "length_m": _NUMBER,
+            }
+        ),
+    },
+    "The base-station agent, as it described itself.",
+)
+_FIRMWARE = _object(
+    {
+        "build_id": _TEXT,
+        "protocol_version": _INTEGER,
+        "config": {
+            "type": "object",
+            "additionalProperties": {"type": "integer"},
+            "description": "The compiled-in configuration; units in the names (mm_s, ms, 10mv).",
+        },
+    },
+    "What the robot's firmware said of itself (its identity frame).",
+)
+_CLOCK = _object(
+    {
+        "synchronized": _nullable("boolean"),
+        "offset_s": _nullable("number", "The NTP daemon's last offset."),
+        "max_error_s": _NUMBER,
+        "estimated_error_s": _NUMBER,
+    },
+    "The base station's clock as its kernel reported it.",
+)
+_LIMITS = _object({"max_velocity_mps": _NUMBER, "max_accel_mps2": _NUMBER})
+_INSTANT = {"type": "string", "format": "date-time"}
+RUN_PROVENANCE_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "description": "How the run was made, as recorded when it was staged and when it was "
+    "collected (docs/run-package.md).",
+    "required": ["format_version", "staged", "collected"],
+    "properties": {
+        "format_version": {"type": "integer"},
+        "staged": _object(
+            {
+                "at": _INSTANT,
+                "portal_version": {"type": "string"},
+                "limits": {**_LIMITS, "description": "The limits sent with the run."},
+                "agent": _AGENT,
+                "firmware": _FIRMWARE,
+            }
+        ),
+        "collected": _object(
+            {
+                "at": _INSTANT,
+                "portal_version": {"type": "string"},
+                "started_at": {**_INSTANT, "nullable": True},
+                "ended_at": {**_INSTANT, "nullable": True},
+                "agent": {**_AGENT, "description": "As the agent recorded it at the start."},
+                "firmware": _FIRMWARE,
+                "clock_at_start": _CLOCK,
+                "clock_at_end": _CLOCK,
+                "link": _object(
+                    {
+                        "exchanges": _INTEGER,
+                        "answered": _INTEGER,
+                        "lost": _INTEGER,
+                        "loss_pct": _NUMBER,
+                        "rssi_dbm": _RSSI,
+                        "robot_rssi_dbm": _RSSI,
+                    },
+                    "The radio link over the run: one exchange per control tick.",
+                ),
+            }
+        ),
+    },
+}
+
+
 class RunOutput(serializers.ModelSerializer):
     reservation = serializers.IntegerField(source="reservation_id")
     resource = serializers.CharField(source="resource.name")
@@ -52,6 +169,11 @@ class RunOutput(serializers.ModelSerializer):
     sample_count = serializers.SerializerMethodField(help_text="Samples stored in the portal.")
     events = RunEventOutput(many=True)
     missing = MissingRangeOutput(many=True, read_only=True)
+    repeat_of = serializers.IntegerField(
+        source="repeat_of_id", allow_null=True, help_text="The run this one repeats."
+    )
+    limits = serializers.SerializerMethodField()
+    provenance = serializers.SerializerMethodField()
 
     class Meta:
         model = Run
@@ -72,11 +194,24 @@ class RunOutput(serializers.ModelSerializer):
             "agent_sample_count",
             "rail_length_m",
             "missing",
+            "repeat_of",
+            "limits",
+            "provenance",
             "events",
         ]
 
     def get_sample_count(self, run: Run) -> int:
         return run.samples.count()
+
+    @extend_schema_field(
+        {**_LIMITS, "description": "Limits asked for at booking; null: the robot's."}
+    )
+    def get_limits(self, run: Run) -> dict[str, Any] | None:
+        return run.limits
+
+    @extend_schema_field(RUN_PROVENANCE_SCHEMA)
+    def get_provenance(self, run: Run) -> dict[str, Any]:
+        return provenance_view(run.provenance)
 
 
 class RunFilter(serializers.Serializer):
@@ -203,7 +338,7 @@ class DownloadApi(APIView):
 
     def perform_content_negotiation(self, request: Request, force: bool = False) -> Any:
         renderer, media_type = super().perform_content_negotiation(request, force=True)
-        if isinstance(renderer, CsvRenderer):
+        if isinstance(renderer, CsvRenderer | ZipRenderer):
             json_renderer = self.get_renderers()[0]
             return json_renderer, json_renderer.media_type
         return renderer, media_type
@@ -229,6 +364,38 @@ class RunSamplesJsonApi(DownloadApi):
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
         return samples_json_response(request, run)
+
+
+class ZipRenderer(BaseRenderer):
+    """Names application/zip for content negotiation; the zip is streamed by the view."""
+
+    media_type = "application/zip"
+    format = "zip"
+
+    def render(
+        self, data: Any, accepted_media_type: str | None = None, renderer_context: Any = None
+    ) -> bytes:
+        raise NotImplementedError  # never reached: errors are rendered as JSON
+
+
+class RunPackageApi(DownloadApi):
+    """The run as one self-describing zip: `samples.csv`, `datapackage.json` (a Frictionless
+    Data Package: the CSV's Table Schema with units, and under `amazing` the run, program,
+    reservation, owner, provenance and analysis summary, with the format's version) and a
+    `README.md` naming every column (docs/run-package.md)."""
+
+    renderer_classes = [*APIView.renderer_classes, ZipRenderer]
+
+    @extend_schema(
+        responses={
+            (200, "application/zip"): OpenApiResponse(
+                bytes, description="README.md, samples.csv, then datapackage.json."
+            )
+        }
+    )
+    def get(self, request: Request, pk: int) -> StreamingHttpResponse:
+        run = _run(request, pk)
+        return run_package_response(request, run)
 
 
 class AnalysisQuery(serializers.Serializer):

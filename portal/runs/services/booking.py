@@ -11,14 +11,16 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from datetime import datetime
+from datetime import datetime, timedelta
 from functools import partial
 
+from django.conf import settings
 from django.db import transaction
 from django.utils import timezone
 
 from bookings.leases import lease_release
 from bookings.models import Reservation, Resource
+from bookings.selectors import resource_first_free
 from bookings.services import (
     BookingCheck,
     reservation_cancel,
@@ -28,6 +30,7 @@ from bookings.services import (
     reservation_reschedule,
 )
 from core.accounts.models import User
+from core.errors import Conflict
 from portal.experiments.models import Experiment
 from portal.runs.models import Run
 from portal.runs.services.transitions import run_create, run_transition
@@ -80,6 +83,87 @@ def booking_create(
     except BaseException:
         # The reservation was rolled back with its run: give its lease back at once (the
         # scheduler sweep would cancel it as an orphan otherwise).
+        if reservation is not None and reservation.lease_uuid:
+            lease_release(lease_uuid=reservation.lease_uuid)
+        raise
+    return reservation
+
+
+# How far ahead "Run again" looks for a free slot, and how often it looks again when the slot
+# it found is taken before it could book it.
+REPEAT_HORIZON = timedelta(days=62)
+REPEAT_ATTEMPTS = 3
+
+
+def booking_repeat(
+    *, run: Run, by: User, ip: str | None = None, now: datetime | None = None
+) -> Reservation:
+    """Book ``run``'s program again, with its limits, on its robot, in the first free slot of
+    its reservation's length from ``RUN_REPEAT_LEAD_S`` on ("Run again"). The new run links to
+    ``run`` (``repeat_of``). Booked for ``run``'s owner by ``by``, under every booking rule."""
+    now = now or timezone.now()
+    length = run.end_at - run.start_at
+    earliest = now + timedelta(seconds=settings.RUN_REPEAT_LEAD_S)
+    owner = run.reservation.owner
+    tried: tuple[datetime, datetime] | None = None
+    refused: Conflict | None = None
+    for _ in range(REPEAT_ATTEMPTS):
+        slot = resource_first_free(
+            resource=run.resource, earliest=earliest, length=length, horizon=REPEAT_HORIZON
+        )
+        if slot is None and not run.resource.in_service:
+            # No slot because the robot is out of booking: the booking rules say why.
+            slot = (earliest, earliest + length)
+        if slot is None:
+            raise Conflict(
+                f"{run.resource.name} has no free slot of {length.total_seconds():g} s in the "
+                f"next {REPEAT_HORIZON.days} days"
+            )
+        if refused is not None and slot == tried:
+            raise refused  # the same slot again: refused for a reason other than a race
+        tried = slot
+        try:
+            return _book_repeat(run, owner=owner, by=by, slot=slot, ip=ip, now=now)
+        except Conflict as exc:
+            # Someone may have taken the slot between the look and the booking: look again.
+            logger.info("run %s: slot at %s refused (%s); looking again", run.pk, slot[0], exc)
+            refused = exc
+    assert refused is not None
+    raise refused
+
+
+def _book_repeat(
+    run: Run,
+    *,
+    owner: User,
+    by: User,
+    slot: tuple[datetime, datetime],
+    ip: str | None,
+    now: datetime,
+) -> Reservation:
+    reservation: Reservation | None = None
+    try:
+        with transaction.atomic():
+            reservation = reservation_create(
+                owner=owner,
+                resources=[run.resource],
+                start_at=slot[0],
+                end_at=slot[1],
+                program=run,
+                title=run.title,
+                by=by,
+                ip=ip,
+                now=now,
+                program_owner_id=run.experiment.owner_id,
+            )
+            run_create(
+                reservation=reservation,
+                resource=run.resource,
+                experiment=run.experiment,
+                by=by,
+                repeat_of=run,
+            )
+    except BaseException:
         if reservation is not None and reservation.lease_uuid:
             lease_release(lease_uuid=reservation.lease_uuid)
         raise

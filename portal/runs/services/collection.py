@@ -48,6 +48,7 @@ from bookings.services import reservation_complete
 from core.live import publish_on_commit, run_channel
 from portal.runs.agents import agent_client_for
 from portal.runs.models import RUNS, Run, Sample
+from portal.runs.provenance import provenance_at_collection, run_provenance_record
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import RUN_ACTIVE_STATES, STATE_FOR_AGENT_END, Cause, RunState
 
@@ -319,6 +320,8 @@ class AgentRunView:
     reason: str
     rail_length_m: float | None
     last_seq: int = 0
+    # The agent's answer as it came (its ``provenance`` is recorded when the run closes).
+    raw: dict[str, Any] | None = None
 
 
 def _rail_length_m(agent_run: dict[str, Any]) -> float | None:
@@ -357,6 +360,7 @@ def _look(run: Run, client: AgentClient) -> AgentRunView | None:
         reason=str(agent_run.get("reason") or ""),
         rail_length_m=_rail_length_m(agent_run),
         last_seq=int(agent_run.get("last_seq") or 0),
+        raw=agent_run,
     )
 
 
@@ -447,6 +451,12 @@ def _close(run: Run, view: AgentRunView, final_state: RunState, now: datetime) -
         reason=f"ended on the base station ({view.state})",
     )
     Run.objects.filter(pk=run.pk).update(agent_sample_count=view.sample_count)
+    if view.raw is not None:
+        run_provenance_record(
+            run_id=run.pk,
+            part="collected",
+            value=provenance_at_collection(agent_run=view.raw, now=now),
+        )
     stored = run_sample_stats(run=run)["count"]
     if stored != view.sample_count and not _past_grace(run, now):
         # Stays ``collecting``: the next sweep looks and pulls again.

@@ -13,6 +13,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from django.conf import settings
+from django.db import transaction
 from django.db.models import QuerySet
 from django.utils import timezone
 
@@ -22,6 +23,7 @@ from bookings.rules import velocity_limit
 from core.audit.counters import event_count
 from portal.runs.agents import agent_client_for
 from portal.runs.models import Run
+from portal.runs.provenance import provenance_at_staging, run_provenance_record
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import Cause, RunState
 
@@ -43,15 +45,25 @@ def runs_due_for_withdrawal() -> QuerySet[Run]:
     )
 
 
+def _stricter(a: float | None, b: Any) -> float | None:
+    """The lower of two limits, either possibly absent (None: no limit from that side)."""
+    if isinstance(b, bool) or not isinstance(b, int | float) or b <= 0:
+        return a
+    return float(b) if a is None else min(a, float(b))
+
+
 def run_agent_body(run: Run) -> dict[str, Any]:
     """What the agent is asked to run: the program, its window and the robot's limits (the
-    stricter of the resource's and those its agent reported, as booking checked them)."""
+    stricter of the resource's and those its agent reported, as booking checked them), and
+    within them the run's own (``Run.limits``: a repeat asks for its original's)."""
     reservation = run.reservation
     resource = run.resource
     limit = velocity_limit(resource)
     accel = resource.max_accel_mps2
     if accel is not None and resource.agent_max_accel_mps2 is not None:
         accel = min(accel, resource.agent_max_accel_mps2)
+    velocity = None if limit is None else limit.mps
+    own = run.limits or {}
     return {
         "owner": reservation.owner.get_username(),
         "title": run.title,
@@ -59,8 +71,8 @@ def run_agent_body(run: Run) -> dict[str, Any]:
         "end_at": run.end_at.isoformat(),
         "segments": run.segments,
         "limits": {
-            "max_velocity_mps": None if limit is None else limit.mps,
-            "max_accel_mps2": accel,
+            "max_velocity_mps": _stricter(velocity, own.get("max_velocity_mps")),
+            "max_accel_mps2": _stricter(accel, own.get("max_accel_mps2")),
         },
     }
 
@@ -101,8 +113,9 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
         _fail(run, "the base station could not be reached before the reservation ended")
         return
     client = agent_client_for(run.resource)
+    body = run_agent_body(run)
     try:
-        client.put_run(run.agent_run_id, run_agent_body(run))
+        staged = client.put_run(run.agent_run_id, body)
     except (AgentConflict, AgentRejected) as exc:
         event_count("run_staging_failures", resource=run.resource.name, outcome="failed")
         _fail(run, f"the base station refused the run: {exc}")
@@ -119,13 +132,22 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
             f"{exc.message}",
         )
         return
-    if not run_transition(
-        run_id=run.pk,
-        to_state=RunState.STAGED,
-        cause=Cause.DISPATCH,
-        from_states=[RunState.SCHEDULED],
-        reason=f"staged on {run.resource.name}",
-    ):
+    # Staged and how, together: a run is never staged here without its record.
+    with transaction.atomic():
+        moved = run_transition(
+            run_id=run.pk,
+            to_state=RunState.STAGED,
+            cause=Cause.DISPATCH,
+            from_states=[RunState.SCHEDULED],
+            reason=f"staged on {run.resource.name}",
+        )
+        if moved:
+            run_provenance_record(
+                run_id=run.pk,
+                part="staged",
+                value=provenance_at_staging(agent_run=staged, limits=body["limits"], now=now),
+            )
+    if not moved:
         # Cancelled while we were staging it: withdraw it again.
         run.refresh_from_db(fields=["state"])
         if run.state == RunState.CANCELLED:

@@ -25,21 +25,30 @@ class TransitionNotAllowed(ValueError):
 
 
 def run_create(
-    *, reservation: Reservation, resource: Resource, experiment: Experiment, by: User | None
+    *,
+    reservation: Reservation,
+    resource: Resource,
+    experiment: Experiment,
+    by: User | None,
+    repeat_of: Run | None = None,
 ) -> Run:
     """The run of ``experiment`` on ``resource`` in a just-made reservation (``scheduled``).
 
-    The program is copied: editing the experiment later never changes what is sent.
+    The program is copied: editing the experiment later never changes what is sent. A run
+    that repeats another (``repeat_of``) copies that run's program, title and limits instead:
+    what was run, not what the experiment says now.
     """
     run = Run(
         reservation=reservation,
         resource=resource,
         experiment=experiment,
-        title=experiment.title,
-        segments=experiment.segments,
+        title=experiment.title if repeat_of is None else repeat_of.title,
+        segments=experiment.segments if repeat_of is None else repeat_of.segments,
         start_at=reservation.start_at,
         end_at=reservation.end_at,
         state=RunState.SCHEDULED,
+        repeat_of=repeat_of,
+        limits=None if repeat_of is None else run_limits_as_made(repeat_of),
     )
     run.full_clean(exclude=["reservation", "resource"])
     run.save()
@@ -52,6 +61,18 @@ def run_create(
         by=by,
     )
     return run
+
+
+def run_limits_as_made(run: Run) -> dict[str, float | None] | None:
+    """The limits ``run`` was staged with (its provenance), else those it asked for."""
+    staged = (run.provenance or {}).get("staged")
+    limits = staged.get("limits") if isinstance(staged, dict) else None
+    if isinstance(limits, dict):
+        return {
+            "max_velocity_mps": limits.get("max_velocity_mps"),
+            "max_accel_mps2": limits.get("max_accel_mps2"),
+        }
+    return run.limits
 
 
 def run_transition(
