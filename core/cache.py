@@ -3,7 +3,8 @@
 A ``Generation`` is a counter in the cache that names a family of answers (for example
 everything the calendar shows). An answer is stored under the generation current when it was
 computed; any change to the rows it depends on moves the generation on (after the change
-commits), so the next read computes afresh and the old entries simply expire. An answer may
+commits), so the next read computes afresh and the old entries simply expire; the transaction
+that made the change reads past the cache until it commits. An answer may
 depend on several generations; a reader pays one cache round trip for all of them and the
 answer together (each answer is kept beside the generations it was computed under, and used
 only while they are all still current). Nothing is ever deleted by pattern.
@@ -70,15 +71,30 @@ class Generation:
         return int(value) if value is not None else time.time_ns()
 
     def changed(self) -> None:
-        """Move on now and, inside a transaction, once more when it commits: a reader in
-        between computes from the rows before the change and stores that under the
-        generation of now, which the second step leaves behind."""
-        self._bump()
-        if not connection.get_autocommit():
+        """Move on: now, or when the current transaction commits.
+
+        Until the commit, other connections cannot see the change: what they compute meanwhile
+        is stored under the generation of now, which the commit leaves behind. The
+        transaction's own reads see its change, so they bypass the cache until then
+        (``pending``). A transaction that writes several rows moves it once; one rolled back
+        does not move it at all."""
+        if connection.get_autocommit():
+            self._bump()
+        elif not self.pending():
             transaction.on_commit(self._bump)
+
+    def pending(self) -> bool:
+        """Whether the current transaction changed rows of this generation, not yet committed."""
+        # Django keeps (savepoint ids, callback, robust) for each; those of a savepoint rolled
+        # back are gone from it.
+        return any(entry[1] == self._bump for entry in connection.run_on_commit)
 
     def _bump(self) -> None:
         key = self._key()
+        incr_from = getattr(cache, "incr_from", None)
+        if incr_from is not None:  # Redis: one round trip
+            incr_from(key, time.time_ns())
+            return
         try:
             cache.incr(key)
         except ValueError:  # not in the cache: the next reader starts a new one
@@ -99,6 +115,8 @@ def cached_answer(
     is stored with the generations read before computing it, so an answer computed from rows
     that a change then replaced is never served once that change has moved its generation on.
     """
+    if any(g.pending() for g in generations):
+        return compute()  # this transaction's own changes: nobody else may see the answer yet
     namespace = database_namespace()
     generation_keys = [g._key() for g in generations]
     answer_key = (

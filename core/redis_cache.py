@@ -31,3 +31,13 @@ class RedisCache(django_redis.RedisCache):
     def __init__(self, server: Any, params: dict[str, Any]) -> None:
         super().__init__(server, params)
         self._class = RedisCacheClient
+
+    def incr_from(self, key: str, start: int) -> int:
+        """Add one to ``key``, first setting it to ``start`` if it is absent; the new value.
+        One round trip (Django's ``incr`` asks whether the key exists first, and raises when
+        it does not)."""
+        full_key = self.make_and_validate_key(key)
+        client = self._cache.get_client(full_key, write=True)  # type: ignore[attr-defined]
+        pipeline = client.pipeline(transaction=False)
+        _, value = pipeline.set(full_key, start, nx=True).incr(full_key).execute()
+        return int(value)

@@ -4,6 +4,7 @@ answers (resources, busy slots, availability) that use them."""
 from __future__ import annotations
 
 import threading
+import time
 from datetime import timedelta
 
 import pytest
@@ -118,6 +119,7 @@ def _moves_the_calendar(change) -> bool:
     return CALENDAR.current() != before
 
 
+@pytest.mark.django_db(transaction=True)
 def test_every_kind_of_write_moves_the_calendar_on():
     robot = MobileResourceFactory()
     node = FixedResourceFactory()
@@ -169,6 +171,61 @@ def test_an_answer_read_while_a_change_commits_is_not_kept():
         other.join()
     assert seen == [""], "the other connection read before the commit"
     assert CALENDAR.answer(("hold", robot.pk), read_hold) == "e-stop"
+
+
+@pytest.mark.django_db(transaction=True)
+def test_a_transaction_moves_the_generation_once_at_commit_and_reads_its_own_changes(
+    monkeypatch,
+):
+    """A booking writes several rows: the calendar moves on once, when it commits; until
+    then the transaction's own reads see its changes, and nobody keeps what they computed."""
+    from django.core.cache import cache
+
+    robot = MobileResourceFactory()
+    node = FixedResourceFactory()
+    bumps: list[str] = []
+    original = cache.incr_from
+
+    def counted(key: str, start: int) -> int:
+        bumps.append(key)
+        return original(key, start)
+
+    monkeypatch.setattr(cache, "incr_from", counted)
+
+    def holds() -> list[str]:
+        return sorted(Resource.objects.values_list("hold_reason", flat=True))
+
+    before = CALENDAR.current()
+    assert CALENDAR.answer(("holds",), holds) == ["", ""]
+    with transaction.atomic():
+        Resource.objects.filter(pk=robot.pk).update(hold_reason="e-stop")
+        assert CALENDAR.answer(("holds",), holds) == ["", "e-stop"]
+        Resource.objects.filter(pk=node.pk).update(hold_reason="roof works")
+        robot.refresh_from_db()
+        robot.save()
+        assert CALENDAR.answer(("holds",), holds) == ["e-stop", "roof works"]
+        assert bumps == []
+        assert CALENDAR.current() == before
+    assert len(bumps) == 1
+    assert CALENDAR.current() != before
+    assert CALENDAR.answer(("holds",), holds) == ["e-stop", "roof works"]
+    with transaction.atomic():
+        Resource.objects.filter(pk=node.pk).update(hold_reason="")
+        transaction.set_rollback(True)
+    assert len(bumps) == 1, "a rolled back change moves nothing"
+    # A write outside a transaction moves it at once.
+    Resource.objects.filter(pk=node.pk).update(hold_reason="")
+    assert len(bumps) == 2
+
+
+def test_a_generation_missing_from_the_cache_starts_again_from_the_clock():
+    from django.core.cache import cache
+
+    generation = Generation("test-missing")
+    cache.delete(generation._key())
+    started_ns = time.time_ns()
+    generation.changed()
+    assert generation.current() > started_ns
 
 
 def _week() -> dict[str, str]:
