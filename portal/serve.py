@@ -10,7 +10,9 @@ here would hold a thread for good.
 
 The numbers come from the portal's settings, so the settings are checked before any worker
 starts. Prometheus's multiprocess folder (``core/metrics.py``) is this server's own and is
-emptied here, once, before the workers (forked from this process) import prometheus-client.
+emptied here, once, before the workers (forked from this process) import prometheus-client:
+nothing this module imports loads prometheus-client (a test checks), so the workers do not
+inherit one that chose its storage before the folder was set.
 """
 
 from __future__ import annotations
@@ -20,6 +22,10 @@ import os
 import shutil
 from pathlib import Path
 from typing import Any
+
+from granian import Granian
+from granian.constants import Interfaces
+from granian.log import LogLevels
 
 from portal import settings
 
@@ -70,12 +76,6 @@ def main(argv: list[str] | None = None) -> None:
     folder = metrics_dir()
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True, exist_ok=True)
-
-    # Imported only now: the workers are forked from this process and must not inherit a
-    # prometheus-client that chose its storage before the folder was set.
-    from granian import Granian
-    from granian.constants import Interfaces
-    from granian.log import LogLevels
 
     Granian(
         interface=Interfaces.WSGI, websockets=False, log_level=LogLevels.info, **options

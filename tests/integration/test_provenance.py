@@ -8,7 +8,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from datetime import timedelta
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +40,15 @@ def _sim_config(path: Path, build_id: str) -> Path:
     return path
 
 
-def _run_program(web: str, headers: dict[str, str]) -> dict[str, Any]:
+BOOKED_S = 8
+
+
+def _run_program(
+    web: str, headers: dict[str, str], not_before: datetime | None = None
+) -> tuple[dict[str, Any], datetime]:
+    """Books the robot for a short program (no earlier than ``not_before``: a booking keeps its
+    slot even when its run ends early), waits for the run to end; the run and the booking's
+    end."""
     experiment = requests.post(
         f"{web}/api/v1/experiments/",
         json={
@@ -51,14 +59,14 @@ def _run_program(web: str, headers: dict[str, str]) -> dict[str, Any]:
         timeout=10,
     )
     assert experiment.status_code == 201, experiment.text
-    start = timezone.now() + timedelta(seconds=4)
+    start = max(timezone.now() + timedelta(seconds=4), not_before or timezone.now())
     booking = requests.post(
         f"{web}/api/v1/reservations/",
         json={
             "resource": "mobile-1",
             "experiment": experiment.json()["id"],
             "start_at": start.isoformat(),
-            "end_at": (start + timedelta(seconds=8)).isoformat(),
+            "end_at": (start + timedelta(seconds=BOOKED_S)).isoformat(),
         },
         headers=headers,
         timeout=10,
@@ -72,7 +80,7 @@ def _run_program(web: str, headers: dict[str, str]) -> dict[str, Any]:
         if run["state"] in END_STATES:
             break
         time.sleep(0.3)
-    return run
+    return run, datetime.fromisoformat(booking.json()["end_at"])
 
 
 def test_the_stored_provenance_is_what_the_robot_and_the_agent_were_started_with(tmp_path):
@@ -90,7 +98,7 @@ def test_the_stored_provenance_is_what_the_robot_and_the_agent_were_started_with
         MobileResourceFactory(agent_url=stack.agent_url)
         user = UserFactory(username="gil")
         headers = {"Authorization": f"Token {Token.objects.create(user=user).key}"}
-        first = _run_program(stack.web, headers)
+        first, first_end = _run_program(stack.web, headers)
         assert first["state"] == "completed", (first.get("reason"), stack.output())
 
         staged = first["provenance"]["staged"]
@@ -131,7 +139,7 @@ def test_the_stored_provenance_is_what_the_robot_and_the_agent_were_started_with
         stack.env["AGENT_SIM_CONFIG"] = str(_sim_config(tmp_path / "sim-2.toml", "e2e-build-2"))
         stack.start("agent")
         stack.wait_ready("agent")
-        second = _run_program(stack.web, headers)
+        second, _ = _run_program(stack.web, headers, not_before=first_end + timedelta(seconds=1))
         assert second["state"] == "completed", (second.get("reason"), stack.output())
         made = second["provenance"]["collected"]
         assert made["firmware"]["build_id"] == "e2e-build-2"
