@@ -4,7 +4,9 @@
 //   const follow = liveFollow(url, {
 //     events: { state: (data) => …, samples: (data) => … },  // by event type
 //     poll: () => …,       // read the page's data; called on every (re)connect, and every
-//     pollMs: 3000,        //   pollMs while the stream is down
+//     pollMs: 3000,        //   pollMs while the stream is down,
+//     safetyMs: 15000,     //   and every safetyMs while it is up (a push can be lost: a
+//                          //   server restarting between a change and its push); optional
 //     indicator: element,  // gets data-state="connecting|live|reconnecting|polling|off"
 //   });
 //   follow.stop();
@@ -28,6 +30,7 @@
     const indicator = options.indicator || null;
     let source = null;
     let timer = null;
+    let safety = null;
     let retryMs = 1000;
     let stopped = false;
 
@@ -42,6 +45,14 @@
     function stopPolling() {
       if (timer !== null) { clearInterval(timer); timer = null; }
     }
+    function startSafety() {
+      if (safety === null && options.poll && options.safetyMs) {
+        safety = setInterval(options.poll, options.safetyMs);
+      }
+    }
+    function stopSafety() {
+      if (safety !== null) { clearInterval(safety); safety = null; }
+    }
     function connect() {
       if (stopped) return;
       if (typeof EventSource === "undefined") { show("polling"); startPolling(); return; }
@@ -49,6 +60,7 @@
       source.onopen = () => {
         retryMs = 1000;
         stopPolling();
+        startSafety();
         show("live");
         // Whatever happened while the stream was down is read once, here.
         if (options.poll) options.poll();
@@ -63,6 +75,7 @@
       source.onerror = () => {
         if (stopped) return;
         show("reconnecting");
+        stopSafety();
         startPolling();
         // The browser retries a dropped connection by itself; a refused one (503, 403) it
         // gives up on: try again later, less and less often.
@@ -79,6 +92,7 @@
       stop() {
         stopped = true;
         stopPolling();
+        stopSafety();
         if (source) source.close();
         show("off");
       },

@@ -94,6 +94,18 @@
       data.series !== null && typeof data.series === "object" && typeof data.live === "boolean";
   }
 
+  // A failed read is tried again, less and less often, until one succeeds: after the run's
+  // last push (or on a finished run's page) nothing else would ever read it again.
+  const RETRY_FIRST_MS = 1000;
+  const RETRY_MAX_MS = 30000;
+  let retryMs = RETRY_FIRST_MS;
+  let retryTimer = null;
+  function retryLater() {
+    if (retryTimer !== null) return;
+    retryTimer = setTimeout(() => { retryTimer = null; refresh(); }, retryMs);
+    retryMs = Math.min(retryMs * 2, RETRY_MAX_MS);
+  }
+
   // One read at a time; pushes that arrive meanwhile cause one more read after it. Whatever
   // the answer, the read ends in `finally`: no answer can leave the page stuck.
   async function refresh() {
@@ -105,8 +117,11 @@
       const data = await response.json();
       if (!complete(data)) throw new Error("incomplete answer");
       render(data);
+      retryMs = RETRY_FIRST_MS;
+      if (retryTimer !== null) { clearTimeout(retryTimer); retryTimer = null; }
     } catch (error) {
       document.getElementById("run-progress").textContent = "(could not refresh: " + error.message + ")";
+      retryLater();
     } finally {
       loading = false;
       if (again) { again = false; refresh(); }
@@ -121,6 +136,7 @@
       },
       poll: refresh,
       pollMs: 3000,
+      safetyMs: 15000,
       indicator: document.getElementById("live-status"),
     });
   } else {

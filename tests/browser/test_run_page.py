@@ -1,0 +1,51 @@
+"""A finished run's page in Chromium reads the run until a read succeeds: no push will come to
+make it read again, so a failed read (a deploy, a proxy's error page) is retried by itself."""
+
+from __future__ import annotations
+
+import pytest
+from playwright.sync_api import Route, expect
+
+from tests.browser.conftest import login
+from tests.factories import MobileResourceFactory, UserFactory
+from tests.runs.driving import completed_run
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+
+def test_a_finished_runs_page_reads_it_again_after_a_failed_read(browser, live_server):
+    owner = UserFactory(username="hal")
+    run = completed_run(owner, MobileResourceFactory(), [(0.5, "cw", 2.0)])
+    bad_answers = [
+        {"status": 502, "content_type": "text/html", "body": "<h1>Bad gateway</h1>"},
+        {"status": 200, "content_type": "application/json", "body": '{"series": {"t": '},
+    ]
+    served: list[int] = []
+
+    def answer(route: Route) -> None:
+        if bad_answers:
+            served.append(len(bad_answers))
+            route.fulfill(**bad_answers.pop(0))
+        else:
+            route.continue_()
+
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    login(page, live_server.url, "hal", "correct horse battery")
+    page.route(f"**/runs/{run.pk}/data.json", answer)
+    page.goto(f"{live_server.url}/runs/{run.pk}/")
+    # The first read fails and says so; the retries read the run without a reload: the
+    # charts (drawn only from a read) fill and the message goes.
+    progress = page.locator("#run-progress")
+    expect(progress).to_contain_text("could not refresh", timeout=15_000)
+    page.wait_for_function(
+        "() => Chart.getChart('velocity-chart').data.datasets[0].data.length > 0",
+        timeout=30_000,
+    )
+    expect(progress).not_to_contain_text("could not refresh")
+    expect(page.locator("#run-state")).to_have_attribute("data-state", "completed")
+    assert served == [2, 1], "both bad answers were read before the good one"
+    assert not errors, errors
+    context.close()
