@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.web import live, my_runs, roof, views
+from portal.web import console, live, my_runs, roof, views
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -24,6 +24,7 @@ urlpatterns = [
     path("calendar/feed/<str:token>/<slug:name>.ics", views.ical_resource, name="ical-resource"),
     path("approvals/", views.approvals, name="approvals"),
     path("robot/<slug:name>/", views.robot_console, name="robot"),
+    path("robot/<slug:name>/log.csv", console.robot_log_csv, name="robot-log-csv"),
     path("rails/<slug:name>.json", roof.rail_json, name="rail-json"),
     path("usage/", views.usage_report, name="usage"),
     path("scheduler-link/", views.scheduler_link, name="scheduler-link"),

@@ -59,6 +59,7 @@ from portal.runs.services.booking import (
 )
 from portal.runs.services.collection import missing_described
 from portal.runs.services.health import robots_held
+from portal.runs.services.robot import HOLD_REPEAT_MS, HOLD_TTL_S
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
@@ -430,7 +431,14 @@ def robot_console(request: HttpRequest, name: str) -> HttpResponse:
     resource = get_object_or_404(Resource, name=name, kind="mobile")
     # Manual drive obeys the same limit as programs: the stricter of the portal's and the agent's.
     return render(
-        request, "web/robot.html", {"resource": resource, "limit": velocity_limit(resource)}
+        request,
+        "web/robot.html",
+        {
+            "resource": resource,
+            "limit": velocity_limit(resource),
+            "hold_ttl_s": HOLD_TTL_S,
+            "hold_repeat_ms": HOLD_REPEAT_MS,
+        },
     )
 
 

@@ -113,6 +113,8 @@
     } catch (error) { say("Not changed: " + error.message, true); }
   });
   document.getElementById("log-form").addEventListener("submit", async (event) => {
+    // "Download CSV" submits the form itself: the browser saves the day's log.
+    if (event.submitter && event.submitter.id === "log-download") return;
     event.preventDefault();
     const rows = document.getElementById("log-rows");
     rows.textContent = "";
