@@ -216,10 +216,6 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     }
 
 
-# Where the runs' comparison page answers (`?ids=A,B`): "compare" links from a repeated run.
-RUNS_COMPARE_PATH = "/runs/compare/"
-
-
 @login_required
 def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
@@ -227,7 +223,8 @@ def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     context["events"] = run.events.all()
     context["provenance"] = provenance_summary(run.provenance)
     context["repeats"] = list(run.repeats.order_by("start_at").values_list("pk", flat=True))
-    context["compare_path"] = RUNS_COMPARE_PATH
+    # "Compare the two runs" links from a repeated run (`?ids=A,B`).
+    context["compare_path"] = reverse("runs-compare")
     return render(request, "web/run.html", context)
 
 

@@ -66,7 +66,7 @@ def test_filter_the_list_then_download_and_compare_the_chosen_runs(
     rows = page.locator("#runs tbody tr")
     expect(rows).to_have_count(4)
 
-    filters = page.get_by_role("search", name="Filter runs")
+    filters = page.get_by_role("form", name="Filter runs")
     filters.get_by_label("Robot").select_option("mobile-2")
     filters.get_by_role("button", name="Show runs").click()
     expect(rows).to_have_count(1)
@@ -110,7 +110,9 @@ def test_filter_the_list_then_download_and_compare_the_chosen_runs(
     compare.click()
     expect(page.get_by_role("heading", name="Compare runs")).to_be_visible()
     for chart in ("compare-velocity", "compare-position"):
-        page.wait_for_function(f"() => Chart.getChart('{chart}') !== undefined")
+        page.wait_for_function(
+            f"() => typeof Chart !== 'undefined' && Chart.getChart('{chart}') !== undefined"
+        )
         lengths = page.evaluate(
             f"Chart.getChart('{chart}').data.datasets.map((d) => d.data.length)"
         )
