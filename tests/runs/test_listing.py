@@ -186,3 +186,42 @@ def test_several_runs_download_as_their_packages_in_folders_with_a_manifest(hist
         assert descriptor["amazing"]["run"]["id"] == run.pk
         assert descriptor["resources"][0]["hash"] == entry["samples_hash"]
     assert manifest["runs"][0]["state"] == "failed"
+
+
+def _api_ids(response) -> list[int]:
+    assert response.status_code == 200, response.content
+    return [run["id"] for run in response.json()["results"]]
+
+
+def test_the_api_lists_runs_with_the_pages_filters(history, owner, client_for):
+    api = client_for(owner)
+    assert _api_ids(api.get("/api/v1/runs/?resource=mobile-2")) == [history["late"].pk]
+    assert _api_ids(api.get("/api/v1/runs/?started_from=2026-03-02&started_to=2026-03-02")) == [
+        history["late"].pk
+    ]
+    experiment = history["shared"].experiment_id
+    assert _api_ids(api.get(f"/api/v1/runs/?experiment={experiment}&state=completed")) == [
+        history["shared"].pk
+    ]
+    assert _api_ids(api.get("/api/v1/runs/?q=dawn")) == [history["early"].pk]
+    # An experiment renamed after a search: the next search finds it by its new name.
+    ExperimentFactory._meta.model.objects.filter(pk=experiment).update(title="roof edge")
+    assert _api_ids(api.get("/api/v1/runs/?q=roof%20edge")) == [
+        history["shared"].pk,
+        history["late"].pk,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("query", "field"),
+    [
+        ("started_from=2026-03-05&started_to=2026-03-01", "started_to"),
+        ("started_from=March", "started_from"),
+        ("experiment=0", "experiment"),
+        ("state=exploded", "state"),
+    ],
+)
+def test_the_api_refuses_a_filter_it_cannot_read(owner, client_for, query, field):
+    response = client_for(owner).get(f"/api/v1/runs/?{query}")
+    assert response.status_code == 400
+    assert field in response.json()["fields"]
