@@ -112,6 +112,10 @@ class AgentClient:
     def status(self) -> dict[str, Any]:
         return self._request("GET", f"{API_PREFIX}/status")
 
+    def rail(self) -> dict[str, Any]:
+        """The rail drawn for a map (``GET /rail``)."""
+        return self._request("GET", f"{API_PREFIX}/rail")
+
     def list_runs(self, state: str | None = None) -> list[dict[str, Any]]:
         params = {"state": state} if state else None
         runs = self._request("GET", f"{API_PREFIX}/runs", params=params)["runs"]

@@ -76,7 +76,7 @@ def build_robot(config: AgentConfig) -> Robot:
     from basestation.telemetry.rail import Rail, RailConfigError
 
     try:
-        rail = Rail.from_file(config.rail_file) if config.rail_file else Rail.default()
+        rail = Rail.configured(config.rail_file)
     except RailConfigError as exc:
         raise ConfigError(f"AGENT_RAIL_FILE: {exc}") from exc
     aes_key = parse_aes_key(config.radio_aes_key) if config.radio_aes_key else None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from flask import Blueprint, Flask
 
-from basestation.api import battery, control, health, logs, metrics, runs, status
+from basestation.api import battery, control, health, logs, metrics, rail, runs, status
 from basestation.api.access import register_request_ids
 from basestation.api.auth import require_bearer_token
 from basestation.api.errors import register_error_handlers
@@ -24,6 +24,7 @@ def register_api(app: Flask) -> None:
     api = Blueprint("api_v1", __name__, url_prefix=API_PREFIX)
     api.register_blueprint(status.bp)
     api.register_blueprint(battery.bp)
+    api.register_blueprint(rail.bp)
     api.register_blueprint(runs.bp)
     api.register_blueprint(control.bp)
     api.register_blueprint(logs.bp)

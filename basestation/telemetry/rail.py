@@ -43,6 +43,10 @@ MIN_EDGE_M: Final = 0.01
 # The origin must lie on the rail; this allows for a hand-surveyed origin point.
 MAX_ORIGIN_OFFSET_M: Final = 5.0
 MAX_GRID_POINTS: Final = 400
+# The testbed has 24 fixed nodes; room for more without an unbounded list.
+MAX_NODES: Final = 200
+# How finely the drawing's grid cells are found along the rail: far below what a map shows.
+DRAWING_STEP_M: Final = 0.05
 SIDES: Final = "ABCD"
 
 LatLon = tuple[float, float]
@@ -154,6 +158,7 @@ class Rail:
         origin: LatLon | None = None,
         grid_points: int = DEFAULT_GRID_POINTS,
         name: str = "rail",
+        nodes: Sequence[tuple[str, LatLon]] = (),
     ) -> None:
         _check_grid_points(grid_points)
         _check_lat_lon("centre", centre)
@@ -180,6 +185,23 @@ class Rail:
                     f"within {MAX_DISTANCE_FROM_CENTRE_M / 1000:.0f} km (is centre set?)",
                 )
         _check_edges(xy)
+        if len(nodes) > MAX_NODES:
+            raise RailConfigError("nodes", f"at most {MAX_NODES} fixed nodes, got {len(nodes)}")
+        seen: set[str] = set()
+        for k, (node_name, place) in enumerate(nodes):
+            _check_lat_lon(f"nodes[{k}]", place)
+            if node_name in seen:
+                raise RailConfigError(f"nodes[{k}].name", f"{node_name!r} is listed twice")
+            seen.add(node_name)
+            if math.hypot(*self.frame.to_xy_m(*place)) > MAX_DISTANCE_FROM_CENTRE_M:
+                raise RailConfigError(
+                    f"nodes[{k}]",
+                    f"more than {MAX_DISTANCE_FROM_CENTRE_M / 1000:.0f} km from the centre",
+                )
+        # The fixed nodes' places: drawn with the rail, never used to place the robot.
+        self.nodes: list[tuple[str, LatLon]] = [
+            (node_name, (float(place[0]), float(place[1]))) for node_name, place in nodes
+        ]
 
         order = list(range(len(xy)))
         if _signed_area_m2(xy) > 0:
@@ -218,7 +240,7 @@ class Rail:
         """Build from parsed configuration; any problem is a :class:`RailConfigError`."""
         if not isinstance(data, Mapping):
             raise RailConfigError("rail", f"must be an object, got {_describe(data)}")
-        allowed = {"name", "description", "centre", "points", "origin", "grid_points"}
+        allowed = {"name", "description", "centre", "points", "origin", "grid_points", "nodes"}
         for key in data:
             if key not in allowed:
                 raise RailConfigError(
@@ -251,7 +273,10 @@ class Rail:
         if "origin" in data:
             origin = _parse_lat_lon("origin", data["origin"])
         grid_points = data.get("grid_points", DEFAULT_GRID_POINTS)
-        return cls(points, centre=centre, origin=origin, grid_points=grid_points, name=name)
+        nodes = _parse_nodes(data.get("nodes", []))
+        return cls(
+            points, centre=centre, origin=origin, grid_points=grid_points, name=name, nodes=nodes
+        )
 
     @classmethod
     def from_json(cls, text: str | bytes) -> Rail:
@@ -285,6 +310,11 @@ class Rail:
             raise RailConfigError("file", f"{str(path)!r} is not UTF-8 text") from None
         except RailConfigError as exc:
             raise RailConfigError(exc.field, f"{exc.message} (in {path})") from None
+
+    @classmethod
+    def configured(cls, path: str | Path | None) -> Rail:
+        """The agent's rail: the file ``AGENT_RAIL_FILE`` names, else the default."""
+        return cls.from_file(path) if path else cls.default()
 
     @classmethod
     def default(cls) -> Rail:
@@ -334,6 +364,62 @@ class Rail:
     @property
     def grid_ids(self) -> list[str]:
         return grid_ids(self.grid_points)
+
+    def drawing(self) -> dict[str, object]:
+        """What a map of the roof needs, in metres east (``x_m``) and north (``y_m``) of the
+        centre: the corners clockwise with the ``track_m`` of each, the grid cells as spans
+        of ``track_m`` (a cell the origin cuts is two spans), and the fixed nodes' places.
+        A page places the robot by ``track_m`` alone, with no projection of its own."""
+        count = len(self._xy)
+        points = [
+            {
+                "x_m": round(x_m, 3),
+                "y_m": round(y_m, 3),
+                "track_m": round(self.wrap(self._start_m[k] - self._origin_m), 3),
+            }
+            for k, (x_m, y_m) in enumerate(self._xy)
+        ]
+        steps = max(int(self.length_m / DRAWING_STEP_M), count)
+        cells: list[dict[str, object]] = []
+        for k in range(steps):
+            at_m = self.length_m * k / steps
+            cell = _grid_id_xy(*self.xy_at(at_m), self.grid_points)
+            if cells and cells[-1]["id"] == cell:
+                cells[-1]["to_m"] = round(self.length_m * (k + 1) / steps, 3)
+            else:
+                cells.append(
+                    {
+                        "id": cell,
+                        "from_m": round(at_m, 3),
+                        "to_m": round(self.length_m * (k + 1) / steps, 3),
+                    }
+                )
+        return {
+            "name": self.name,
+            "length_m": self.length_m,
+            "centre": {"lat": self.centre[0], "lon": self.centre[1]},
+            "grid_points": self.grid_points,
+            "origin": dict(
+                zip(("x_m", "y_m"), (round(v, 3) for v in self.xy_at(0.0)), strict=True)
+            ),
+            "points": points,
+            "cells": cells,
+            "nodes": [
+                {
+                    "name": node_name,
+                    "lat": lat,
+                    "lon": lon,
+                    **dict(
+                        zip(
+                            ("x_m", "y_m"),
+                            (round(v, 3) for v in self.frame.to_xy_m(lat, lon)),
+                            strict=True,
+                        )
+                    ),
+                }
+                for node_name, (lat, lon) in self.nodes
+            ],
+        }
 
     def _project_raw(self, x_m: float, y_m: float) -> tuple[float, float, int]:
         """(distance along the polyline from its first point, signed offset, edge)."""
@@ -402,6 +488,34 @@ def _parse_lat_lon(field: str, value: object) -> LatLon:
         _parse_number(f"{field}.lat", value["lat"], -90.0, 90.0),
         _parse_number(f"{field}.lon", value["lon"], -180.0, 180.0),
     )
+
+
+def _parse_nodes(value: object) -> list[tuple[str, LatLon]]:
+    if not isinstance(value, list):
+        raise RailConfigError("nodes", f"must be a list, got {_describe(value)}")
+    if len(value) > MAX_NODES:
+        raise RailConfigError("nodes", f"at most {MAX_NODES} fixed nodes, got {len(value)}")
+    nodes = []
+    for k, item in enumerate(value):
+        field = f"nodes[{k}]"
+        if not isinstance(item, Mapping):
+            raise RailConfigError(
+                field, f"must be an object {{name, lat, lon}}, got {_describe(item)}"
+            )
+        for key in item:
+            if key not in ("name", "lat", "lon"):
+                raise RailConfigError(
+                    f"{field}.{_field_name(key)}", "unknown field (only name, lat, lon)"
+                )
+        name = item.get("name")
+        if not isinstance(name, str) or not name.strip() or len(name) > 64:
+            raise RailConfigError(
+                f"{field}.name",
+                f"must be a non-empty string of at most 64 characters, got {_describe(name)}",
+            )
+        place = _parse_lat_lon(field, {k: v for k, v in item.items() if k != "name"})
+        nodes.append((name, place))
+    return nodes
 
 
 def _check_lat_lon(field: str, point: object) -> None:

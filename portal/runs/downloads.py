@@ -7,7 +7,7 @@ over a slow link finishes sooner than the database takes to produce it.
 from __future__ import annotations
 
 import zlib
-from collections.abc import AsyncIterator, Iterable, Iterator
+from collections.abc import AsyncIterator, Iterable, Iterator, Sequence
 from typing import Any
 
 from asgiref.sync import sync_to_async
@@ -18,7 +18,7 @@ from django.utils.cache import patch_vary_headers
 from rest_framework.request import Request
 
 from portal.runs.models import Run
-from portal.runs.package import run_package_zip
+from portal.runs.package import run_package_zip, runs_package_zip
 from portal.runs.selectors import run_samples_csv, run_samples_json
 
 # zlib's fastest level: it keeps up with the database (level 6 takes several times as long
@@ -42,6 +42,26 @@ def run_package_response(request: HttpRequest | Request, run: Run) -> StreamingH
     url = request.build_absolute_uri(reverse("run", args=[run.pk]))
     return _download(
         request, run_package_zip(run=run, url=url), run, "zip", "application/zip", gzip=False
+    )
+
+
+def runs_package_response(
+    request: HttpRequest | Request, runs: Sequence[Run]
+) -> StreamingHttpResponse:
+    """Several runs as one zip: each run's package in a folder, and a manifest
+    (``portal/runs/package.py`` ``runs_package_zip``), streamed."""
+    urls = {run.pk: request.build_absolute_uri(reverse("run", args=[run.pk])) for run in runs}
+    name = "amazing-runs-" + "-".join(str(run.pk) for run in runs[:5])
+    if len(runs) > 5:
+        name += f"-and-{len(runs) - 5}-more"
+    return _download(
+        request,
+        runs_package_zip(runs=runs, urls=urls),
+        runs[0],
+        "zip",
+        "application/zip",
+        gzip=False,
+        name=name,
     )
 
 
@@ -82,6 +102,7 @@ def _download(
     media_type: str,
     *,
     gzip: bool = True,
+    name: str | None = None,
 ) -> StreamingHttpResponse:
     """Under ASGI the chunks come through an async iterator that reads the database (and
     compresses) in the request's sync thread, so the server is never blocked and Django
@@ -94,7 +115,8 @@ def _download(
     )
     charset = "" if media_type == "application/zip" else "; charset=utf-8"
     response = StreamingHttpResponse(content, content_type=f"{media_type}{charset}")
-    response["Content-Disposition"] = f'attachment; filename="amazing-run-{run.pk}.{extension}"'
+    filename = f"{name or f'amazing-run-{run.pk}'}.{extension}"
+    response["Content-Disposition"] = f'attachment; filename="{filename}"'
     if compress:
         response["Content-Encoding"] = "gzip"
     patch_vary_headers(response, ("Accept-Encoding",))

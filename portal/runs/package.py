@@ -15,6 +15,9 @@
 Columns, types, units and meanings come from ``basestation/contract.py`` ``SAMPLE_COLUMNS``
 and nowhere else, so the package cannot describe a column the CSV does not have. The
 descriptor goes last: it carries the CSV's size and hash, known only once the CSV is written.
+Several runs download as one zip (:func:`runs_package_zip`): each run's package in a folder
+``run-<id>/`` and a ``manifest.json`` listing the folders.
+
 Docs: docs/run-package.md.
 """
 
@@ -24,7 +27,7 @@ import hashlib
 import io
 import json
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import Any, Final
 
@@ -42,6 +45,9 @@ FORMAT_VERSION: Final = 1
 SAMPLES_FILE: Final = "samples.csv"
 DESCRIPTOR_FILE: Final = "datapackage.json"
 README_FILE: Final = "README.md"
+# A download of several runs: one package per folder and a manifest of them.
+MANIFEST_FORMAT: Final = "amazing-runs-manifest"
+MANIFEST_FILE: Final = "manifest.json"
 # Deflate's fastest level keeps up with the database; the CSV still shrinks about fourfold.
 ZIP_LEVEL: Final = 1
 
@@ -292,30 +298,39 @@ class _Sink(io.RawIOBase):
         return taken
 
 
-def run_package_zip(*, run: Run, url: str | None = None) -> Iterator[bytes]:
-    """The package as zip bytes, streamed: README, then the CSV as the database writes it,
-    then the descriptor with the CSV's size and hash."""
-    now = timezone.now()
+def _open_archive(sink: _Sink) -> zipfile.ZipFile:
+    return zipfile.ZipFile(
+        sink, mode="w", compression=zipfile.ZIP_DEFLATED, compresslevel=ZIP_LEVEL
+    )
+
+
+def _package_members(
+    archive: zipfile.ZipFile,
+    sink: _Sink,
+    *,
+    run: Run,
+    url: str | None,
+    now: datetime,
+    folder: str = "",
+) -> Generator[bytes, None, dict[str, Any]]:
+    """Write one run's package into ``archive`` under ``folder`` (``""`` or ending in
+    ``/``), handing on the zip's bytes as they come; returns the descriptor written."""
     run = (
         Run.objects.select_related("resource", "reservation__owner", "experiment")
         .prefetch_related("events", "reservation__items__resource")
         .get(pk=run.pk)
     )
     metadata = run_metadata(run, url=url, now=now)
-    sink = _Sink()
-    archive = zipfile.ZipFile(
-        sink, mode="w", compression=zipfile.ZIP_DEFLATED, compresslevel=ZIP_LEVEL
-    )
     stamp = now.astimezone(UTC).timetuple()[:6]
     archive.writestr(
-        zipfile.ZipInfo(README_FILE, date_time=stamp),
+        zipfile.ZipInfo(folder + README_FILE, date_time=stamp),
         package_readme(run, metadata),
         compress_type=zipfile.ZIP_DEFLATED,
     )
     yield sink.take()
     digest = hashlib.sha256()
     size = 0
-    info = zipfile.ZipInfo(SAMPLES_FILE, date_time=stamp)
+    info = zipfile.ZipInfo(folder + SAMPLES_FILE, date_time=stamp)
     info.compress_type = zipfile.ZIP_DEFLATED
     with archive.open(info, mode="w", force_zip64=True) as entry:
         for chunk in run_samples_csv(run=run):
@@ -329,8 +344,73 @@ def run_package_zip(*, run: Run, url: str | None = None) -> Iterator[bytes]:
         run, metadata=metadata, csv_bytes=size, csv_sha256=digest.hexdigest()
     )
     archive.writestr(
-        zipfile.ZipInfo(DESCRIPTOR_FILE, date_time=stamp),
+        zipfile.ZipInfo(folder + DESCRIPTOR_FILE, date_time=stamp),
         json.dumps(descriptor, indent=2, ensure_ascii=False) + "\n",
+        compress_type=zipfile.ZIP_DEFLATED,
+    )
+    yield sink.take()
+    return descriptor
+
+
+def run_package_zip(*, run: Run, url: str | None = None) -> Iterator[bytes]:
+    """The package as zip bytes, streamed: README, then the CSV as the database writes it,
+    then the descriptor with the CSV's size and hash."""
+    sink = _Sink()
+    archive = _open_archive(sink)
+    yield from _package_members(archive, sink, run=run, url=url, now=timezone.now())
+    archive.close()
+    yield sink.take()
+
+
+def run_folder(run: Run) -> str:
+    """Where a run's package sits inside a download of several runs."""
+    return f"run-{run.pk}/"
+
+
+def runs_package_zip(
+    *, runs: Sequence[Run], urls: Mapping[int, str] | None = None
+) -> Iterator[bytes]:
+    """Several runs as one zip, streamed: each run's package in a folder of its own
+    (:func:`run_folder`), then ``manifest.json`` listing every folder with the run it holds
+    and its CSV's size and hash (known only once the CSVs are written, so it goes last)."""
+    now = timezone.now()
+    sink = _Sink()
+    archive = _open_archive(sink)
+    entries = []
+    for run in runs:
+        folder = run_folder(run)
+        url = (urls or {}).get(run.pk)
+        descriptor = yield from _package_members(
+            archive, sink, run=run, url=url, now=now, folder=folder
+        )
+        samples = descriptor["resources"][0]
+        info = descriptor["amazing"]["run"]
+        entries.append(
+            {
+                "folder": folder,
+                "run": run.pk,
+                "url": url,
+                "title": info["title"],
+                "resource": info["resource"],
+                "state": info["state"],
+                "start_at": info["start_at"],
+                "end_at": info["end_at"],
+                "samples": info["samples"],
+                "files": [folder + name for name in (README_FILE, SAMPLES_FILE, DESCRIPTOR_FILE)],
+                "samples_bytes": samples["bytes"],
+                "samples_hash": samples["hash"],
+            }
+        )
+    manifest = {
+        "format": MANIFEST_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "generated_at": _iso(now),
+        "generated_by": {"portal_version": PORTAL_VERSION},
+        "runs": entries,
+    }
+    archive.writestr(
+        zipfile.ZipInfo(MANIFEST_FILE, date_time=now.astimezone(UTC).timetuple()[:6]),
+        json.dumps(manifest, indent=2, ensure_ascii=False) + "\n",
         compress_type=zipfile.ZIP_DEFLATED,
     )
     archive.close()

@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.runs.apis import reservations, robot, runs
+from portal.runs.apis import rail, reservations, robot, runs
 
 urlpatterns = [
     path("runs/", runs.RunListApi.as_view(), name="api-runs"),
@@ -31,6 +31,7 @@ urlpatterns = [
     ),
     # The check's first name, for one release (deprecated in the schema).
     path("quota/check/", reservations.QuotaCheckApi.as_view(), name="api-quota-check"),
+    path("resources/<slug:name>/rail/", rail.RailApi.as_view(), name="api-rail"),
     path("resources/<slug:name>/robot/", robot.RobotStatusApi.as_view(), name="api-robot"),
     path(
         "resources/<slug:name>/robot/control/",

@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.web import live, views
+from portal.web import console, live, my_runs, roof, views
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -8,6 +8,9 @@ urlpatterns = [
     path("experiments/<int:pk>/", views.experiment_edit, name="experiment-edit"),
     path("book/", views.book, name="book"),
     path("reservations/<int:pk>/cancel/", views.reservation_cancel_view, name="reservation-cancel"),
+    path("runs/", my_runs.my_runs, name="my-runs"),
+    path("runs/package.zip", my_runs.runs_package, name="runs-package"),
+    path("runs/compare/", my_runs.runs_compare, name="runs-compare"),
     path("runs/<int:pk>/", views.run_page, name="run"),
     path("runs/<int:pk>/data.json", views.run_data, name="run-data"),
     path("runs/<int:pk>/samples.csv", views.run_csv, name="run-csv"),
@@ -21,6 +24,8 @@ urlpatterns = [
     path("calendar/feed/<str:token>/<slug:name>.ics", views.ical_resource, name="ical-resource"),
     path("approvals/", views.approvals, name="approvals"),
     path("robot/<slug:name>/", views.robot_console, name="robot"),
+    path("robot/<slug:name>/log.csv", console.robot_log_csv, name="robot-log-csv"),
+    path("rails/<slug:name>.json", roof.rail_json, name="rail-json"),
     path("usage/", views.usage_report, name="usage"),
     path("scheduler-link/", views.scheduler_link, name="scheduler-link"),
     # Server-Sent Events (portal/web/live.py): the pages' live updates.

@@ -59,6 +59,7 @@ from portal.runs.services.booking import (
 )
 from portal.runs.services.collection import missing_described
 from portal.runs.services.health import robots_held
+from portal.runs.services.robot import HOLD_REPEAT_MS, HOLD_TTL_S
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
@@ -215,10 +216,6 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     }
 
 
-# Where the runs' comparison page answers (`?ids=A,B`): "compare" links from a repeated run.
-RUNS_COMPARE_PATH = "/runs/compare/"
-
-
 @login_required
 def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
@@ -226,7 +223,8 @@ def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     context["events"] = run.events.all()
     context["provenance"] = provenance_summary(run.provenance)
     context["repeats"] = list(run.repeats.order_by("start_at").values_list("pk", flat=True))
-    context["compare_path"] = RUNS_COMPARE_PATH
+    # "Compare the two runs" links from a repeated run (`?ids=A,B`).
+    context["compare_path"] = reverse("runs-compare")
     return render(request, "web/run.html", context)
 
 
@@ -430,7 +428,14 @@ def robot_console(request: HttpRequest, name: str) -> HttpResponse:
     resource = get_object_or_404(Resource, name=name, kind="mobile")
     # Manual drive obeys the same limit as programs: the stricter of the portal's and the agent's.
     return render(
-        request, "web/robot.html", {"resource": resource, "limit": velocity_limit(resource)}
+        request,
+        "web/robot.html",
+        {
+            "resource": resource,
+            "limit": velocity_limit(resource),
+            "hold_ttl_s": HOLD_TTL_S,
+            "hold_repeat_ms": HOLD_REPEAT_MS,
+        },
     )
 
 

@@ -164,6 +164,7 @@ def test_the_agents_answers_match_the_described_schemas(
     check("GET", "/healthz", client.get("/healthz"))
     check("GET", "/api/v1/status", client.get("/api/v1/status", headers=auth))
     check("GET", "/api/v1/battery", client.get("/api/v1/battery", headers=auth))
+    check("GET", "/api/v1/rail", client.get("/api/v1/rail", headers=auth))
     check("GET", "/api/v1/metrics", client.get("/api/v1/metrics", headers=auth))
     check("GET", "/api/v1/status", client.get("/api/v1/status"))  # 401
 

@@ -40,6 +40,11 @@ class RobotDriveInput(serializers.Serializer):
         help_text="How long the command holds; the robot stops after it (dead-man).",
     )
     force = serializers.BooleanField(default=False, help_text="Take over from a running run.")
+    hold = serializers.BooleanField(
+        default=False,
+        help_text="One command of hold-to-drive, repeated while a button is held: the repeats "
+        "of the same velocity and direction are audited once.",
+    )
     reason = serializers.CharField(
         help_text="Why you drive by hand (audited).",
         error_messages={

@@ -15,6 +15,7 @@ from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
 from bookings.models import CALENDAR
 from core.api import Pagination, cached_json, paginated_data, request_user, valid_query
 from portal.experiments.apis import SegmentOutput
+from portal.runs import listing
 from portal.runs.downloads import (
     run_package_response,
     samples_csv_response,
@@ -215,7 +216,30 @@ class RunOutput(serializers.ModelSerializer):
 
 
 class RunFilter(serializers.Serializer):
+    """The list's filters: the same as the My runs page (``portal/runs/listing.py``)."""
+
     state = serializers.ChoiceField(choices=RunState.choices, required=False)
+    resource = serializers.SlugField(required=False, help_text="The robot's name.")
+    experiment = serializers.IntegerField(required=False, min_value=1, help_text="Its id.")
+    started_from = serializers.DateField(
+        required=False, help_text="First day of start, in the testbed's time zone."
+    )
+    started_to = serializers.DateField(
+        required=False, help_text="Last day of start (included), in the testbed's time zone."
+    )
+    q = serializers.CharField(
+        required=False,
+        max_length=200,
+        help_text="Search: the run's or its experiment's title, the robot, or the run's number.",
+    )
+
+    def validate(self, attrs: dict[str, Any]) -> dict[str, Any]:
+        first, last = attrs.get("started_from"), attrs.get("started_to")
+        if first and last and last < first:
+            raise serializers.ValidationError(
+                {"started_to": ["The last day comes on or after the first."]}
+            )
+        return attrs
 
 
 class RunListApi(APIView):
@@ -227,15 +251,20 @@ class RunListApi(APIView):
 
         def listed() -> dict[str, Any]:
             query = valid_query(RunFilter, request.query_params)
-            qs = runs_visible(user=user).prefetch_related("events")
-            if "state" in query:
-                qs = qs.filter(state=query["state"])
-            return paginated_data(
-                request=request,
-                queryset=qs.order_by("-start_at", "-pk"),
-                serializer_class=RunOutput,
+            filters = listing.RunFilter(
+                states=(query["state"],) if "state" in query else (),
+                resource=query.get("resource", ""),
+                experiment_id=query.get("experiment"),
+                started_from=query.get("started_from"),
+                started_to=query.get("started_to"),
+                text=query.get("q", ""),
             )
+            qs = listing.runs_filtered(user=user, filters=filters).prefetch_related("events")
+            return paginated_data(request=request, queryset=qs, serializer_class=RunOutput)
 
+        if "q" in request.query_params:
+            # The search reads experiments' titles, which the runs' generation does not follow.
+            return Response(listed())
         # Resource names come from the calendar's rows.
         return cached_json(request, (RUNS, CALENDAR), (user.pk, user.is_testbed_admin), listed)
 

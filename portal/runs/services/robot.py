@@ -9,16 +9,27 @@ from __future__ import annotations
 from datetime import date
 from typing import Any
 
+from django.core.cache import cache
+
 from basestation.client import AgentConflict, AgentError, AgentRejected
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
 from bookings.rules import velocity_problem
 from core.accounts.models import User
 from core.audit.services import audit_record
+from core.cache import database_namespace
 from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 from portal.runs.agents import agent_client_for
 
 MAX_MANUAL_TTL_S = 10.0
+# Hold-to-drive repeats its command a few times a second: one audit entry per hold (and per
+# change of velocity or direction), not per repeat. A pause this long starts a new entry.
+HOLD_AUDIT_GAP_S = 5.0
+# Hold-to-drive: each held command lives this long on the base station and is repeated this
+# often. A few repeats' worth, so one slow request does not make the robot stutter; short, so
+# a page that vanishes without its stop lets the robot ramp down within a second.
+HOLD_TTL_S = 0.6
+HOLD_REPEAT_MS = 200
 
 
 class AgentUnavailable(DomainError):
@@ -37,9 +48,18 @@ def _mobile(resource: Resource) -> None:
 
 
 def _call(
-    action: str, resource: Resource, by: User, ip: str | None, reason: str, fn: Any, **data: Any
+    action: str,
+    resource: Resource,
+    by: User,
+    ip: str | None,
+    reason: str,
+    fn: Any,
+    *,
+    audit_success: bool = True,
+    **data: Any,
 ) -> dict[str, Any]:
-    """Run one agent call and audit it, whatever the agent answered."""
+    """Run one agent call and audit it, whatever the agent answered (a success only when
+    ``audit_success``: the repeats of a held command are one action)."""
     try:
         result: dict[str, Any] = fn()
     except AgentError as exc:
@@ -57,8 +77,19 @@ def _call(
         raise AgentUnavailable(
             f"The base station of {resource.name} did not answer: {exc.message}"
         ) from exc
-    audit_record(actor=by, action=action, target=resource, ip=ip, reason=reason, **data)
+    if audit_success:
+        audit_record(actor=by, action=action, target=resource, ip=ip, reason=reason, **data)
     return result
+
+
+def _hold_repeats(*, resource: Resource, by: User, velocity_mps: float, direction: str) -> bool:
+    """Whether this held command repeats the one ``by`` sent last to ``resource`` (the same
+    velocity and direction, less than :data:`HOLD_AUDIT_GAP_S` ago)."""
+    key = f"robot-hold:{database_namespace()}:{resource.pk}:{by.pk}"
+    command = [velocity_mps, direction]
+    repeated = cache.get(key) == command
+    cache.set(key, command, HOLD_AUDIT_GAP_S)
+    return repeated
 
 
 def robot_status(*, resource: Resource) -> dict[str, Any]:
@@ -81,9 +112,13 @@ def robot_drive(
     ttl_s: float,
     reason: str,
     force: bool = False,
+    hold: bool = False,
     ip: str | None = None,
 ) -> dict[str, Any]:
-    """Drive by hand for ``ttl_s`` seconds (dead-man: the agent stops the robot after it)."""
+    """Drive by hand for ``ttl_s`` seconds (dead-man: the agent stops the robot after it).
+
+    ``hold``: one command of hold-to-drive, which the console repeats while the button is
+    held; its repeats are audited once (:func:`_hold_repeats`), refusals every time."""
     _admin(by)
     _mobile(resource)
     if not reason.strip():
@@ -96,6 +131,9 @@ def robot_drive(
     if not 0 < ttl_s <= MAX_MANUAL_TTL_S:
         raise InvalidInput.on_field("ttl_s", f"Hold a command for at most {MAX_MANUAL_TTL_S:g} s.")
     client = agent_client_for(resource)
+    repeat = hold and _hold_repeats(
+        resource=resource, by=by, velocity_mps=velocity_mps, direction=direction
+    )
     return _call(
         "robot.control",
         resource,
@@ -109,10 +147,12 @@ def robot_drive(
             ttl_s=ttl_s,
             force=force,
         ),
+        audit_success=not repeat,
         velocity_mps=velocity_mps,
         direction=direction,
         ttl_s=ttl_s,
         force=force,
+        **({"hold": True} if hold else {}),
     )
 
 

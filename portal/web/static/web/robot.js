@@ -32,6 +32,8 @@
   const fmt = (value, unit, digits) => (value === null || value === undefined ? "—" : `${Number(value).toFixed(digits)} ${unit}`);
 
   function show(s, battery) {
+    // Other parts of the page (roof.js) follow the same reading.
+    document.dispatchEvent(new CustomEvent("robot:status", { detail: s }));
     const link = s.link || {};
     set("st-link", `${link.state || "?"}${link.loss_pct !== undefined && link.loss_pct !== null ? `, ${Number(link.loss_pct).toFixed(0)} % loss` : ""}`);
     set("st-battery", fmt(battery.filtered_v, "V", 1) + (battery.low ? " (LOW)" : ""));
@@ -111,6 +113,8 @@
     } catch (error) { say("Not changed: " + error.message, true); }
   });
   document.getElementById("log-form").addEventListener("submit", async (event) => {
+    // "Download CSV" submits the form itself: the browser saves the day's log.
+    if (event.submitter && event.submitter.id === "log-download") return;
     event.preventDefault();
     const rows = document.getElementById("log-rows");
     rows.textContent = "";

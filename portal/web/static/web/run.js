@@ -65,6 +65,8 @@
   let again = false;
 
   function render(data) {
+    // Other parts of the page (roof.js) follow the same answer.
+    document.dispatchEvent(new CustomEvent("run:data", { detail: data }));
     draw(data.series);
     showState(data.state, data.state_label, data.reason);
     showMissing(data.missing);

@@ -1,0 +1,137 @@
+// Hold-to-drive: while a button or key is held the console repeats a short-lived manual drive
+// command (every data-repeat-ms, each valid data-ttl-s on the base station); letting go,
+// hiding or leaving the page, or losing focus sends velocity 0 at once. If that stop is lost
+// too, the last command expires on the base station within its TTL and the robot ramps down.
+(function () {
+  "use strict";
+  const box = document.getElementById("hold-drive");
+  const root = document.getElementById("robot");
+  if (!box || !root) return;
+  const url = `/api/v1/resources/${root.dataset.name}/robot/control/`;
+  const csrf = root.querySelector("[name=csrfmiddlewaretoken]").value;
+  const ttlS = Number(box.dataset.ttlS);
+  const repeatMs = Number(box.dataset.repeatMs);
+  const state = document.getElementById("hold-state");
+  const velocity = document.getElementById("held-velocity");
+  const reason = document.getElementById("held-reason");
+  const force = document.getElementById("held-force");
+  const buttons = Array.from(box.querySelectorAll("button.hold"));
+
+  let held = null; // {direction, timer, source}
+  let inFlight = false;
+
+  function say(text, kind) {
+    state.textContent = text;
+    state.dataset.state = kind;
+  }
+
+  function send(body, keepalive) {
+    return fetch(url, {
+      method: "POST",
+      headers: { "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" },
+      body: JSON.stringify(body),
+      credentials: "same-origin",
+      // Outlives the page: the stop still goes when the tab is being closed.
+      keepalive: Boolean(keepalive),
+    });
+  }
+
+  async function tick() {
+    if (!held || inFlight) return;
+    inFlight = true;
+    const direction = held.direction;
+    try {
+      const response = await send({
+        velocity_mps: Number(velocity.value), direction, ttl_s: ttlS,
+        reason: reason.value, force: force.checked, hold: true,
+      });
+      if (!response.ok) {
+        let detail = response.statusText;
+        try { const data = await response.json(); detail = data.detail || JSON.stringify(data.fields || data); } catch (e) { /* not JSON */ }
+        release(false);
+        say("Not driving: " + detail, "error");
+        return;
+      }
+      if (held && held.direction === direction) {
+        say(`Driving ${Number(velocity.value).toFixed(2)} m/s ${direction === "cw" ? "clockwise" : "counter-clockwise"} while held.`, "driving");
+      }
+    } catch (error) {
+      // Nothing reached the base station: the last command expires there by itself.
+      release(false);
+      say("Not driving: " + error.message, "error");
+    } finally {
+      inFlight = false;
+    }
+  }
+
+  function press(direction, source) {
+    if (held) return;
+    if (!reason.value.trim()) {
+      say("Not driving: say why you drive the robot by hand (Reason).", "error");
+      reason.focus();
+      return;
+    }
+    held = { direction, source, timer: setInterval(tick, repeatMs) };
+    for (const button of buttons) button.setAttribute("aria-pressed", String(button.dataset.direction === direction));
+    tick();
+  }
+
+  // Velocity 0 now (not waiting for the TTL), unless nothing was being driven.
+  function release(sendStop, keepalive) {
+    if (!held) return;
+    const direction = held.direction;
+    clearInterval(held.timer);
+    held = null;
+    for (const button of buttons) button.setAttribute("aria-pressed", "false");
+    say("Stopped.", "idle");
+    if (sendStop) {
+      send({ velocity_mps: 0, direction, ttl_s: ttlS, reason: reason.value || "hold released", force: false, hold: true }, keepalive)
+        .catch(() => { /* the command's TTL stops the robot */ });
+    }
+  }
+
+  for (const button of buttons) {
+    button.setAttribute("aria-pressed", "false");
+    button.addEventListener("pointerdown", (event) => {
+      event.preventDefault();
+      button.setPointerCapture(event.pointerId);
+      press(button.dataset.direction, "pointer");
+    });
+    for (const type of ["pointerup", "pointercancel", "lostpointercapture"]) {
+      button.addEventListener(type, () => { if (held && held.source === "pointer") release(true); });
+    }
+    // Enter or Space on a focused button holds too (keyboard users without the shortcuts).
+    button.addEventListener("keydown", (event) => {
+      if ((event.key === "Enter" || event.key === " ") && !event.repeat) { event.preventDefault(); press(button.dataset.direction, "key:" + event.key); }
+    });
+    button.addEventListener("keyup", (event) => {
+      if (held && held.source === "key:" + event.key) release(true);
+    });
+    button.addEventListener("contextmenu", (event) => event.preventDefault());
+  }
+
+  const KEYS = { ArrowRight: "cw", d: "cw", D: "cw", ArrowLeft: "ccw", a: "ccw", A: "ccw" };
+  const typing = (target) => target instanceof HTMLElement && (target.isContentEditable || ["INPUT", "SELECT", "TEXTAREA"].includes(target.tagName));
+  document.addEventListener("keydown", (event) => {
+    if (event.key === "Escape") {
+      event.preventDefault();
+      release(false);
+      document.getElementById("estop").click();
+      return;
+    }
+    if (typing(event.target) || event.target instanceof HTMLButtonElement) return;
+    if (event.key === " ") { event.preventDefault(); release(true); return; }
+    const direction = KEYS[event.key];
+    if (direction && !event.repeat && !event.ctrlKey && !event.metaKey && !event.altKey) {
+      event.preventDefault();
+      press(direction, "key:" + event.key);
+    }
+  });
+  document.addEventListener("keyup", (event) => {
+    if (held && held.source === "key:" + event.key) release(true);
+  });
+  // A page that loses the user stops the robot.
+  window.addEventListener("blur", () => release(true));
+  document.addEventListener("visibilitychange", () => { if (document.hidden) release(true, true); });
+  window.addEventListener("pagehide", () => release(true, true));
+})();

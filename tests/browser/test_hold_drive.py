@@ -1,0 +1,121 @@
+"""Hold-to-drive on the admin console in Chromium, against the real agent and simulated robot:
+the robot moves only while held; letting go stops it within its ramp; a page that vanishes
+mid-hold, its stop lost too, is stopped by the base station within the command's TTL."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+from playwright.sync_api import Page, expect
+
+from basestation.client import AgentClient
+from core.audit.models import AuditEvent
+from portal.runs.services.robot import HOLD_TTL_S
+from tests.browser.conftest import login
+from tests.factories import MobileResourceFactory, UserFactory
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+VELOCITY_MPS = 0.5
+ACCEL_MPS2 = 1.0  # the agent's default max_accel_mps2: the stack's robot ramps at this
+RAMP_S = VELOCITY_MPS / ACCEL_MPS2
+# A control tick or two, the request's way to the agent, and this test's polling.
+SLACK_S = 0.5
+
+
+def _velocity_mps(agent: AgentClient) -> float:
+    return float(agent.status()["robot"]["velocity_mps"] or 0.0)
+
+
+def _wait_velocity(agent: AgentClient, reached, deadline_s: float) -> float:
+    """Poll the robot until ``reached(velocity)``; the seconds it took (fails at the deadline)."""
+    start = time.monotonic()
+    while True:
+        velocity = _velocity_mps(agent)
+        if reached(velocity):
+            return time.monotonic() - start
+        assert time.monotonic() - start < deadline_s, f"velocity stayed {velocity} m/s"
+        time.sleep(0.02)
+
+
+def _console(browser, stack, username: str) -> Page:
+    page = browser.new_context(viewport={"width": 390, "height": 844}).new_page()
+    login(page, stack.web, username, "correct horse battery")
+    page.goto(f"{stack.web}/robot/mobile-1/")
+    expect(page.locator("#st-link")).to_contain_text("up", timeout=15_000)
+    page.locator("#held-velocity").fill(str(VELOCITY_MPS))
+    page.locator("#held-reason").fill("moving it to the north corner")
+    return page
+
+
+def test_the_robot_drives_only_while_held_and_stops_within_its_ramp(browser, stack):
+    MobileResourceFactory(agent_url=stack.agent_url)
+    UserFactory(username="root", is_staff=True, is_superuser=True)
+    page = _console(browser, stack, "root")
+    sent: list[str] = []
+    page.on("request", lambda r: "/robot/control/" in r.url and sent.append(r.post_data or ""))
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+
+    hold = page.get_by_role("button", name="Hold: clockwise ▶")
+    # The e-stop stays in view wherever the page is scrolled to.
+    hold.scroll_into_view_if_needed()
+    expect(page.get_by_test_id("estop")).to_be_in_viewport()
+    hold.hover()
+    page.mouse.down()
+    _wait_velocity(stack.agent, lambda v: v >= VELOCITY_MPS - 0.05, deadline_s=10)
+    expect(page.locator("#hold-state")).to_have_attribute("data-state", "driving")
+    expect(hold).to_have_attribute("aria-pressed", "true")
+    page.mouse.up()
+    took_s = _wait_velocity(stack.agent, lambda v: v < 0.005, deadline_s=RAMP_S + SLACK_S)
+    assert took_s <= RAMP_S + SLACK_S
+    expect(page.locator("#hold-state")).to_have_text("Stopped.")
+    # Held long enough to be repeated, yet audited once, and its stop once.
+    assert len(sent) >= 3
+    controls = list(
+        AuditEvent.objects.filter(action="robot.control")
+        .order_by("pk")
+        .values_list("data", flat=True)
+    )
+    assert [(c["velocity_mps"], c.get("hold")) for c in controls] == [
+        (VELOCITY_MPS, True),
+        (0.0, True),
+    ]
+
+    # The keyboard: → drives clockwise while held, its release stops.
+    page.locator("body").click(position={"x": 5, "y": 5})
+    page.keyboard.down("ArrowRight")
+    _wait_velocity(stack.agent, lambda v: v >= 0.2, deadline_s=10)
+    page.keyboard.up("ArrowRight")
+    _wait_velocity(stack.agent, lambda v: v < 0.005, deadline_s=RAMP_S + SLACK_S)
+
+    # The day's log names the admin's manual session, on screen and as a download.
+    page.get_by_role("button", name="Show").click()
+    expect(page.locator("#log-rows tr").first.locator("td").first).to_have_text("root")
+    with page.expect_download() as download_info:
+        page.get_by_role("button", name="Download CSV").click()
+    lines = Path(download_info.value.path()).read_text().splitlines()
+    assert lines[0] == "user,title,start,end,kind,run_id,state"
+    assert lines[1].startswith("root,")
+    assert not errors, errors
+    page.context.close()
+
+
+def test_a_page_closed_mid_hold_with_its_stop_lost_stops_within_the_ttl(browser, stack):
+    MobileResourceFactory(agent_url=stack.agent_url)
+    UserFactory(username="root", is_staff=True, is_superuser=True)
+    page = _console(browser, stack, "root")
+    page.get_by_role("button", name="Hold: counter-clockwise").hover()
+    page.mouse.down()
+    _wait_velocity(stack.agent, lambda v: v >= 0.2, deadline_s=10)
+    # The network goes with the page: not even the stop sent on leaving reaches the portal.
+    page.route("**/robot/control/", lambda route: route.abort())
+    page.context.close()
+    # The last command expires on the base station, and the robot ramps down from at most
+    # the held velocity.
+    took_s = _wait_velocity(
+        stack.agent, lambda v: v < 0.005, deadline_s=HOLD_TTL_S + RAMP_S + SLACK_S
+    )
+    assert took_s <= HOLD_TTL_S + RAMP_S + SLACK_S

@@ -1,0 +1,139 @@
+"""The roof, live, in Chromium against the real stack: the rail of the agent's own rail file
+(its grid cells and fixed nodes) on the run page and the robot console, and the robot moving
+along it while a run drives the simulated robot."""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+import requests
+from django.conf import settings
+from django.utils import timezone
+from playwright.sync_api import Page, expect
+from rest_framework.authtoken.models import Token
+
+from basestation.telemetry.rail import DEFAULT_RAIL_PATH
+from tests.browser.conftest import SCREENSHOTS, login
+from tests.factories import MobileResourceFactory, UserFactory
+from tests.integration.stack import Stack, running_stack
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+NODES = [
+    {"name": "node-01", "lat": 40.63431, "lon": -8.66012},
+    {"name": "node-02", "lat": 40.63400, "lon": -8.65990},
+]
+
+
+@pytest.fixture
+def roof_stack(tmp_path: Path) -> Iterator[Stack]:
+    rail = json.loads(DEFAULT_RAIL_PATH.read_text())
+    rail.update(name="IT1 roof with two nodes", nodes=NODES)
+    rail_file = tmp_path / "rail.json"
+    rail_file.write_text(json.dumps(rail))
+    with running_stack(
+        tmp_path / "var",
+        broker_url=settings.CELERY_BROKER_URL,
+        extra_env={"AGENT_RAIL_FILE": str(rail_file), "HEALTH_POLL_INTERVAL_S": "1"},
+    ) as stack:
+        yield stack
+
+
+def _book(stack: Stack, username: str, *, ahead_s: float, program_s: float) -> int:
+    api = requests.Session()
+    api.headers["Authorization"] = (
+        f"Token {Token.objects.create(user=UserFactory(username=username)).key}"
+    )
+    experiment = api.post(
+        f"{stack.web}/api/v1/experiments/",
+        json={
+            "title": "roof watch",
+            "segments": [{"velocity_mps": 0.5, "direction": "cw", "duration_s": program_s}],
+        },
+        timeout=10,
+    )
+    assert experiment.status_code == 201, experiment.text
+    start = timezone.now() + timedelta(seconds=ahead_s)
+    booking = api.post(
+        f"{stack.web}/api/v1/reservations/",
+        json={
+            "resource": "mobile-1",
+            "experiment": experiment.json()["id"],
+            "start_at": start.isoformat(),
+            "end_at": (start + timedelta(seconds=program_s + 4)).isoformat(),
+        },
+        timeout=10,
+    )
+    assert booking.status_code == 201, booking.text
+    return int(booking.json()["run"]["id"])
+
+
+def _check_map(page: Page) -> None:
+    roof = page.locator("#roof")
+    expect(roof).to_have_attribute("data-ready", "1", timeout=15_000)
+    svg = page.get_by_role("img", name="Map of mobile-1's rail on the roof, north up")
+    expect(svg).to_be_visible()
+    expect(svg.locator("desc")).to_contain_text("grid cells")
+    labels = svg.locator(".roof-cell")
+    expect(labels).to_have_count(16)
+    expect(labels.first).to_have_text("A1")
+    expect(svg.locator(".roof-node")).to_have_count(2)
+    expect(svg.locator(".roof-label", has_text="node-02")).to_have_count(1)
+
+
+def _moves(page: Page) -> None:
+    """The robot's place on the map changes, and its words say it moves clockwise."""
+    roof = page.locator("#roof")
+    expect(roof).to_have_attribute("data-track-m", re.compile(r"^\d"), timeout=30_000)
+    expect(page.locator("#roof-text")).to_contain_text("moving clockwise", timeout=30_000)
+    first = roof.get_attribute("data-track-m")
+    where = page.locator("#roof-robot").get_attribute("transform")
+    expect(roof).not_to_have_attribute("data-track-m", first or "", timeout=30_000)
+    assert page.locator("#roof-robot").get_attribute("transform") != where
+    expect(page.locator("#roof-text")).to_contain_text(
+        re.compile(r"\d m along the rail, cell [A-D]\d")
+    )
+
+
+def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, roof_stack):
+    MobileResourceFactory(agent_url=roof_stack.agent_url)
+    UserFactory(username="root", is_staff=True, is_superuser=True)
+    run_id = _book(roof_stack, "ines", ahead_s=5, program_s=20)
+
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    errors: list[str] = []
+    page = context.new_page()
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.on(
+        "console",
+        lambda m: "Content Security Policy" in m.text and errors.append(m.text),
+    )
+    login(page, roof_stack.web, "ines", "correct horse battery")
+    page.goto(f"{roof_stack.web}/runs/{run_id}/")
+    _check_map(page)
+
+    console_context = browser.new_context(viewport={"width": 375, "height": 900})
+    console = console_context.new_page()
+    console.on("pageerror", lambda exc: errors.append(f"console: {exc}"))
+    login(console, roof_stack.web, "root", "correct horse battery")
+    console.goto(f"{roof_stack.web}/robot/mobile-1/")
+    _check_map(console)
+
+    expect(page.locator("#run-state")).to_have_attribute("data-state", "running", timeout=30_000)
+    _moves(page)
+    page.screenshot(path=str(SCREENSHOTS / "roof-run-page.png"), full_page=True)
+    _moves(console)
+    assert console.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1")
+    console.screenshot(path=str(SCREENSHOTS / "roof-console-phone.png"), full_page=True)
+
+    # At the end the map stays on the run's last sample, standing still.
+    expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
+    expect(page.locator("#roof-text")).to_contain_text("At the run's last sample", timeout=15_000)
+    assert not errors, errors
+    context.close()
+    console_context.close()

@@ -1,0 +1,47 @@
+"""The robot console's daily log download: the base station's log of a day as CSV, for
+admins only, a bad day refused."""
+
+from __future__ import annotations
+
+import csv
+import io
+from datetime import UTC, datetime
+
+import pytest
+
+from basestation.api.logs import LOG_CSV_COLUMNS
+from portal.web.console import DAY_LOG_COLUMNS
+from tests.runs.conftest import agent  # noqa: F401  (the in-process agent fixture)
+
+pytestmark = pytest.mark.django_db
+
+
+def test_the_portal_writes_the_agents_columns():
+    assert DAY_LOG_COLUMNS == LOG_CSV_COLUMNS
+
+
+def test_an_admin_downloads_a_days_log(client, agent, mobile, admin_user):  # noqa: F811
+    mobile.agent_url = agent.url
+    mobile.save()
+    agent.client.control(user="charlie", velocity_mps=0.2, direction="cw", ttl_s=1)
+    clock_s = agent.client.status()["clock"]
+    client.force_login(admin_user)
+    today = datetime.fromtimestamp(clock_s, UTC).date().isoformat()
+    response = client.get(f"/robot/{mobile.name}/log.csv?day={today}")
+    assert response.status_code == 200
+    assert f'filename="{mobile.name}-log-{today}.csv"' in response["Content-Disposition"]
+    rows = list(csv.reader(io.StringIO(response.content.decode())))
+    assert rows[0] == list(DAY_LOG_COLUMNS)
+    assert [row[0] for row in rows[1:]] == ["charlie"]
+
+
+@pytest.mark.parametrize("day", ["", "2026-02-30", "yesterday", "2026-1-1"])
+def test_a_bad_day_is_refused(client, mobile, admin_user, day):
+    client.force_login(admin_user)
+    assert client.get(f"/robot/{mobile.name}/log.csv?day={day}").status_code == 400
+
+
+def test_experimenters_and_visitors_get_no_log(client, mobile, owner):
+    assert client.get(f"/robot/{mobile.name}/log.csv?day=2026-01-01").status_code == 302
+    client.force_login(owner)
+    assert client.get(f"/robot/{mobile.name}/log.csv?day=2026-01-01").status_code == 403
