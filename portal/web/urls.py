@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.web import live, views
+from portal.web import live, timeline, views
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -15,6 +15,7 @@ urlpatterns = [
     path("runs/<int:pk>/package.zip", views.run_package, name="run-package"),
     path("runs/<int:pk>/again/", views.run_again, name="run-again"),
     path("calendar/", views.calendar_page, name="calendar"),
+    path("calendar/timeline/", timeline.timeline_page, name="timeline"),
     path("calendar/events.json", views.calendar_events, name="calendar-events"),
     path("calendar/feeds/", views.calendar_feeds, name="calendar-feeds"),
     path("calendar/feed/<str:token>.ics", views.ical_personal, name="ical-personal"),
