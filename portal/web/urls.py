@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.web import live, timeline, views
+from portal.web import attach, live, timeline, views
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -8,6 +8,9 @@ urlpatterns = [
     path("experiments/<int:pk>/", views.experiment_edit, name="experiment-edit"),
     path("book/", views.book, name="book"),
     path("reservations/<int:pk>/cancel/", views.reservation_cancel_view, name="reservation-cancel"),
+    path(
+        "reservations/<int:pk>/attach/", attach.reservation_attach_view, name="reservation-attach"
+    ),
     path("runs/<int:pk>/", views.run_page, name="run"),
     path("runs/<int:pk>/data.json", views.run_data, name="run-data"),
     path("runs/<int:pk>/samples.csv", views.run_csv, name="run-csv"),

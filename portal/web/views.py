@@ -25,7 +25,7 @@ from bookings.calendar import (
     calendar_feed_renew,
     ical_document,
 )
-from bookings.choices import ReservationState
+from bookings.choices import Channel, ReservationState
 from bookings.leases import scheduler_link_status, scheduler_overview
 from bookings.models import CalendarFeed, Reservation, Resource
 from bookings.quotas import quota_summary
@@ -181,6 +181,7 @@ def reservation_cancel_view(request: HttpRequest, pk: int) -> HttpResponse:
                 by=_user(request),
                 reason=request.POST.get("reason", ""),
                 ip=client_ip(request),
+                via=Channel.WEB,
             )
         except DomainError as exc:
             messages.error(request, exc.message)
