@@ -60,6 +60,7 @@ from portal.runs.services.booking import (
 from portal.runs.services.collection import missing_described
 from portal.runs.services.health import robots_held
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
+from portal.web.builder import builder_context
 from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
 
@@ -141,7 +142,9 @@ def experiment_edit(request: HttpRequest, pk: int | None = None) -> HttpResponse
     while len(rows) < 3:
         rows.append({"velocity_mps": "", "direction": "cw", "duration_s": ""})
     return render(
-        request, "web/experiment_form.html", {"form": form, "rows": rows, "experiment": experiment}
+        request,
+        "web/experiment_form.html",
+        {"form": form, "rows": rows, "experiment": experiment, "builder": builder_context()},
     )
 
 
