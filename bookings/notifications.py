@@ -42,7 +42,7 @@ def _canceller(reservation: Reservation) -> str:
     """Who cancelled, as the owner knows them: their name, and what they are to the testbed."""
     user = reservation.cancelled_by
     if user is None:
-        return "the testbed"
+        return "someone no longer registered"
     name = user.get_full_name() or user.get_username()
     if user.is_testbed_admin:
         return f"{name} (an admin)"
