@@ -28,6 +28,7 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "reservation_create": ("POST", "/api/v1/reservations/"),
     "reservation_check": ("POST", "/api/v1/reservations/check/"),
     "reservation_cancel": ("DELETE", "/api/v1/reservations/{id}/"),
+    "reservation_attach": ("POST", "/api/v1/reservations/{id}/attach/"),
     "runs": ("GET", "/api/v1/runs/"),
     "run": ("GET", "/api/v1/runs/{id}/"),
     "samples_csv": ("GET", "/api/v1/runs/{id}/samples.csv"),

@@ -571,6 +571,41 @@ def cancel(
         out.print(f"Reservation {cancelled['id']} is {cancelled['state']}.")
 
 
+@app.command()
+@reports_errors
+def attach(
+    ctx: typer.Context,
+    reservation: Annotated[
+        int,
+        typer.Argument(
+            metavar="RESERVATION", help="A booking made through the testbed scheduler's lease API."
+        ),
+    ],
+    experiment: Annotated[
+        int,
+        typer.Option("--experiment", "-e", metavar="ID", help="The experiment the robot runs."),
+    ],
+    as_json: JsonOption = False,
+    quiet: QuietOption = False,
+) -> None:
+    """Give a booking made through the lease API the experiment its robot runs, before it
+    starts (checked as booking checks it)."""
+    attached = _api(ctx).create(
+        "reservation_attach", {"experiment": experiment}, path={"id": reservation}
+    )
+    run = attached["run"]
+    if as_json:
+        _print_json(attached)
+    elif quiet:
+        out.print(run["id"])
+    else:
+        out.print(
+            f"Reservation {attached['id']} runs experiment {experiment} as run {run['id']}: "
+            f"{', '.join(attached['resources'])}, {times.local(attached['start_at'])} to "
+            f"{times.local(attached['end_at'])}."
+        )
+
+
 # --- runs -----------------------------------------------------------------------------------
 
 

@@ -35,3 +35,12 @@ class QuotaPeriod(models.TextChoices):
 class BookedVia(models.TextChoices):
     PORTAL = "portal", "the portal (pages or API)"
     SCHEDULER = "scheduler", "the testbed scheduler's lease API"
+
+
+class Channel(models.TextChoices):
+    """Through what someone changed a booking, as its owner is told."""
+
+    WEB = "web", "on the portal's pages"
+    API = "api", "through the portal's REST API"
+    LEASE_API = "lease_api", "through the testbed scheduler's lease API"
+    ADMIN = "admin", "in the portal's admin site"

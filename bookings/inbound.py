@@ -29,7 +29,7 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from bookings.choices import BookedVia, ReservationState, ResourceKind
+from bookings.choices import BookedVia, Channel, ReservationState, ResourceKind
 from bookings.models import Reservation, Resource
 from bookings.rules import QuotaExceeded
 from bookings.services import reservation_cancel, reservation_create, reservation_reschedule
@@ -322,6 +322,9 @@ class InboundLeasesApi(InboundApi):
         now = timezone.now()
         if lease_status(found, now) not in ("past", "cancelled"):
             reservation_cancel(
-                reservation=found, by=request_user(request), reason="cancelled by the scheduler"
+                reservation=found,
+                by=request_user(request),
+                reason="cancelled by the scheduler",
+                via=Channel.LEASE_API,
             )
         return _answer({"resource": _lease_doc(_leases().get(pk=found.pk), timezone.now())})

@@ -8,6 +8,7 @@ from django.conf import settings
 from django.core.mail import send_mail
 from django.utils import timezone
 
+from bookings.choices import Channel
 from bookings.models import Blackout, Reservation
 from core.accounts.models import User
 
@@ -18,7 +19,9 @@ SUBJECTS = {
     "requested": "Booking request received: {what}",
     "approved": "Booking approved: {what}",
     "rejected": "Booking request rejected: {what}",
-    "cancelled_by_admin": "Your booking was cancelled by an admin: {what}",
+    "cancelled": "Your booking was cancelled by {who}: {what}",
+    # Queued before ``cancelled`` said who: the same message.
+    "cancelled_by_admin": "Your booking was cancelled by {who}: {what}",
     "blackout_conflict": "Maintenance overlaps a booking: {what}",
     "reminder": "Reminder: {what} starts soon",
     "lease_conflict": "A lease on the testbed scheduler overlaps a booking: {what}",
@@ -35,10 +38,28 @@ def _describe(reservation: Reservation) -> str:
     return f"{names} on {start:%Y-%m-%d %H:%M}–{end:%H:%M} ({settings.TIME_ZONE})"
 
 
+def _canceller(reservation: Reservation) -> str:
+    """Who cancelled, as the owner knows them: their name, and what they are to the testbed."""
+    user = reservation.cancelled_by
+    if user is None:
+        return "someone no longer registered"
+    name = user.get_full_name() or user.get_username()
+    if user.is_testbed_admin:
+        return f"{name} (an admin)"
+    if user.has_perm("bookings.lease_inbound"):
+        return f"{name} (the testbed scheduler's account)"
+    return name
+
+
 def reservation_message(
-    kind: str, reservation: Reservation, *, blackout: Blackout | None = None
+    kind: str,
+    reservation: Reservation,
+    *,
+    blackout: Blackout | None = None,
+    via: str = "",
 ) -> tuple[str, str]:
     what = _describe(reservation)
+    who = _canceller(reservation) if kind in ("cancelled", "cancelled_by_admin") else ""
     lines = [f"Hello {reservation.owner.get_username()},", ""]
     if kind == "confirmed":
         lines.append(f"your booking of {what} is confirmed.")
@@ -48,8 +69,10 @@ def reservation_message(
         lines.append(f"your booking of {what} was approved.")
     elif kind == "rejected":
         lines.append(f"your booking request for {what} was rejected: {reservation.decision_reason}")
-    elif kind == "cancelled_by_admin":
-        lines.append(f"an admin cancelled your booking of {what}: {reservation.cancel_reason}")
+    elif kind in ("cancelled", "cancelled_by_admin"):
+        through = f" {Channel(via).label}" if via in Channel.values else ""
+        reason = f": {reservation.cancel_reason}" if reservation.cancel_reason else "."
+        lines.append(f"{who} cancelled your booking of {what}{through}{reason}")
     elif kind == "blackout_conflict" and blackout is not None:
         lines.append(
             f"a maintenance window, “{blackout.reason}”, overlaps your booking of {what}. "
@@ -65,14 +88,17 @@ def reservation_message(
     if reservation.title:
         lines += ["", f"Experiment: {reservation.title}"]
     lines += ["", "— AMazING testbed"]
-    return SUBJECTS[kind].format(what=what), "\n".join(lines)
+    return SUBJECTS[kind].format(what=what, who=who), "\n".join(lines)
 
 
-def reservation_notify(kind: str, reservation_id: int, *, blackout_id: int | None = None) -> int:
-    """Send the e-mail of ``kind``; returns how many were sent."""
-    reservation = Reservation.objects.select_related("owner").get(pk=reservation_id)
+def reservation_notify(
+    kind: str, reservation_id: int, *, blackout_id: int | None = None, via: str = ""
+) -> int:
+    """Send the e-mail of ``kind``; returns how many were sent. ``via``: the
+    :class:`~bookings.choices.Channel` a change came through, when it matters."""
+    reservation = Reservation.objects.select_related("owner", "cancelled_by").get(pk=reservation_id)
     blackout = Blackout.objects.filter(pk=blackout_id).first() if blackout_id else None
-    subject, body = reservation_message(kind, reservation, blackout=blackout)
+    subject, body = reservation_message(kind, reservation, blackout=blackout, via=via)
     recipients = [reservation.owner.email] if reservation.owner.email else []
     if kind in ADMINS_TOO:
         # Admins learn of pending requests and of bookings a maintenance window hits.

@@ -36,7 +36,12 @@ from django.conf import settings
 from django.db.models import F, Q, Value
 from django.utils import timezone
 
-from bookings.choices import RESERVATION_ACTIVE_STATES, ReservationState, ResourceKind
+from bookings.choices import (
+    RESERVATION_ACTIVE_STATES,
+    BookedVia,
+    ReservationState,
+    ResourceKind,
+)
 from bookings.leases import public_id_of
 from bookings.models import Blackout, Reservation, ReservationItem, Resource, SchedulerLease
 from bookings.quotas import quota_violations
@@ -219,6 +224,44 @@ def cancel_problems(*, reservation: Reservation, by: User, reason: str) -> list[
             Problem("reason", "reason", "Say why you cancel someone else's reservation.")
         )
     return problems
+
+
+def attach_problems(
+    *,
+    reservation: Reservation,
+    by: User,
+    now: datetime,
+    has_program: bool,
+    program_owner_id: int,
+) -> list[Problem]:
+    """Why ``by`` may not give ``reservation`` a program now.
+
+    A booking made through the lease API holds its robot without a program; its owner may
+    attach one of their experiments before it starts. ``has_program``: it already has one
+    (which only the runs layer knows). The booking rules then apply as to a new booking.
+    """
+    if reservation.owner_id != by.pk:
+        return [
+            Problem("permission", "", "Only the booking's owner can attach an experiment to it.")
+        ]
+    if program_owner_id != reservation.owner_id:
+        return [Problem("permission", "experiment", "That experiment belongs to someone else.")]
+    if reservation.booked_via != BookedVia.SCHEDULER:
+        return [
+            Problem(
+                "state",
+                "",
+                "Only a booking made through the lease API waits for an experiment; book "
+                "this one's experiment with it.",
+            )
+        ]
+    if has_program:
+        return [Problem("state", "", "This booking already has its experiment.")]
+    if reservation.state not in RESERVATION_ACTIVE_STATES or reservation.start_at <= now:
+        return [
+            Problem("state", "", "An experiment can be attached only before the booking starts.")
+        ]
+    return []
 
 
 def decision_problems(

@@ -23,6 +23,7 @@ from django.utils import timezone
 
 from bookings.choices import (
     BookedVia,
+    Channel,
     ReservationState,
     ResourceKind,
 )
@@ -50,6 +51,7 @@ from bookings.models import (
 from bookings.rules import (
     Problem,
     Program,
+    attach_problems,
     aware_utc,
     booking_problems,
     cancel_problems,
@@ -437,12 +439,62 @@ def reservation_reschedule(
     return locked
 
 
+def reservation_program_attach(
+    *,
+    reservation: Reservation,
+    by: User,
+    program: Program,
+    program_owner_id: int,
+    has_program: bool,
+    ip: str | None = None,
+    now: datetime | None = None,
+) -> Reservation:
+    """Let a booking made through the lease API (it holds its robot without a program) run
+    ``program``: refused as a new booking with it would be, under the same locks.
+
+    The runs layer calls this inside its transaction and makes the run; it says whether the
+    booking has a program already (``has_program``) and who wrote this one.
+    """
+    now = now or timezone.now()
+    with transaction.atomic():
+        locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
+        _refuse(
+            attach_problems(
+                reservation=locked,
+                by=by,
+                now=now,
+                has_program=has_program,
+                program_owner_id=program_owner_id,
+            )
+        )
+        resources = _lock(locked.owner, list(locked.resources.all()))
+        _check(
+            owner=locked.owner,
+            resources=resources,
+            start_at=locked.start_at,
+            end_at=locked.end_at,
+            program=program,
+            now=now,
+            exclude_id=locked.pk,
+            override_reason=locked.override_reason,
+            own_lease_uuid=locked.lease_uuid,
+        )
+        audit_record(actor=by, action="reservation.attach", target=locked, ip=ip)
+    return locked
+
+
 def reservation_cancel(
-    *, reservation: Reservation, by: User, reason: str = "", ip: str | None = None
+    *,
+    reservation: Reservation,
+    by: User,
+    reason: str = "",
+    ip: str | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
     """Cancel a reservation: its resources are free again at once.
 
     A run booked with it is withdrawn by the runs layer, which calls this in its transaction.
+    Cancelled by anyone but its owner, the owner is told by whom and ``via`` what.
     """
     with transaction.atomic():
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
@@ -456,7 +508,7 @@ def reservation_cancel(
         _release_lease_after_commit(locked)
         audit_record(actor=by, action="reservation.cancel", target=locked, ip=ip, reason=reason)
         if by_admin:
-            _notify("cancelled_by_admin", locked.pk)
+            _notify("cancelled", locked.pk, via=via.value if via is not None else "")
     logger.info("reservation %s cancelled by %s", reservation.pk, by.get_username())
     return locked
 

@@ -20,12 +20,19 @@ MAX_RETRIES = 5
     retry_backoff=True,
     max_retries=MAX_RETRIES,
 )
-def reservation_notify(self: Task, kind: str, reservation_id: int, **extra: int) -> None:
+def reservation_notify(
+    self: Task,
+    kind: str,
+    reservation_id: int,
+    *,
+    blackout_id: int | None = None,
+    via: str = "",
+) -> None:
     # Mail servers fail transiently (OSError covers SMTP connection errors); retry those only.
     # A message delivered again (its worker died) finds its claim and sends nothing twice.
     with transaction.atomic():
         if claim_once(task_once_key(self.name, self.request.id)):
-            notifications.reservation_notify(kind, reservation_id, **extra)
+            notifications.reservation_notify(kind, reservation_id, blackout_id=blackout_id, via=via)
 
 
 @shared_task(time_limit=60, soft_time_limit=50)

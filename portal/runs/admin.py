@@ -12,6 +12,7 @@ from django.contrib.admin.helpers import ActionForm
 from django.db.models import QuerySet
 from django.http import HttpRequest
 
+from bookings.choices import Channel
 from core.errors import DomainError
 from portal.runs.models import Run, RunEvent
 from portal.runs.services.booking import booking_cancel
@@ -91,6 +92,7 @@ class RunAdmin(admin.ModelAdmin):
                     reservation=run.reservation,
                     by=request.user,  # type: ignore[arg-type]
                     reason=reason,
+                    via=Channel.ADMIN,
                 )
             except DomainError as exc:
                 self.message_user(request, f"Run {run.pk}: {exc.message}", messages.ERROR)

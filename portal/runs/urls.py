@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.runs.apis import rail, reservations, robot, runs
+from portal.runs.apis import attach, rail, reservations, robot, runs
 
 urlpatterns = [
     path("runs/", runs.RunListApi.as_view(), name="api-runs"),
@@ -23,6 +23,11 @@ urlpatterns = [
         "reservations/<int:pk>/",
         reservations.ReservationDetailApi.as_view(),
         name="api-reservation",
+    ),
+    path(
+        "reservations/<int:pk>/attach/",
+        attach.ReservationAttachApi.as_view(),
+        name="api-reservation-attach",
     ),
     path(
         "reservations/<int:pk>/decision/",

@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.web import console, live, my_runs, roof, views
+from portal.web import attach, console, live, my_runs, roof, timeline, views
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -8,6 +8,9 @@ urlpatterns = [
     path("experiments/<int:pk>/", views.experiment_edit, name="experiment-edit"),
     path("book/", views.book, name="book"),
     path("reservations/<int:pk>/cancel/", views.reservation_cancel_view, name="reservation-cancel"),
+    path(
+        "reservations/<int:pk>/attach/", attach.reservation_attach_view, name="reservation-attach"
+    ),
     path("runs/", my_runs.my_runs, name="my-runs"),
     path("runs/package.zip", my_runs.runs_package, name="runs-package"),
     path("runs/compare/", my_runs.runs_compare, name="runs-compare"),
@@ -18,6 +21,7 @@ urlpatterns = [
     path("runs/<int:pk>/package.zip", views.run_package, name="run-package"),
     path("runs/<int:pk>/again/", views.run_again, name="run-again"),
     path("calendar/", views.calendar_page, name="calendar"),
+    path("calendar/timeline/", timeline.timeline_page, name="timeline"),
     path("calendar/events.json", views.calendar_events, name="calendar-events"),
     path("calendar/feeds/", views.calendar_feeds, name="calendar-feeds"),
     path("calendar/feed/<str:token>.ics", views.ical_personal, name="ical-personal"),

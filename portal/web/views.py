@@ -25,7 +25,7 @@ from bookings.calendar import (
     calendar_feed_renew,
     ical_document,
 )
-from bookings.choices import ReservationState
+from bookings.choices import Channel, ReservationState
 from bookings.leases import scheduler_link_status, scheduler_overview
 from bookings.models import CalendarFeed, Reservation, Resource
 from bookings.quotas import quota_summary
@@ -61,6 +61,7 @@ from portal.runs.services.collection import missing_described
 from portal.runs.services.health import robots_held
 from portal.runs.services.robot import HOLD_REPEAT_MS, HOLD_TTL_S
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
+from portal.web.builder import builder_context
 from portal.web.forms import BookingForm, ExperimentForm, PassForm
 
 
@@ -142,7 +143,9 @@ def experiment_edit(request: HttpRequest, pk: int | None = None) -> HttpResponse
     while len(rows) < 3:
         rows.append({"velocity_mps": "", "direction": "cw", "duration_s": ""})
     return render(
-        request, "web/experiment_form.html", {"form": form, "rows": rows, "experiment": experiment}
+        request,
+        "web/experiment_form.html",
+        {"form": form, "rows": rows, "experiment": experiment, "builder": builder_context()},
     )
 
 
@@ -182,6 +185,7 @@ def reservation_cancel_view(request: HttpRequest, pk: int) -> HttpResponse:
                 by=_user(request),
                 reason=request.POST.get("reason", ""),
                 ip=client_ip(request),
+                via=Channel.WEB,
             )
         except DomainError as exc:
             messages.error(request, exc.message)

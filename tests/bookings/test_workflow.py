@@ -146,7 +146,8 @@ def test_an_admin_cancelling_someone_elses_booking_tells_them_why(
     )
     with django_capture_on_commit_callbacks(execute=True):
         booking_cancel(reservation=reservation, by=admin_user, reason="storm warning")
-    assert mail.outbox[-1].subject.startswith("Your booking was cancelled by an admin")
+    assert mail.outbox[-1].subject.startswith("Your booking was cancelled by charlie (an admin)")
+    assert "charlie (an admin) cancelled your booking" in mail.outbox[-1].body
     assert "storm warning" in mail.outbox[-1].body
 
 

@@ -19,7 +19,7 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from bookings.choices import ReservationState
+from bookings.choices import Channel, ReservationState
 from bookings.models import CALENDAR, Reservation, ReservationItem, Resource
 from bookings.rules import PROBLEM_CODES
 from core.accounts.models import User
@@ -315,6 +315,7 @@ class ReservationDetailApi(APIView):
             by=request_user(request),
             reason=data["reason"],
             ip=client_ip(request),
+            via=Channel.API,
         )
         return Response(ReservationOutput(reservation).data)
 

@@ -18,6 +18,7 @@ from django.conf import settings
 from django.db import transaction
 from django.utils import timezone
 
+from bookings.choices import Channel
 from bookings.leases import lease_release
 from bookings.models import Reservation, Resource
 from bookings.selectors import resource_first_free
@@ -27,6 +28,7 @@ from bookings.services import (
     reservation_check,
     reservation_create,
     reservation_decide,
+    reservation_program_attach,
     reservation_reschedule,
 )
 from core.accounts.models import User
@@ -170,6 +172,32 @@ def _book_repeat(
     return reservation
 
 
+def booking_attach(
+    *,
+    reservation: Reservation,
+    experiment: Experiment,
+    by: User,
+    ip: str | None = None,
+    now: datetime | None = None,
+) -> Run:
+    """Attach ``experiment`` to a booking made through the lease API, before it starts: its
+    robot runs it then. Every booking rule applies, as to a booking made with it."""
+    with transaction.atomic():
+        # Reservation first, then run: the order every path that takes both locks uses.
+        locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
+        attached = reservation_program_attach(
+            reservation=locked,
+            by=by,
+            program=experiment,
+            program_owner_id=experiment.owner_id,
+            has_program=Run.objects.filter(reservation=locked).exists(),
+            ip=ip,
+            now=now,
+        )
+        mobile = next(r for r in attached.resources.all() if r.is_mobile)
+        return run_create(reservation=attached, resource=mobile, experiment=experiment, by=by)
+
+
 def booking_reschedule(
     *,
     reservation: Reservation,
@@ -219,11 +247,18 @@ def _withdraw_run(reservation: Reservation, *, reason: str, by: User) -> None:
 
 
 def booking_cancel(
-    *, reservation: Reservation, by: User, reason: str = "", ip: str | None = None
+    *,
+    reservation: Reservation,
+    by: User,
+    reason: str = "",
+    ip: str | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
-    """Cancel a booking and withdraw its run."""
+    """Cancel a booking and withdraw its run (``via``: where it was cancelled, for its owner)."""
     with transaction.atomic():
-        cancelled = reservation_cancel(reservation=reservation, by=by, reason=reason, ip=ip)
+        cancelled = reservation_cancel(
+            reservation=reservation, by=by, reason=reason, ip=ip, via=via
+        )
         _withdraw_run(cancelled, reason=reason or f"cancelled by {by.get_username()}", by=by)
     return cancelled
 

@@ -103,6 +103,18 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
     run = _load(run_id)
     if run is None or run.state != RunState.SCHEDULED:
         return
+    if run.reservation.state in (ReservationState.CANCELLED, ReservationState.REJECTED):
+        # Cancelled where the runs layer does not see it (the lease API, for a booking made
+        # there and given an experiment later): the run goes with its booking.
+        run_transition(
+            run_id=run.pk,
+            to_state=RunState.CANCELLED,
+            cause=Cause.BOOKING,
+            from_states=[RunState.SCHEDULED],
+            reason=f"its booking was {run.reservation.get_state_display()}",
+            by=run.reservation.cancelled_by,
+        )
+        return
     confirmed = run.reservation.state == ReservationState.CONFIRMED
     if not confirmed and run.end_at > now:
         return  # awaiting approval: staged once an admin confirms it

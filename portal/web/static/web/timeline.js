@@ -1,0 +1,317 @@
+// The resource timeline: Event Calendar's resource timeline, one row per robot and fixed node.
+// A drag across several rows books them together; the live check answers while dragging.
+//
+// Times: Event Calendar knows UTC offsets only, not zones, so everything it is given and gives
+// back is wall-clock time in the testbed's zone ("floating"), converted with luxon at the edges.
+(function () {
+  "use strict";
+  const el = document.getElementById("timeline");
+  if (!el || typeof EventCalendar === "undefined") return;
+  const zone = el.dataset.zone;
+  const DateTime = luxon.DateTime;
+  const csrf = document.querySelector("[name=csrfmiddlewaretoken]").value;
+  const rows = JSON.parse(document.getElementById("timeline-rows").textContent);
+  const leaves = rows.flatMap((group) => group.children);
+  const order = leaves.map((r) => r.id); // rows top to bottom: a drag takes those between
+  const byId = new Map(leaves.map((r) => [r.id, r]));
+  const checkLine = document.getElementById("timeline-check");
+  const dialog = document.getElementById("timeline-dialog");
+  const form = document.getElementById("timeline-form");
+  const feedback = document.getElementById("timeline-feedback");
+  const FLOATING = "yyyy-LL-dd'T'HH:mm:ss";
+  const SLOT_MIN = 30;
+
+  async function api(method, url, body, extraHeaders) {
+    const response = await fetch(url, {
+      method,
+      headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" }, extraHeaders || {}),
+      body: body === undefined ? undefined : JSON.stringify(body),
+      credentials: "same-origin",
+    });
+    let data = null;
+    try { data = await response.json(); } catch (e) { data = null; }
+    return { ok: response.ok, status: response.status, data };
+  }
+
+  function explain(data) {
+    if (!data) return "The server did not answer clearly; try again.";
+    const parts = [data.detail || ""];
+    if (data.fields) {
+      for (const [field, messages] of Object.entries(data.fields)) {
+        for (const m of [].concat(messages)) if (m && m !== data.detail) parts.push(field === "quota" ? m : `${field}: ${m}`);
+      }
+    }
+    return parts.filter(Boolean).join(" ");
+  }
+
+  // Event Calendar's dates carry the testbed's wall-clock time in the browser's fields.
+  const wall = (d) => DateTime.fromObject(
+    { year: d.getFullYear(), month: d.getMonth() + 1, day: d.getDate(), hour: d.getHours(), minute: d.getMinutes() },
+    { zone },
+  );
+  const floating = (iso) => DateTime.fromISO(iso, { zone }).toFormat(FLOATING);
+  const toLocalInput = (dt) => dt.toFormat("yyyy-LL-dd'T'HH:mm");
+  const fromLocalInput = (value) => DateTime.fromISO(value, { zone }).toISO();
+  const shown = (dt) => dt.toFormat("ccc d LLL HH:mm");
+
+  // --- What the rows hold --------------------------------------------------------------------
+  const colours = { own: "#1e6fb8", other: "#7a5195", busy: "#8a8f98", blackout: "#c62828", lease: "#b26a00", hold: "#5d4037" };
+  function rowsOf(names) {
+    return names.includes("all") ? order.slice() : names.filter((n) => byId.has(n));
+  }
+  function toEvent(e) {
+    const props = e.extendedProps;
+    return {
+      id: e.id,
+      title: e.title,
+      start: floating(e.start),
+      end: floating(e.end),
+      resourceIds: rowsOf(props.resources),
+      backgroundColor: colours[props.kind],
+      editable: false,
+      classNames: [`timeline-${props.kind}`],
+      extendedProps: props,
+    };
+  }
+  function holdEvents(range) {
+    // A robot held by its health check stays out of service until an admin releases it.
+    return leaves.filter((r) => r.extendedProps.hold_reason).map((r) => ({
+      id: `hold-${r.id}`,
+      title: `Out of service: ${r.extendedProps.hold_reason}`,
+      start: r.extendedProps.held_at ? floating(r.extendedProps.held_at) : range.start,
+      end: range.end,
+      resourceIds: [r.id],
+      backgroundColor: colours.hold,
+      editable: false,
+      classNames: ["timeline-hold"],
+      extendedProps: { kind: "hold", resources: [r.id] },
+    }));
+  }
+  async function load(info) {
+    const range = { start: DateTime.fromISO(info.startStr, { zone }), end: DateTime.fromISO(info.endStr, { zone }) };
+    const params = new URLSearchParams({ start: range.start.toISO(), end: range.end.toISO() });
+    const response = await fetch(`${el.dataset.events}?${params}`, { credentials: "same-origin" });
+    if (!response.ok) throw new Error(response.statusText);
+    const entries = await response.json();
+    return entries.map(toEvent).concat(holdEvents({ start: info.startStr, end: info.endStr }));
+  }
+
+  // --- Dragging across rows ------------------------------------------------------------------
+  const labels = new Map();
+  let drag = null; // {first, last, start, end}: rows and wall-clock times under the pointer
+  let checkTimer = null;
+  let checkSeq = 0;
+
+  function pointAt(x, y) {
+    const info = calendar.dateFromPoint(x, y);
+    if (!info || !info.resource || !byId.has(String(info.resource.id))) return null;
+    return { row: String(info.resource.id), at: wall(info.date) };
+  }
+  function dragRows() {
+    const a = order.indexOf(drag.first);
+    const b = order.indexOf(drag.last);
+    return order.slice(Math.min(a, b), Math.max(a, b) + 1);
+  }
+  function slotFloor(dt) { return dt.set({ minute: dt.minute - (dt.minute % SLOT_MIN), second: 0, millisecond: 0 }); }
+  function dragTimes() {
+    const a = slotFloor(drag.from);
+    const b = slotFloor(drag.to);
+    return a <= b ? [a, b.plus({ minutes: SLOT_MIN })] : [b, a.plus({ minutes: SLOT_MIN })];
+  }
+  function markRows(names) {
+    for (const [name, label] of labels) label.classList.toggle("timeline-picked", names.includes(name));
+  }
+
+  // The same rules booking applies, asked again whenever the dragged rows or times change.
+  async function check(resources, start, end, experiment, target) {
+    const seq = ++checkSeq;
+    const body = { resources, start_at: start.toISO(), end_at: end.toISO() };
+    if (experiment) body.experiment = experiment;
+    const result = await api("POST", "/api/v1/reservations/check/", body);
+    if (seq !== checkSeq) return; // a newer drag has asked since
+    let text;
+    let fits = false;
+    if (!result.ok) text = explain(result.data);
+    else {
+      const d = result.data;
+      fits = d.fits;
+      const problems = d.problems.flatMap((p) => (p.code === "quota" ? d.quota : [p.message]));
+      text = d.fits ? "Free, and within your quota." : problems.join(" ");
+      if (d.fits && d.needs_approval) text += " An admin will confirm it.";
+      if (d.notice) text += " " + d.notice;
+    }
+    target.textContent = target === checkLine ? `${resources.join(", ")} · ${shown(start)}–${end.toFormat("HH:mm")}: ${text}` : text;
+    target.className = (target === checkLine ? "timeline-check " : "") + (fits ? "ok" : "error");
+    target.dataset.fits = String(fits);
+  }
+  function checkDrag() {
+    const resources = dragRows();
+    const [start, end] = dragTimes();
+    markRows(resources);
+    clearTimeout(checkTimer);
+    // A robot is booked with its experiment: while dragging, say only what else is wrong.
+    checkTimer = setTimeout(() => check(resources, start, end, null, checkLine), 200);
+  }
+
+  el.addEventListener("pointerdown", (event) => {
+    const point = event.button === 0 ? pointAt(event.clientX, event.clientY) : null;
+    drag = point && { first: point.row, last: point.row, from: point.at, to: point.at };
+  });
+  document.addEventListener("pointermove", (event) => {
+    if (!drag || !(event.buttons & 1)) return;
+    const point = pointAt(event.clientX, event.clientY);
+    if (!point) return;
+    const [oldStart, oldEnd] = dragTimes();
+    const oldLast = drag.last;
+    drag.last = point.row;
+    drag.to = point.at;
+    const [start, end] = dragTimes();
+    if (oldLast !== drag.last || +oldStart !== +start || +oldEnd !== +end) checkDrag();
+  });
+
+  // --- The booking dialog --------------------------------------------------------------------
+  function bookingBody() {
+    const resources = Array.from(form.querySelectorAll("input[name=resources]:checked")).map((i) => i.value);
+    const body = { resources, start_at: fromLocalInput(form.start.value), end_at: fromLocalInput(form.end.value) };
+    if (form.experiment.value) body.experiment = Number(form.experiment.value);
+    if (form.title.value) body.title = form.title.value;
+    return body;
+  }
+  let dialogTimer = null;
+  function checkDialog() {
+    const body = bookingBody();
+    if (!body.resources.length || !body.start_at || !body.end_at) {
+      feedback.textContent = "Choose at least one resource.";
+      feedback.className = "";
+      return;
+    }
+    clearTimeout(dialogTimer);
+    dialogTimer = setTimeout(() => check(
+      body.resources, DateTime.fromISO(body.start_at), DateTime.fromISO(body.end_at), body.experiment, feedback,
+    ), 150);
+  }
+  form.addEventListener("change", checkDialog);
+
+  function openBooking(resources, start, end) {
+    form.reset();
+    for (const box of form.querySelectorAll("input[name=resources]")) box.checked = resources.includes(box.value);
+    form.start.value = toLocalInput(start);
+    form.end.value = toLocalInput(end);
+    feedback.textContent = "";
+    dialog.showModal();
+    checkDialog();
+  }
+  function closeBooking() {
+    dialog.close();
+    calendar.unselect();
+    markRows([]);
+    checkSeq += 1; // an answer still on its way is for a drag that is over
+    checkLine.textContent = "";
+    checkLine.className = "timeline-check";
+  }
+  document.getElementById("timeline-close").addEventListener("click", closeBooking);
+
+  function flash(text) {
+    let box = document.getElementById("timeline-flash");
+    if (!box) {
+      box = document.createElement("p");
+      box.id = "timeline-flash";
+      box.className = "flash";
+      box.setAttribute("role", "status");
+      el.parentNode.insertBefore(box, el);
+    }
+    box.textContent = text;
+  }
+
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const button = document.getElementById("timeline-confirm");
+    button.setAttribute("aria-busy", "true");
+    button.disabled = true;
+    const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
+    const result = await api("POST", "/api/v1/reservations/", bookingBody(), { "X-Idempotency-Key": key });
+    button.removeAttribute("aria-busy");
+    button.disabled = false;
+    if (result.ok) {
+      closeBooking();
+      calendar.refetchEvents();
+      flash(result.data.state === "requested" ? "Requested: an admin will confirm it." : "Booked.");
+    } else {
+      feedback.textContent = explain(result.data);
+      feedback.className = "error";
+    }
+  });
+
+  // --- The calendar --------------------------------------------------------------------------
+  const narrow = window.matchMedia("(max-width: 640px)").matches;
+  const calendar = EventCalendar.create(el, {
+    view: "resourceTimelineDay",
+    // The offset in force now; the events' times are floating wall-clock times (see above).
+    timeZone: DateTime.now().setZone(zone).toFormat("ZZ"),
+    headerToolbar: { start: "prev,next today", center: "title", end: narrow ? "" : "resourceTimelineDay,resourceTimelineWeek" },
+    resources: rows,
+    firstDay: 1,
+    nowIndicator: true,
+    selectable: true,
+    editable: false,
+    slotDuration: { minutes: SLOT_MIN },
+    slotWidth: narrow ? 36 : 44,
+    scrollTime: "08:00:00",
+    height: "auto",
+    slotLabelFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
+    eventTimeFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
+    eventSources: [{ events: load }],
+    // data-loading="false" once the shown range's entries are in (tests and assistive
+    // technology wait on it).
+    loading: (busy) => { el.dataset.loading = busy ? "true" : "false"; el.setAttribute("aria-busy", String(busy)); },
+    resourceLabelDidMount: (info) => {
+      const id = String(info.resource.id);
+      if (!byId.has(id)) return;
+      labels.set(id, info.el);
+      info.el.dataset.resource = id;
+      const hold = byId.get(id).extendedProps.hold_reason;
+      info.el.classList.toggle("timeline-held", Boolean(hold));
+      if (hold) info.el.title = `Out of service: ${hold}`;
+    },
+    eventDidMount: (info) => {
+      info.el.title = info.event.title;
+      info.el.dataset.kind = info.event.extendedProps.kind || "";
+    },
+    eventClick: (info) => {
+      if (info.event.extendedProps.url) window.location.assign(info.event.extendedProps.url);
+    },
+    select: (info) => {
+      // Event Calendar selects time in one row; the rows are the ones the drag crossed.
+      const resources = drag ? dragRows() : [String(info.resource.id)];
+      drag = null;
+      openBooking(resources, wall(info.start), wall(info.end));
+    },
+  });
+  el.dataset.ready = "true";
+
+  // Holds and others' bookings appear without a reload (several changes in a burst cause one read).
+  function onHold(hold) {
+    const row = byId.get(hold.resource);
+    if (!row) return;
+    row.extendedProps.hold_reason = hold.reason || "";
+    row.extendedProps.held_at = hold.reason ? hold.held_at : null;
+    const label = labels.get(hold.resource);
+    if (label) {
+      label.classList.toggle("timeline-held", Boolean(hold.reason));
+      label.title = hold.reason ? `Out of service: ${hold.reason}` : "";
+    }
+    calendar.refetchEvents();
+    if (dialog.open) checkDialog();
+  }
+  let refetchTimer = null;
+  function onChanged() {
+    clearTimeout(refetchTimer);
+    refetchTimer = setTimeout(() => calendar.refetchEvents(), 300);
+  }
+  liveFollow(el.dataset.stream, {
+    events: { changed: onChanged, hold: onHold },
+    poll: () => calendar.refetchEvents(),
+    pollMs: 30000,
+    indicator: document.getElementById("live-status"),
+  });
+})();

@@ -1,0 +1,187 @@
+"""The experiment builder in Chromium: limits checked while typing, the velocity profile's
+distance, laps and end position, reordering, cloning, and the files the CLI reads."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+from playwright.sync_api import Page, expect
+
+from portal.experiments.models import Experiment
+from tests.browser.conftest import SCREENSHOTS, login
+from tests.factories import MobileResourceFactory, UserFactory
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+PASSWORD = "correct horse battery"
+ACCEL_MPS2 = 1.0
+RAIL_M = 5.0
+
+
+def _travel(segments: list[tuple[float, str, float]], accel_mps2: float) -> tuple[float, float]:
+    """Distance and signed displacement (cw +) of the robot slewing its velocity at
+    ``accel_mps2`` towards each segment's, then to a stop: integrated in small steps, apart
+    from the page's exact arithmetic."""
+    step_s = 1e-4
+    v = distance = displacement = 0.0
+    targets = [((1 if d == "cw" else -1) * mps, s) for mps, d, s in segments]
+
+    def drive(target: float, for_s: float | None) -> None:
+        nonlocal v, distance, displacement
+        elapsed = 0.0
+        while (elapsed < for_s - step_s / 2) if for_s is not None else abs(v) > 1e-12:
+            dv = max(-accel_mps2 * step_s, min(accel_mps2 * step_s, target - v))
+            mean = v + dv / 2
+            v += dv
+            distance += abs(mean) * step_s
+            displacement += mean * step_s
+            elapsed += step_s
+
+    for target, duration_s in targets:
+        drive(target, duration_s)
+    drive(0.0, None)
+    return distance, displacement
+
+
+def _fill(page: Page, segments: list[tuple[float, str, float]]) -> None:
+    rows = page.locator("#segments tbody tr")
+    while rows.count() < len(segments):
+        page.get_by_role("button", name="Add segment").click()
+    for i, (mps, direction, duration_s) in enumerate(segments):
+        row = rows.nth(i)
+        row.get_by_label("velocity in m/s").fill(str(mps))
+        row.get_by_label("direction").select_option(direction)
+        row.get_by_label("duration in s").fill(str(duration_s))
+
+
+def _segments_shown(page: Page) -> list[tuple[str, str, str]]:
+    rows = page.locator("#segments tbody tr")
+    return [
+        (
+            rows.nth(i).get_by_label("velocity in m/s").input_value(),
+            rows.nth(i).get_by_label("direction").input_value(),
+            rows.nth(i).get_by_label("duration in s").input_value(),
+        )
+        for i in range(rows.count())
+    ]
+
+
+@pytest.fixture
+def page(browser, live_server):
+    UserFactory(username="kim")
+    MobileResourceFactory(max_velocity_mps=1.5, max_accel_mps2=ACCEL_MPS2)
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    login(page, live_server.url, "kim", PASSWORD)
+    page.goto(f"{live_server.url}/experiments/new/")
+    yield page
+    assert not errors, errors
+    context.close()
+
+
+def test_the_builder_checks_limits_and_previews_distance_laps_and_end(page):
+    expect(page.get_by_test_id("builder-limits")).to_have_text(
+        "mobile-1: at most 1.50 m/s, ramps at 1.00 m/s²."
+    )
+    page.get_by_label("Title").fill("there and back")
+    program = [(1.0, "cw", 10.0), (0.5, "ccw", 6.0)]
+    _fill(page, program)
+    page.get_by_label("rail length in m").fill(str(RAIL_M))
+    distance_m, displacement_m = _travel(program, ACCEL_MPS2)
+    expect(page.get_by_test_id("builder-duration")).to_have_text("16.0 s")
+    expect(page.get_by_test_id("builder-distance")).to_have_text(f"{distance_m:.2f} m")
+    expect(page.get_by_test_id("builder-laps")).to_have_text(f"{distance_m / RAIL_M:.2f}")
+    expect(page.get_by_test_id("builder-end")).to_have_text(
+        f"{displacement_m % RAIL_M:.2f} m clockwise from the start"
+    )
+    expect(page.get_by_test_id("builder-problems")).to_have_text("")
+    # The reversal's ramp is shown beside its segment.
+    expect(page.locator("#segments tbody tr").nth(1).locator(".segment-note")).to_have_text(
+        "Ramps for 1.50 s."
+    )
+    page.screenshot(path=str(SCREENSHOTS / "experiment-builder.png"), full_page=True)
+
+    # Over the robot's limit, and too short to reach its velocity: said while typing.
+    rows = page.locator("#segments tbody tr")
+    rows.nth(0).get_by_label("velocity in m/s").fill("2")
+    problems = page.get_by_test_id("builder-problems")
+    expect(problems).to_contain_text("Segment 1: 2.00 m/s is above mobile-1's 1.50 m/s.")
+    expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_attribute("aria-invalid", "true")
+    expect(page.get_by_test_id("builder-distance")).to_have_text("—")
+    rows.nth(0).get_by_label("velocity in m/s").fill("1.2")
+    rows.nth(0).get_by_label("duration in s").fill("0.5")
+    expect(problems).to_contain_text(
+        "Segment 1: too short to reach 1.20 m/s (needs 1.20 s of ramp)."
+    )
+    expect(rows.nth(0).locator(".segment-note")).to_contain_text("Reaches only 0.50 m/s")
+
+
+def test_segments_reorder_by_keyboard_and_drag_clone_and_round_trip_as_files(
+    page, tmp_path, live_server
+):
+    page.get_by_label("Title").fill("three steps")
+    _fill(page, [(0.2, "cw", 1.0), (0.4, "ccw", 2.0), (0.6, "cw", 3.0)])
+    rows = page.locator("#segments tbody tr")
+    rows.nth(2).get_by_label("duration in s").press("Alt+ArrowUp")
+    assert _segments_shown(page)[:3] == [
+        ("0.2", "cw", "1.0"),
+        ("0.6", "cw", "3.0"),
+        ("0.4", "ccw", "2.0"),
+    ]
+    rows.nth(0).get_by_role("button", name="move segment down").click()
+    assert _segments_shown(page)[:3] == [
+        ("0.6", "cw", "3.0"),
+        ("0.2", "cw", "1.0"),
+        ("0.4", "ccw", "2.0"),
+    ]
+    rows.nth(2).locator(".index").drag_to(rows.nth(0).locator(".index"))
+    expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_value("0.4")
+    rows.nth(1).get_by_role("button", name="clone segment").click()
+    assert _segments_shown(page) == [
+        ("0.4", "ccw", "2.0"),
+        ("0.6", "cw", "3.0"),
+        ("0.6", "cw", "3.0"),
+        ("0.2", "cw", "1.0"),
+    ]
+    expect(page.locator("#segments tbody tr .index")).to_have_text(["1", "2", "3", "4"])
+
+    with page.expect_download() as exported:
+        page.get_by_role("button", name="Download JSON").click()
+    saved = json.loads(exported.value.path().read_text())
+    assert saved == {
+        "title": "three steps",
+        "segments": [
+            {"velocity_mps": 0.4, "direction": "ccw", "duration_s": 2},
+            {"velocity_mps": 0.6, "direction": "cw", "duration_s": 3},
+            {"velocity_mps": 0.6, "direction": "cw", "duration_s": 3},
+            {"velocity_mps": 0.2, "direction": "cw", "duration_s": 1},
+        ],
+    }
+    with page.expect_download() as exported_yaml:
+        page.get_by_role("button", name="Download YAML").click()
+    assert yaml.safe_load(exported_yaml.value.path().read_text()) == saved
+
+    # A file the CLI reads comes back in; a broken one changes nothing.
+    good = tmp_path / "loop.yaml"
+    good.write_text(
+        "title: loop\nsegments:\n  - {velocity_mps: 0.5, direction: cw, duration_s: 60}\n"
+        "  - {velocity_mps: 0.8, direction: ccw, duration_s: 30}\n"
+    )
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"title": "x", "segments": [{"velocity_mps": -1, "direction": "cw"}]}')
+    page.locator("#builder-import").set_input_files(str(bad))
+    expect(page.locator("#builder-import-status")).to_contain_text(
+        "bad.json was not imported: segments.0.velocity_mps"
+    )
+    assert len(_segments_shown(page)) == 4
+    page.locator("#builder-import").set_input_files(str(good))
+    expect(page.locator("#builder-import-status")).to_contain_text("Imported loop.yaml: 2 segments")
+    assert _segments_shown(page) == [("0.5", "cw", "60"), ("0.8", "ccw", "30")]
+    expect(page.get_by_label("Title")).to_have_value("loop")
+    page.get_by_role("button", name="Save experiment").click()
+    expect(page.get_by_text("Experiment “loop” saved.")).to_be_visible()
+    saved_experiment = Experiment.objects.get(title="loop")
+    assert [s["velocity_mps"] for s in saved_experiment.segments] == [0.5, 0.8]

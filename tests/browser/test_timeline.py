@@ -1,0 +1,229 @@
+"""The resource timeline in Chromium: every robot and fixed node a row; a drag across rows
+books them together, with the live check answering while dragging."""
+
+from __future__ import annotations
+
+import re
+from datetime import date, datetime, timedelta
+from zoneinfo import ZoneInfo
+
+import pytest
+import requests
+from django.conf import settings
+from django.utils import timezone
+from playwright.sync_api import Page, expect
+
+from bookings.models import Blackout, Reservation, SchedulerLease
+from tests.browser.conftest import SCREENSHOTS, login
+from tests.factories import (
+    ExperimentFactory,
+    FixedResourceFactory,
+    MobileResourceFactory,
+    UserFactory,
+)
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+PASSWORD = "correct horse battery"
+
+
+def _tomorrow() -> date:
+    """A day whose every slot is in the future, whenever the test runs."""
+    return (timezone.now().astimezone(ZoneInfo(settings.TIME_ZONE)) + timedelta(days=1)).date()
+
+
+def _open_day(page: Page, web: str, day: date) -> None:
+    page.goto(f"{web}/calendar/timeline/")
+    expect(page.locator("#timeline[data-loading=false]")).to_be_attached()
+    page.locator(".ec-next").first.click()
+    expect(page.locator(f".ec-col-head time[datetime='{day.isoformat()}']")).to_be_visible()
+    expect(page.locator("#timeline[data-loading=false]")).to_be_attached()
+
+
+def _slot_x(page: Page, day: date, hour: int) -> float:
+    """The left edge of ``hour``:00 on ``day`` in the timeline's header."""
+    box = page.locator(f".ec-slots time[datetime='{day.isoformat()}T{hour:02d}:00:00']")
+    box.scroll_into_view_if_needed()
+    bounds = box.locator("xpath=..").bounding_box()
+    assert bounds
+    return bounds["x"]
+
+
+def _row_y(page: Page, name: str) -> float:
+    label = page.locator(f"[data-resource='{name}']")
+    bounds = page.locator(".ec-row-head", has=label).bounding_box()
+    assert bounds
+    return bounds["y"] + bounds["height"] / 2
+
+
+def _drag(page: Page, day: date, hours: tuple[int, int], rows: tuple[str, str]) -> None:
+    """Press in the first row at the first hour, let go in the last row before the second."""
+    x0 = _slot_x(page, day, hours[0]) + 4
+    x1 = _slot_x(page, day, hours[1]) - 4
+    y0, y1 = _row_y(page, rows[0]), _row_y(page, rows[1])
+    page.mouse.move(x0, y0)
+    page.mouse.down()
+    page.mouse.move((x0 + x1) / 2, (y0 + y1) / 2, steps=6)
+    page.mouse.move(x1, y1, steps=6)
+
+
+def _broker_leases(standin: str) -> list[dict]:
+    answer = requests.get(
+        f"{standin}/resources/leases",
+        params={"status": "pending,accepted,active,past,cancelled"},
+        timeout=10,
+    )
+    if answer.status_code == 404:
+        return []
+    return answer.json()["resource_response"]["resources"]
+
+
+def test_a_drag_over_the_robot_and_two_nodes_books_them_in_one_lease(browser, stack_with_scheduler):
+    stack = stack_with_scheduler
+    user = UserFactory(username="hana")
+    MobileResourceFactory(agent_url=stack.agent_url)
+    for name in ("node-01", "node-02", "node-03"):
+        FixedResourceFactory(name=name)
+    ExperimentFactory(owner=user, title="loop test")
+    context = browser.new_context(
+        viewport={"width": 1280, "height": 1000}, timezone_id=settings.TIME_ZONE
+    )
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    refused: list[str] = []
+    page.on("console", lambda m: "Content Security Policy" in m.text and refused.append(m.text))
+    login(page, stack.web, "hana", PASSWORD)
+    page.get_by_role("link", name="Timeline").click()
+    expect(page.get_by_test_id("timeline-zone")).to_have_text(settings.TIME_ZONE)
+    day = _tomorrow()
+    _open_day(page, stack.web, day)
+
+    _drag(page, day, (10, 11), ("mobile-1", "node-02"))
+    # While the button is still down, the live check has answered for all three rows: the
+    # robot still needs its experiment, chosen in the dialog.
+    check = page.get_by_test_id("timeline-check")
+    expect(check).to_contain_text("mobile-1, node-01, node-02")
+    expect(check).to_contain_text("Choose the experiment the robot will run.")
+    page.mouse.up()
+
+    dialog = page.locator("#timeline-dialog")
+    expect(dialog).to_be_visible()
+    expect(dialog.get_by_label("Start")).to_have_value(f"{day.isoformat()}T10:00")
+    expect(dialog.get_by_label("End")).to_have_value(f"{day.isoformat()}T11:00")
+    for name in ("mobile-1", "node-01", "node-02"):
+        expect(dialog.get_by_label(name)).to_be_checked()
+    expect(dialog.get_by_label("node-03")).not_to_be_checked()
+    dialog.get_by_label("experiment").select_option(label="loop test (6 s)")
+    expect(page.locator("#timeline-feedback")).to_contain_text("Free, and within your quota")
+    dialog.get_by_role("button", name="Confirm booking").click()
+    expect(dialog).to_be_hidden()
+    expect(page.locator(".ec-event", has_text="loop test")).to_have_count(3)  # one per row
+
+    reservation = Reservation.objects.get()
+    assert sorted(i.resource.name for i in reservation.items.all()) == [
+        "mobile-1",
+        "node-01",
+        "node-02",
+    ]
+    assert reservation.run.experiment.title == "loop test"
+    zone = ZoneInfo(settings.TIME_ZONE)
+    assert reservation.start_at == datetime(day.year, day.month, day.day, 10, tzinfo=zone)
+    assert reservation.end_at == datetime(day.year, day.month, day.day, 11, tzinfo=zone)
+    [lease] = [x for x in _broker_leases(stack.standin) if x["status"] in ("accepted", "active")]
+    assert sorted(c["name"] for c in lease["components"]) == ["node-01", "node-02"]
+    assert lease["uuid"] == reservation.lease_uuid
+    page.screenshot(path=str(SCREENSHOTS / "timeline.png"))
+    assert not errors, errors
+    assert not refused, refused
+    context.close()
+
+
+def test_the_timeline_shows_leases_maintenance_and_holds_on_their_rows(browser, live_server):
+    UserFactory(username="ines")
+    MobileResourceFactory(
+        held_at=timezone.now() - timedelta(hours=1), hold_reason="battery below 11.0 V"
+    )
+    node1 = FixedResourceFactory(name="node-01")
+    node2 = FixedResourceFactory(name="node-02")
+    day = _tomorrow()
+    zone = ZoneInfo(settings.TIME_ZONE)
+    at = datetime(day.year, day.month, day.day, tzinfo=zone)
+    lease = SchedulerLease.objects.create(
+        uuid="lease-elsewhere",
+        name="mesh survey",
+        start_at=at + timedelta(hours=9),
+        end_at=at + timedelta(hours=12),
+        status="accepted",
+        components=["node-01"],
+        holds=True,
+        seen_at=timezone.now(),
+    )
+    lease.resources.add(node1)
+    blackout = Blackout.objects.create(
+        start_at=at + timedelta(hours=14), end_at=at + timedelta(hours=16), reason="new antennas"
+    )
+    blackout.resources.add(node2)
+    context = browser.new_context(
+        viewport={"width": 1280, "height": 1000}, timezone_id=settings.TIME_ZONE
+    )
+    page = context.new_page()
+    login(page, live_server.url, "ines", PASSWORD)
+    _open_day(page, live_server.url, day)
+
+    rows = page.locator(".ec-body .ec-grid .ec-day")
+    # The rows: the robots' group, mobile-1, the fixed nodes' group, node-01, node-02.
+    expect(page.locator(".ec-row-head")).to_contain_text(
+        ["Robots", "mobile-1", "Fixed nodes", "node-01", "node-02"]
+    )
+    lease_event = page.locator(".ec-event[data-kind='lease']")
+    expect(lease_event).to_contain_text("mesh survey")
+    maintenance = page.locator(".ec-event[data-kind='blackout']")
+    expect(maintenance).to_contain_text("new antennas")
+    hold = page.locator(".ec-event[data-kind='hold']")
+    expect(hold).to_contain_text("battery below 11.0 V")
+    expect(page.locator("[data-resource='mobile-1']")).to_have_class(
+        re.compile(r"\btimeline-held\b")
+    )
+
+    def row_of(event_box: dict) -> int:
+        middle = event_box["y"] + event_box["height"] / 2
+        for index in range(rows.count()):
+            box = rows.nth(index).bounding_box()
+            assert box
+            if box["y"] <= middle < box["y"] + box["height"]:
+                return index
+        raise AssertionError("the event is on no row")
+
+    for locator, row in ((lease_event, 3), (maintenance, 4), (hold, 1)):
+        box = locator.bounding_box()
+        assert box
+        assert row_of(box) == row
+
+    # Dragging into the maintenance window says so before anything is booked.
+    _drag(page, day, (14, 15), ("node-01", "node-02"))
+    check = page.get_by_test_id("timeline-check")
+    expect(check).to_contain_text("node-01, node-02")
+    expect(check).to_contain_text("new antennas")
+    expect(check).to_have_attribute("data-fits", "false")
+    page.mouse.up()
+    expect(page.locator("#timeline-dialog")).to_be_visible()
+    assert not Reservation.objects.exists()
+    context.close()
+
+
+def test_the_timeline_fits_a_phone(browser, live_server):
+    UserFactory(username="joao")
+    MobileResourceFactory()
+    FixedResourceFactory(name="node-01")
+    context = browser.new_context(
+        viewport={"width": 375, "height": 800}, timezone_id=settings.TIME_ZONE
+    )
+    page = context.new_page()
+    login(page, live_server.url, "joao", PASSWORD)
+    page.goto(f"{live_server.url}/calendar/timeline/")
+    expect(page.locator("#timeline[data-loading=false]")).to_be_attached()
+    expect(page.locator("[data-resource='node-01']")).to_be_visible()
+    # The timeline scrolls inside its box; the page itself does not scroll sideways.
+    assert page.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1")
+    page.screenshot(path=str(SCREENSHOTS / "timeline-narrow.png"), full_page=True)
+    context.close()
