@@ -20,6 +20,12 @@ Two transports, chosen by ``REDIS_URL``:
 
 Publishing never fails its caller: a bus that is down costs the pages their pushes, never a
 run its samples.
+
+A run's new samples are announced with a mark per sequence number, set in the same Redis
+transaction as the announcement (both happen or neither): a publisher killed between storing
+samples and announcing them leaves stored samples without their mark, which the collector
+finds and announces when it takes the run up again (``samples_announce_missed``). So every
+stored sample is announced once even across a crash. The file transport keeps no marks.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import AsyncGenerator, AsyncIterator, Mapping
+from collections.abc import AsyncGenerator, AsyncIterator, Callable, Mapping
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
@@ -39,6 +45,8 @@ import redis
 import redis.asyncio as aredis
 from django.conf import settings
 from django.db import transaction
+
+from core.cache import database_namespace
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +57,11 @@ FILE_MAX_BYTES = 256 * 1024
 FILE_POLL_S = 0.25
 # Publishing waits at most this long for Redis: a run's collection must not stall on it.
 PUBLISH_TIMEOUT_S = 0.5
+# A run's announced-sample marks: one bit per sequence number, kept this long after the last.
+ANNOUNCED_PREFIX = "amazing:live:announced:"
+ANNOUNCED_TTL_S = 7 * 24 * 3600
+# Marks set by one BITFIELD command (a long backlog is marked in several, in one transaction).
+MARKS_PER_COMMAND = 1024
 
 
 def run_channel(run_id: int) -> str:
@@ -81,8 +94,17 @@ class LiveUnavailable(Exception):
     """The bus cannot be reached: the stream ends and the page polls until it is back."""
 
 
+def announced_key(run_id: int) -> str:
+    # Run ids repeat between databases (a test's, a restore) that may share one Redis.
+    return f"{ANNOUNCED_PREFIX}{database_namespace()}:{run_id}"
+
+
 class _Bus(Protocol):
     def publish(self, channel: str, payload: str) -> None: ...
+
+    def publish_marked(self, channel: str, payload: str, key: str, seqs: range) -> None: ...
+
+    def marks(self, key: str) -> bytes | None: ...
 
     def subscribe(self, channels: list[str], *, idle_s: float) -> AsyncIterator[str | None]: ...
 
@@ -96,6 +118,25 @@ class RedisBus:
 
     def publish(self, channel: str, payload: str) -> None:
         self._client.publish(REDIS_PREFIX + channel, payload)
+
+    def publish_marked(self, channel: str, payload: str, key: str, seqs: range) -> None:
+        """Publish and set a bit per sequence number of ``key``, atomically (MULTI/EXEC)."""
+        pipe = self._client.pipeline(transaction=True)
+        for start in range(0, len(seqs), MARKS_PER_COMMAND):
+            ops: list[str | int] = []
+            for seq in seqs[start : start + MARKS_PER_COMMAND]:
+                ops += ["SET", "u1", seq, 1]
+            pipe.execute_command("BITFIELD", key, *ops)
+        pipe.expire(key, ANNOUNCED_TTL_S)
+        pipe.publish(REDIS_PREFIX + channel, payload)
+        pipe.execute()
+
+    def marks(self, key: str) -> bytes | None:
+        """The bitmap (bit ``n`` is sequence number ``n``, most significant bit first)."""
+        value = self._client.get(key)
+        if value is None:
+            return b""
+        return value if isinstance(value, bytes) else str(value).encode("latin-1")
 
     async def subscribe(self, channels: list[str], *, idle_s: float) -> AsyncIterator[str | None]:
         client = aredis.Redis.from_url(self.url, socket_connect_timeout=2.0)
@@ -162,6 +203,12 @@ class FileBus:
         lines = data[:complete].decode(errors="replace").splitlines()
         return offset + complete, [line for line in lines if line.strip()]
 
+    def publish_marked(self, channel: str, payload: str, key: str, seqs: range) -> None:
+        self.publish(channel, payload)  # one machine, no crash-proof marks: see the module
+
+    def marks(self, key: str) -> bytes | None:
+        return None
+
     async def subscribe(self, channels: list[str], *, idle_s: float) -> AsyncIterator[str | None]:
         offsets = {c: self._size(c) for c in channels}
         yield None
@@ -210,6 +257,42 @@ def publish(channel: str, event: Mapping[str, Any]) -> bool:
 def publish_on_commit(channel: str, event: Mapping[str, Any]) -> None:
     """Publish once the change it announces is committed (at once outside a transaction)."""
     transaction.on_commit(partial(publish, channel, dict(event)))
+
+
+def samples_publish(run_id: int, event: Mapping[str, Any]) -> bool:
+    """Announce a run's stored samples ``first_seq``…``last_seq`` (a ``samples`` event) and
+    mark them announced, both or neither; False (logged) if the bus is down."""
+    payload = json.dumps(event, separators=(",", ":"), default=str)
+    seqs = range(int(event["first_seq"]), int(event["last_seq"]) + 1)
+    try:
+        bus().publish_marked(run_channel(run_id), payload, announced_key(run_id), seqs)
+    except (redis.RedisError, OSError) as exc:
+        logger.info("live: samples of run %s not published (%s)", run_id, exc)
+        return False
+    return True
+
+
+def samples_publish_on_commit(run_id: int, event: Mapping[str, Any]) -> None:
+    """:func:`samples_publish` once the samples are committed."""
+    transaction.on_commit(partial(samples_publish, run_id, dict(event)))
+
+
+def samples_announced(run_id: int) -> Callable[[int], bool] | None:
+    """Whether each sequence number of the run was announced; None when the bus keeps no
+    marks (files) or cannot be reached."""
+    try:
+        marks = bus().marks(announced_key(run_id))
+    except (redis.RedisError, OSError) as exc:
+        logger.info("live: marks of run %s not read (%s)", run_id, exc)
+        return None
+    if marks is None:
+        return None
+
+    def announced(seq: int) -> bool:
+        index, bit = divmod(seq, 8)
+        return index < len(marks) and bool(marks[index] >> (7 - bit) & 1)
+
+    return announced
 
 
 async def subscribe(

@@ -101,6 +101,7 @@ class Collector:
     def follow(self, run_id: int) -> None:
         """Store the run's samples as the agent stores them, until it ends."""
         client: AgentClient | None = None
+        taken_up = False
         try:
             while not self.stopping.is_set():
                 # Each round from the database: the sweep may have stored some meanwhile,
@@ -110,6 +111,11 @@ class Collector:
                     return
                 if client is None:
                     client = agent_client_for(run.resource)
+                if not taken_up:
+                    # A collector killed after storing samples and before announcing them
+                    # left them unannounced: the pages hear of them now, once.
+                    collection.samples_announce_missed(run=run)
+                    taken_up = True
                 try:
                     page = collection.run_follow_page(run=run, client=client, wait_s=self.wait_s)
                 except AgentError as exc:

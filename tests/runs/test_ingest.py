@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import time
 from datetime import timedelta
 
 import pytest
+import redis
 from django.utils import timezone
 
+from core import live
 from portal.runs.models import Sample
 from portal.runs.services import collection
 from portal.runs.services.booking import booking_create
@@ -92,7 +95,7 @@ def announced(monkeypatch) -> list[dict]:
     """The live events ``samples_ingest`` publishes (once committed)."""
     events: list[dict] = []
     monkeypatch.setattr(
-        collection, "publish_on_commit", lambda channel, event: events.append(dict(event))
+        collection, "samples_publish_on_commit", lambda run_id, event: events.append(dict(event))
     )
     return events
 
@@ -112,3 +115,57 @@ def test_new_samples_around_stored_ones_are_announced_as_their_own_ranges(run, a
     samples_ingest(run=run, samples=_page(11, 20))
     samples_ingest(run=run, samples=_page(1, 30))
     assert [(e["first_seq"], e["last_seq"]) for e in announced] == [(11, 20), (1, 10), (21, 30)]
+
+
+@pytest.fixture
+def run_channel_events(run, settings):
+    """What the run's channel on the real Redis bus carries from now on."""
+    client = redis.Redis.from_url(settings.REDIS_URL)
+    client.delete(live.announced_key(run.pk))
+    pubsub = client.pubsub()
+    pubsub.subscribe(live.REDIS_PREFIX + live.run_channel(run.pk))
+
+    def events(expected: int) -> list[tuple[int, int]]:
+        """The next ``expected`` events' ranges, then whatever else comes within half a
+        second (to show there is nothing more)."""
+        heard: list[tuple[int, int]] = []
+        deadline = time.monotonic() + 10
+        quiet_until = None
+        while time.monotonic() < (quiet_until or deadline):
+            message = pubsub.get_message(ignore_subscribe_messages=True, timeout=0.1)
+            if message is not None:
+                event = json.loads(message["data"])
+                heard.append((event["first_seq"], event["last_seq"]))
+            if len(heard) >= expected and quiet_until is None:
+                quiet_until = time.monotonic() + 0.5
+        return heard
+
+    yield events
+    pubsub.close()
+    client.close()
+
+
+def test_samples_stored_and_never_announced_are_announced_once_when_taken_up(
+    run, run_channel_events, monkeypatch, django_capture_on_commit_callbacks
+):
+    with django_capture_on_commit_callbacks(execute=True):
+        samples_ingest(run=run, samples=_page(1, 10))
+    # A publisher killed between its commit and its announcement: 11 to 20 stored, not announced.
+    with django_capture_on_commit_callbacks(execute=False):
+        samples_ingest(run=run, samples=_page(11, 20))
+    with django_capture_on_commit_callbacks(execute=True):
+        samples_ingest(run=run, samples=_page(21, 25))
+    assert run_channel_events(2) == [(1, 10), (21, 25)]
+
+    assert collection.samples_announce_missed(run=run) == 10
+    assert run_channel_events(1) == [(11, 20)]
+    # Taken up again: every stored sample has been announced, nothing is said twice.
+    assert collection.samples_announce_missed(run=run) == 0
+    assert run_channel_events(0) == []
+
+
+def test_without_marks_on_the_bus_nothing_is_announced_again(run, settings, tmp_path):
+    settings.REDIS_URL = ""  # the file transport (make run without Redis) keeps no marks
+    settings.LIVE_DIR = tmp_path / "live"
+    samples_ingest(run=run, samples=_page(1, 10))
+    assert collection.samples_announce_missed(run=run) == 0

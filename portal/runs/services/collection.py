@@ -45,7 +45,7 @@ from django.utils import timezone
 from basestation.client import AgentClient, AgentError
 from basestation.contract import AGENT_ACTIVE_STATES, AGENT_RUNNING, SAMPLE_FIELDS, samples_parse
 from bookings.services import reservation_complete
-from core.live import publish_on_commit, run_channel
+from core.live import samples_announced, samples_publish, samples_publish_on_commit
 from portal.runs.agents import agent_client_for
 from portal.runs.models import RUNS, Run, Sample
 from portal.runs.provenance import provenance_at_collection, run_provenance_record
@@ -110,18 +110,39 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
             RUNS.changed()
         t_by_seq = {r[_SEQ]: r[_T] for r in rows}
         for first, last in _consecutive(stored):
-            publish_on_commit(
-                run_channel(run.pk),
-                {
-                    "type": "samples",
-                    "count": last - first + 1,
-                    "first_seq": first,
-                    "last_seq": last,
-                    "last_t": t_by_seq[last].timestamp(),
-                },
-            )
+            samples_publish_on_commit(run.pk, _samples_event(first, last, t_by_seq[last]))
     run.last_seq = max(run.last_seq, last_seq)
     return len(stored)
+
+
+def _samples_event(first: int, last: int, last_t: datetime) -> dict[str, Any]:
+    return {
+        "type": "samples",
+        "count": last - first + 1,
+        "first_seq": first,
+        "last_seq": last,
+        "last_t": last_t.timestamp(),
+    }
+
+
+def samples_announce_missed(*, run: Run) -> int:
+    """Announce the run's stored samples that never were (their publisher was killed between
+    its commit and its announcement); how many. Called when the collector takes a run up.
+    Nothing when the bus keeps no marks (the file transport) or cannot be reached."""
+    announced = samples_announced(run.pk)
+    if announced is None:
+        return 0
+    missed = [
+        (seq, t)
+        for seq, t in Sample.objects.filter(run=run).order_by("seq").values_list("seq", "t")
+        if not announced(seq)
+    ]
+    t_by_seq = dict(missed)
+    for first, last in _consecutive(list(t_by_seq)):
+        samples_publish(run.pk, _samples_event(first, last, t_by_seq[last]))
+    if missed:
+        logger.info("run %s: %d stored samples announced late", run.pk, len(missed))
+    return len(missed)
 
 
 def _consecutive(seqs: list[int]) -> list[tuple[int, int]]:
