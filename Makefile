@@ -14,7 +14,7 @@ TEST_REDIS_URL ?= redis://127.0.0.1:6379/14
 TEST_ENV := DJANGO_DEBUG=1 AMAZING_TEST_REQUIRE_POSTGRES=1 DATABASE_URL=$(TEST_DATABASE_URL) REDIS_URL=$(TEST_REDIS_URL) \
 	CELERY_BROKER_URL=$(TEST_REDIS_URL)
 
-.PHONY: help setup run test ci lint audit format bench soak firmware cad clean system-deps services
+.PHONY: help setup run test ci lint audit format bench soak screenshots firmware cad clean system-deps services
 
 help:
 	@echo "make run    - set up and start the whole system locally (simulated robot)"
@@ -23,6 +23,7 @@ help:
 	@echo "make audit  - known vulnerabilities in the Python and npm packages"
 	@echo "make bench  - benchmarks (results go to docs/performance.md)"
 	@echo "make soak   - the whole system under random faults for SOAK_MINUTES (30), checked (docs/reliability.md)"
+	@echo "make screenshots - every page at a laptop's and a phone's width into docs/screenshots"
 	@echo "make firmware - cross-compile the robot firmware"
 	@echo "make cad   - build the 3D models (STEP, STL) into var/cad and refresh docs/cad"
 	@echo "make clean  - remove the virtualenv, assets and local data"
@@ -122,6 +123,10 @@ bench: setup services
 SOAK_MINUTES ?= 30
 soak: setup services
 	$(TEST_ENV) SOAK_MINUTES=$(SOAK_MINUTES) $(PY) -m bench.soak --report
+
+# The accessibility test photographs every page at both widths as it checks it.
+screenshots: setup system-deps services
+	$(TEST_ENV) SCREENSHOT_DIR=docs/screenshots $(PY) -m pytest tests/browser/test_accessibility.py -q
 
 clean:
 	rm -rf $(VENV) $(STAMPS) node_modules var .mypy_cache .ruff_cache .pytest_cache .hypothesis

@@ -336,9 +336,9 @@ def calendar_events(request: HttpRequest) -> JsonResponse:
     colours = {
         "own": "#1e6fb8",
         "other": "#7a5195",
-        "busy": "#8a8f98",
+        "busy": "#5f6670",
         "blackout": "#c62828",
-        "lease": "#b26a00",
+        "lease": "#8a5300",
     }
     entries = calendar_entries(
         viewer=_user(request), start_at=start, end_at=end, resource=resource, now=timezone.now()

@@ -139,7 +139,7 @@ def test_segments_reorder_by_keyboard_and_drag_clone_and_round_trip_as_files(
     ]
     rows.nth(2).locator(".index").drag_to(rows.nth(0).locator(".index"))
     expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_value("0.4")
-    rows.nth(1).get_by_role("button", name="clone segment").click()
+    rows.nth(1).get_by_role("button", name="copy segment").click()
     assert _segments_shown(page) == [
         ("0.4", "ccw", "2.0"),
         ("0.6", "cw", "3.0"),

@@ -56,7 +56,7 @@
         actions.prepend(
           button("move-up", "move segment up", "↑"),
           button("move-down", "move segment down", "↓"),
-          button("clone-row", "clone segment", "copy"),
+          button("clone-row", "copy segment", "copy"),
         );
       }
       let note = row.querySelector(".segment-note");

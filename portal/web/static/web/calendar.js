@@ -185,6 +185,8 @@
   });
   filter.addEventListener("change", () => calendar.refetchEvents());
   calendar.render();
+  // The toolbar's arrow icons are drawn as images without a name; their buttons carry one.
+  for (const icon of el.querySelectorAll(".fc-icon")) icon.setAttribute("aria-hidden", "true");
 
   // Robots held by their health check: the reason, as bookings of them would be refused.
   const holds = document.getElementById("robot-holds");

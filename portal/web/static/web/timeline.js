@@ -55,7 +55,7 @@
   const shown = (dt) => dt.toFormat("ccc d LLL HH:mm");
 
   // --- What the rows hold --------------------------------------------------------------------
-  const colours = { own: "#1e6fb8", other: "#7a5195", busy: "#8a8f98", blackout: "#c62828", lease: "#b26a00", hold: "#5d4037" };
+  const colours = { own: "#1e6fb8", other: "#7a5195", busy: "#5f6670", blackout: "#c62828", lease: "#8a5300", hold: "#5d4037" };
   function rowsOf(names) {
     return names.includes("all") ? order.slice() : names.filter((n) => byId.has(n));
   }

@@ -1,0 +1,93 @@
+"""Every page passes axe-core (the npm package, run in Chromium) at a laptop's and a phone's
+width with no serious or critical violation, and is photographed at both widths.
+
+``make screenshots`` runs this module with ``SCREENSHOT_DIR=docs/screenshots``: the pictures
+the README links to.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+from playwright.sync_api import Page
+
+from tests.browser.conftest import SCREENSHOTS, login
+from tests.factories import MobileResourceFactory, UserFactory
+from tests.runs.driving import completed_run
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+AXE = Path(__file__).resolve().parents[2] / "node_modules" / "axe-core" / "axe.min.js"
+VIEWPORTS = {"laptop": {"width": 1280, "height": 800}, "phone": {"width": 375, "height": 812}}
+BLOCKING = {"serious", "critical"}
+PASSWORD = "correct horse battery"
+
+
+def _axe(page: Page) -> list[dict[str, Any]]:
+    """axe-core's violations of WCAG 2.x A and AA on the page as it stands. The library is
+    evaluated through the browser's debugging protocol, which the page's content security
+    policy does not govern (the portal never serves it)."""
+    if not page.evaluate("typeof window.axe !== 'undefined'"):
+        page.evaluate(AXE.read_text())
+    result: dict[str, Any] = page.evaluate(
+        """() => axe.run(document, {
+            runOnly: {type: "tag", values: ["wcag2a", "wcag2aa", "wcag21a", "wcag21aa"]},
+            resultTypes: ["violations"],
+        })"""
+    )
+    return list(result["violations"])
+
+
+def _check(page: Page, name: str, width: str, found: list[str]) -> None:
+    page.wait_for_load_state("load")
+    # Charts, calendars and live parts draw after load; let them settle before judging.
+    page.wait_for_load_state("networkidle")
+    for violation in _axe(page):
+        if violation["impact"] in BLOCKING:
+            targets = [" ".join(node["target"]) for node in violation["nodes"]][:5]
+            found.append(f"{name} @ {width}: {violation['id']} ({violation['impact']}) {targets}")
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(
+        path=str(SCREENSHOTS / f"{name}-{width}.jpg"), type="jpeg", quality=70, full_page=True
+    )
+
+
+@pytest.mark.parametrize("width", list(VIEWPORTS))
+def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_server, width):
+    assert AXE.exists(), "axe-core is missing: `make setup` installs it from npm"
+    admin = UserFactory(username="ada", is_staff=True, is_superuser=True)
+    robot = MobileResourceFactory()
+    first = completed_run(admin, robot, [(1.0, "cw", 40.0), (0.5, "ccw", 20.0)])
+    second = completed_run(admin, MobileResourceFactory(name="mobile-2"), [(0.8, "cw", 30.0)])
+    found: list[str] = []
+    context = browser.new_context(viewport=VIEWPORTS[width], timezone_id="Europe/Lisbon")
+    page = context.new_page()
+
+    page.goto(f"{live_server.url}/accounts/login/")
+    _check(page, "sign-in", width, found)
+    login(page, live_server.url, "ada", PASSWORD)
+    pages = {
+        "home": "/",
+        "experiment": "/experiments/new/",
+        "book": "/book/",
+        "calendar": "/calendar/",
+        "timeline": "/calendar/timeline/",
+        "calendar-feeds": "/calendar/feeds/",
+        "run": f"/runs/{first.pk}/",
+        "my-runs": "/runs/",
+        "compare": f"/runs/compare/?ids={first.pk},{second.pk}",
+        "approvals": "/approvals/",
+        "robot-console": f"/robot/{robot.name}/",
+        "usage": "/usage/",
+        "scheduler-link": "/scheduler-link/",
+        "password": "/accounts/password/change/",
+    }
+    for name, path in pages.items():
+        response = page.goto(f"{live_server.url}{path}")
+        assert response is not None, path
+        assert response.status == 200, path
+        _check(page, name, width, found)
+    context.close()
+    assert not found, "\n".join(found)
