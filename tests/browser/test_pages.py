@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from django.utils import timezone
 from playwright.sync_api import Page, expect
+from playwright.sync_api import TimeoutError as PlaywrightTimeoutError
 
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
@@ -16,8 +17,16 @@ from tests.runs.driving import completed_run
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 
 
-def _no_horizontal_scroll(page: Page) -> bool:
-    return bool(page.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1"))
+def _no_horizontal_scroll(page: Page, timeout_ms: float = 15_000) -> bool:
+    """Whether the page, once its scripts have laid it out (a calendar sizes itself after
+    the load event, later on a busy machine), fits the window's width."""
+    try:
+        page.wait_for_function(
+            "document.documentElement.scrollWidth <= window.innerWidth + 1", timeout=timeout_ms
+        )
+    except PlaywrightTimeoutError:
+        return False
+    return True
 
 
 def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):

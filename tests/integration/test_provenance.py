@@ -95,7 +95,14 @@ def test_the_stored_provenance_is_what_the_robot_and_the_agent_were_started_with
     with running_stack(
         tmp_path / "var", broker_url=settings.CELERY_BROKER_URL, extra_env=agent_env
     ) as stack:
-        MobileResourceFactory(agent_url=stack.agent_url)
+        robot = MobileResourceFactory(agent_url=stack.agent_url)
+        # Booking and staging take the stricter of the robot's limits and those its agent
+        # reported to the health sweep: book once the portal has heard them.
+        deadline = time.monotonic() + 60
+        while robot.agent_max_velocity_mps is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+            robot.refresh_from_db()
+        assert robot.agent_max_velocity_mps == 1.5, stack.output()
         user = UserFactory(username="gil")
         headers = {"Authorization": f"Token {Token.objects.create(user=user).key}"}
         first, first_end = _run_program(stack.web, headers)
