@@ -3,10 +3,18 @@ from __future__ import annotations
 from typing import Any
 
 import factory
+from allauth.mfa.models import Authenticator
+from allauth.mfa.totp.internal.auth import (
+    TOTP,
+    format_hotp_value,
+    generate_totp_secret,
+    hotp_value,
+    yield_hotp_counters_from_time,
+)
 
 from bookings.choices import ResourceKind
 from bookings.models import Resource
-from core.accounts.models import User
+from core.accounts.models import ApiToken, User
 from portal.experiments.models import Experiment
 
 
@@ -24,6 +32,14 @@ class UserFactory(factory.django.DjangoModelFactory):
     def _save(self, create: bool, extracted: Any, **kwargs: Any) -> None:
         if create:
             self.save()
+
+    @factory.post_generation
+    def mfa(self, create: bool, extracted: Any, **kwargs: Any) -> None:
+        """Staff have TOTP on, as they must to reach the robot and approvals; ``mfa=False``
+        makes one without."""
+        wanted = self.is_testbed_admin if extracted is None else bool(extracted)
+        if create and wanted:
+            mfa_on(self)
 
 
 class MobileResourceFactory(factory.django.DjangoModelFactory):
@@ -59,3 +75,22 @@ class ExperimentFactory(factory.django.DjangoModelFactory):
             {"velocity_mps": 0.8, "direction": "ccw", "duration_s": 3.0},
         ]
     )
+
+
+def mfa_on(user: User) -> str:
+    """Turn on TOTP for ``user`` (as its set-up page does); the secret, to make codes with."""
+    secret = generate_totp_secret()
+    TOTP.activate(user, secret)
+    return secret
+
+
+def totp_code(secret: str) -> str:
+    """The code an authenticator app shows now for ``secret``."""
+    return format_hotp_value(hotp_value(secret, next(yield_hotp_counters_from_time())))
+
+
+def api_token(user: User, *, name: str = "test") -> str:
+    """A new API token of ``user``; a staff user gets MFA first (its tokens need it)."""
+    if user.is_testbed_admin and not Authenticator.objects.filter(user=user).exists():
+        mfa_on(user)
+    return ApiToken.objects.create(user=user, name=name)[1]
