@@ -218,6 +218,9 @@ SESSION_COOKIE_AGE = env.int("SESSION_AGE_S", default=12 * 3600)
 # admin page (core/accounts/mfa.py).
 MFA_SUPPORTED_TYPES = ["totp", "recovery_codes"]
 MFA_TOTP_ISSUER = env.str("MFA_TOTP_ISSUER", default="AMazING testbed")
+# A code of the previous or next 30 s step is accepted too: a phone's clock drifts, and a
+# code typed as its step ends still works.
+MFA_TOTP_TOLERANCE = 1
 # API tokens (core/accounts/models.py ApiToken): no expiry unless the user gives one.
 KNOX_TOKEN_MODEL = "accounts.ApiToken"  # noqa: S105 (a model name, not a secret)
 REST_KNOX = {"TOKEN_TTL": None, "TOKEN_PREFIX": "amz_"}

@@ -11,6 +11,7 @@ from allauth.mfa.totp.internal.auth import (
     hotp_value,
     yield_hotp_counters_from_time,
 )
+from allauth.mfa.utils import decrypt
 
 from bookings.choices import ResourceKind
 from bookings.models import Resource
@@ -87,6 +88,14 @@ def mfa_on(user: User) -> str:
 def totp_code(secret: str) -> str:
     """The code an authenticator app shows now for ``secret``."""
     return format_hotp_value(hotp_value(secret, next(yield_hotp_counters_from_time())))
+
+
+def totp_secret_of(username: str) -> str | None:
+    """The TOTP secret of ``username``'s authenticator app, if it has one."""
+    found = Authenticator.objects.filter(
+        user__username=username, type=Authenticator.Type.TOTP
+    ).first()
+    return decrypt(found.data["secret"]) if found is not None else None
 
 
 def api_token(user: User, *, name: str = "test") -> str:

@@ -20,14 +20,15 @@ def copy_tokens(apps, schema_editor):
         cursor.execute("SELECT key, user_id, created FROM authtoken_token")
         rows = cursor.fetchall()
     for key, user_id, created in rows:
-        ApiToken.objects.create(
-            digest=hash_token(key),
+        digest = hash_token(key)
+        ApiToken(
+            digest=digest,
             token_key=key[: CONSTANTS.TOKEN_KEY_LENGTH],
             user_id=user_id,
             name="Token from before named tokens",
             expiry=None,
-        )
-        ApiToken.objects.filter(digest=hash_token(key)).update(created=created)
+        ).save()
+        ApiToken.objects.filter(digest=digest).update(created=created)
     schema_editor.execute("DROP TABLE authtoken_token")
     schema_editor.execute("DELETE FROM django_migrations WHERE app = 'authtoken'")
 
