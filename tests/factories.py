@@ -4,6 +4,7 @@ from typing import Any
 
 import factory
 from allauth.mfa.models import Authenticator
+from allauth.mfa.recovery_codes.internal.auth import RecoveryCodes
 from allauth.mfa.totp.internal.auth import (
     TOTP,
     format_hotp_value,
@@ -79,9 +80,11 @@ class ExperimentFactory(factory.django.DjangoModelFactory):
 
 
 def mfa_on(user: User) -> str:
-    """Turn on TOTP for ``user`` (as its set-up page does); the secret, to make codes with."""
+    """Turn on TOTP and recovery codes for ``user`` (as its set-up page does); the TOTP
+    secret, to make codes with."""
     secret = generate_totp_secret()
     TOTP.activate(user, secret)
+    RecoveryCodes.activate(user)
     return secret
 
 

@@ -76,6 +76,9 @@ def healthz(request: HttpRequest) -> JsonResponse:
     return JsonResponse(body, status=200 if ok else 503)
 
 
+NEW_TOKEN_SESSION_KEY = "api-token-created"  # noqa: S105 (a session key, not a secret)
+
+
 def _user(request: HttpRequest) -> Any:
     return request.user
 
@@ -378,7 +381,6 @@ def api_tokens_page(request: HttpRequest) -> HttpResponse:
     """The user's API tokens: make one (shown once), see when each was last used, revoke."""
     user = _user(request)
     form = ApiTokenForm()
-    created: str | None = None
     if request.method == "POST" and "revoke" in request.POST:
         try:
             api_token_revoke(user=user, digest=request.POST["revoke"], ip=client_ip(request))
@@ -400,13 +402,15 @@ def api_tokens_page(request: HttpRequest) -> HttpResponse:
             except DomainError as exc:
                 _form_error(form, exc)
             else:
-                form = ApiTokenForm()
+                # Shown by the next page only (a reload makes no second token).
+                request.session[NEW_TOKEN_SESSION_KEY] = created
+                return redirect("api-tokens")
     return render(
         request,
         "web/tokens.html",
         {
             "form": form,
-            "created": created,
+            "created": request.session.pop(NEW_TOKEN_SESSION_KEY, None),
             "tokens": api_tokens_of(user),
             "needs_mfa": user.is_testbed_admin and not mfa_enabled(user),
         },

@@ -24,6 +24,7 @@ from amazing_cli.api import OPERATIONS, Api
 from amazing_cli.errors import CliError
 from amazing_cli.main import app
 from bookings.models import Reservation, Resource
+from core.accounts.models import ApiToken
 from portal.runs.services.booking import booking_create
 from tests.cli.schema_paths import undocumented
 from tests.factories import (
@@ -32,6 +33,8 @@ from tests.factories import (
     MobileResourceFactory,
     UserFactory,
     api_token,
+    mfa_on,
+    totp_code,
 )
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -131,6 +134,38 @@ def test_login_stores_the_token_for_the_user_alone_and_the_environment_wins(port
     logout = amazing("logout")
     assert logout.exit_code == 0, logout.output
     assert not stored.exists()
+
+
+def test_login_with_a_password_and_the_code_asked_for_then_logout_revokes(portal, monkeypatch):
+    """``amazing login --username``: the portal makes a token for this computer, the
+    two-factor code asked for when the account has MFA; ``amazing logout`` revokes it."""
+    secret = mfa_on(portal["erin"])
+    monkeypatch.delenv("AMAZING_TOKEN")
+    monkeypatch.setenv("AMAZING_PASSWORD", "correct horse battery")
+    result = CliRunner().invoke(
+        app, ["login", "--username", "erin", "--name", "ci laptop"], input=totp_code(secret) + "\n"
+    )
+    assert result.exit_code == 0, result.output
+    assert "Two-factor code" in result.output
+    assert "as erin" in result.output
+    made = ApiToken.objects.get(name="ci laptop")
+    stored = json.loads((Path(portal_config_dir()) / "credentials.json").read_text())
+    assert stored["token"].startswith(made.token_key)
+    assert amazing("quota").exit_code == 0
+    logout = amazing("logout")
+    assert logout.exit_code == 0, logout.output
+    assert "revoked" in logout.output
+    assert not ApiToken.objects.filter(name="ci laptop").exists()
+    monkeypatch.setenv("AMAZING_TOKEN", stored["token"])
+    assert "Invalid token" in _one_line_error(amazing("quota"), 3)
+
+
+def test_login_with_a_wrong_password_stores_nothing(portal, monkeypatch):
+    monkeypatch.delenv("AMAZING_TOKEN")
+    monkeypatch.setenv("AMAZING_PASSWORD", "not it")
+    line = _one_line_error(amazing("login", "--username", "erin"), 2)
+    assert "username or the password is wrong" in line
+    assert not (Path(portal_config_dir()) / "credentials.json").exists()
 
 
 def portal_config_dir() -> str:

@@ -74,7 +74,7 @@ def test_a_staff_account_gets_no_token_without_mfa(client, staff_without_mfa):
 
 def test_a_user_makes_a_token_on_the_page_sees_it_once_and_revokes_it(client, owner):
     client.force_login(owner)
-    made = client.post("/account/tokens/", {"name": "laptop", "expires_in_days": "30"})
+    made = client.post("/account/tokens/", {"name": "laptop", "expires_in_days": "30"}, follow=True)
     token = made.context["created"]
     assert token.startswith("amz_")
     stored = ApiToken.objects.get()
