@@ -15,7 +15,7 @@ from rest_framework.test import APIClient
 
 from core.accounts.models import ApiToken
 from core.audit.models import AuditEvent
-from tests.factories import MobileResourceFactory, UserFactory, mfa_on, totp_code
+from tests.factories import MobileResourceFactory, UserFactory, api_token, mfa_on, totp_code
 
 pytestmark = pytest.mark.django_db
 
@@ -221,3 +221,19 @@ def test_tokens_of_drf_authtoken_are_copied_as_digests_and_keep_working(owner):
     assert key not in copied.digest
     assert copied.expiry is None
     assert _token_client(key).get("/api/v1/me/").json()["username"] == "alice"
+
+
+def test_an_admin_sees_and_revokes_anyones_token_in_the_admin(client, owner, admin_user):
+    token = api_token(owner, name="laptop")
+    stored = ApiToken.objects.get(user=owner)
+    client.force_login(admin_user)
+    listed = client.get("/admin/accounts/apitoken/")
+    assert b"laptop" in listed.content
+    assert token.encode() not in listed.content
+    assert _token_client(token).get("/api/v1/me/").status_code == 200
+    client.post(
+        "/admin/accounts/apitoken/",
+        {"action": "delete_selected", "_selected_action": [stored.pk], "post": "yes"},
+    )
+    assert not ApiToken.objects.filter(user=owner).exists()
+    assert _token_client(token).get("/api/v1/me/").status_code == 401
