@@ -19,6 +19,8 @@ from amazing_cli.errors import BAD_INPUT, NOT_FOUND, REFUSED, UNAVAILABLE, CliEr
 
 OPERATIONS: dict[str, tuple[str, str]] = {
     "me": ("GET", "/api/v1/me/"),
+    "token_sign_in": ("POST", "/api/v1/auth/token/"),
+    "token_revoke": ("DELETE", "/api/v1/auth/token/"),
     "resources": ("GET", "/api/v1/resources/"),
     "availability": ("GET", "/api/v1/resources/{name}/availability/"),
     "quota": ("GET", "/api/v1/quota/"),
@@ -51,6 +53,14 @@ def _exit_code(status: int) -> int:
     if status == 404:
         return NOT_FOUND
     return UNAVAILABLE
+
+
+def _error_code(response: requests.Response) -> str | None:
+    try:
+        body = response.json()
+    except ValueError:
+        return None
+    return str(body["error"]) if isinstance(body, dict) and "error" in body else None
 
 
 def _message(response: requests.Response) -> str:
@@ -134,13 +144,18 @@ class Api:
             message = _message(response)
             response.close()
             raise CliError(
-                message, exit_code=_exit_code(response.status_code), status=response.status_code
+                message,
+                exit_code=_exit_code(response.status_code),
+                status=response.status_code,
+                error=_error_code(response),
             )
         return response
 
     def call(self, operation: str, **kwargs: Any) -> Any:
-        """The JSON answer of one operation."""
+        """The JSON answer of one operation (None for an answer without a body)."""
         response = self._send(operation, **kwargs)
+        if response.status_code == 204:
+            return None
         try:
             return response.json()
         except ValueError as exc:

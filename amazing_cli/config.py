@@ -80,3 +80,11 @@ def forget() -> bool:
     except FileNotFoundError:
         return False
     return True
+
+
+def stored_credentials() -> Credentials | None:
+    """What ``amazing login`` stored, whatever the options and environment say."""
+    stored = _stored()
+    if not stored.get("token"):
+        return None
+    return Credentials(url=(stored.get("url") or DEFAULT_URL).rstrip("/"), token=stored["token"])

@@ -14,10 +14,14 @@ UNAVAILABLE = 5
 class CliError(Exception):
     """A problem to report in one line, with the exit code it gives."""
 
-    def __init__(self, message: str, *, exit_code: int, status: int | None = None) -> None:
+    def __init__(
+        self, message: str, *, exit_code: int, status: int | None = None, error: str | None = None
+    ) -> None:
         super().__init__(message)
         self.message = message
         self.exit_code = exit_code
+        # The portal's error code (``"error"`` of its envelope), e.g. ``mfa_required``.
+        self.error = error
         # The portal's HTTP status, when it answered: a script tells a refusal (409) from a
         # request still in flight or a portal that is down, and retries only those.
         self.status = status

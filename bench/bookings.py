@@ -21,11 +21,10 @@ BATCH = 5000
 
 
 def _seed(existing: int) -> dict[str, Any]:
-    from rest_framework.authtoken.models import Token
 
     from bookings.choices import QuotaPeriod, ResourceKind
     from bookings.models import QuotaPolicy, Reservation, ReservationItem, Resource
-    from core.accounts.models import User
+    from core.accounts.models import ApiToken, User
 
     owners = [User.objects.create_user(username=f"bench{i}") for i in range(50)]
     nodes = [
@@ -59,7 +58,7 @@ def _seed(existing: int) -> dict[str, Any]:
     user = User.objects.create_user(username="booker")
     QuotaPolicy.objects.create(name="weekly", period=QuotaPeriod.WEEK, max_hours=10_000)
     return {
-        "token": Token.objects.create(user=user).key,
+        "token": ApiToken.objects.create(user=user, name="bench")[1],
         "nodes": nodes,
         "base": base,
         "free_from": base + timedelta(hours=per_node + 24),

@@ -34,11 +34,10 @@ BOOKINGS_PER_USER = 3
 
 def _seed(users: int) -> list[str]:
     """Resources, users with their tokens and bookings, runs; the tokens."""
-    from rest_framework.authtoken.models import Token
 
     from bookings.models import Reservation, ReservationItem, Resource
     from bookings.services import TestbedSpec, testbed_resources_ensure
-    from core.accounts.models import User
+    from core.accounts.models import ApiToken, User
 
     testbed_resources_ensure(TestbedSpec(agent_url="http://127.0.0.1:9"))
     nodes = list(Resource.objects.filter(kind="fixed").order_by("name"))
@@ -59,7 +58,7 @@ def _seed(users: int) -> list[str]:
         ReservationItem(reservation=r, resource=n, start_at=r.start_at, end_at=r.end_at)
         for r, n in bookings
     )
-    return [Token.objects.create(user=person).key for person in people]
+    return [ApiToken.objects.create(user=person, name="bench")[1] for person in people]
 
 
 def _free_port() -> int:

@@ -52,11 +52,10 @@ def run(*, calls: int = CALLS) -> str:
     from django.conf import settings
     from django.test import Client
     from django.utils import timezone
-    from rest_framework.authtoken.models import Token
 
     from bookings.scheduler.config import SchedulerConfig
     from bookings.services import TestbedSpec, testbed_resources_ensure
-    from core.accounts.models import User
+    from core.accounts.models import ApiToken, User
     from portal.experiments.models import Experiment
 
     settings.DEBUG = False
@@ -71,7 +70,9 @@ def run(*, calls: int = CALLS) -> str:
             title="one lap",
             segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 60.0}],
         )
-        client = Client(HTTP_AUTHORIZATION=f"Token {Token.objects.create(user=user).key}")
+        client = Client(
+            HTTP_AUTHORIZATION="Token " + ApiToken.objects.create(user=user, name="bench")[1]
+        )
         base = timezone.now().replace(microsecond=0) + timedelta(days=1)
 
         def booking(resources: list[str], slot: int) -> None:

@@ -295,11 +295,11 @@ class Soak:
     def _testbed(self) -> None:
         """The two robots, the fixed nodes (as the stand-in lists them), an experimenter
         and an admin, each with an API token."""
+        from allauth.mfa.totp.internal.auth import TOTP, generate_totp_secret
         from django.core.management import call_command
-        from rest_framework.authtoken.models import Token
 
         from bookings.models import Resource
-        from core.accounts.models import User
+        from core.accounts.models import ApiToken, User
 
         call_command(
             "testbed_setup", agent_url=self.stack.agent_url, verbosity=0, stdout=io.StringIO()
@@ -318,9 +318,11 @@ class Soak:
         admin = User.objects.create_user(
             "soak-admin", email="soak-admin@example.org", password=None, is_staff=True
         )
+        # A staff account's token works only while it has MFA (TOTP, as its page sets up).
+        TOTP.activate(admin, generate_totp_secret())
         self.tokens = {
-            "experimenter": Token.objects.create(user=experimenter).key,
-            "admin": Token.objects.create(user=admin).key,
+            "experimenter": ApiToken.objects.create(user=experimenter, name="bench")[1],
+            "admin": ApiToken.objects.create(user=admin, name="soak")[1],
         }
 
     @property

@@ -23,7 +23,6 @@ from django.db.models import QuerySet
 from django.utils import timezone
 from drf_spectacular.utils import extend_schema
 from rest_framework import exceptions
-from rest_framework.authentication import TokenAuthentication
 from rest_framework.permissions import BasePermission
 from rest_framework.request import Request
 from rest_framework.response import Response
@@ -34,6 +33,7 @@ from bookings.models import Reservation, Resource
 from bookings.rules import QuotaExceeded
 from bookings.services import reservation_cancel, reservation_create, reservation_reschedule
 from core.accounts.models import User
+from core.accounts.tokens import CachedTokenAuthentication
 from core.api import request_user
 from core.errors import Conflict, DomainError, NotAllowed
 
@@ -233,7 +233,7 @@ def _domain_reason(exc: DomainError, resources: list[Resource]) -> tuple[int, st
 class InboundApi(APIView):
     """Base: token authentication, the service account's permission, the broker's envelope."""
 
-    authentication_classes = [TokenAuthentication]
+    authentication_classes = [CachedTokenAuthentication]
     permission_classes = [LeasesAllowed]
     # The resources a request is about, to name them in a conflict's reason.
     _resources: list[Resource] = []

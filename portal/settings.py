@@ -111,7 +111,8 @@ INSTALLED_APPS = [
     "django.contrib.messages",
     "django.contrib.staticfiles",
     "rest_framework",
-    "rest_framework.authtoken",
+    # Its abstract token (hashed, with an expiry); ours is core.accounts' ApiToken.
+    "knox",
     "drf_spectacular",
     # Before allauth, so that our templates override its defaults.
     "portal.web",
@@ -122,6 +123,7 @@ INSTALLED_APPS = [
     "bookings",
     "allauth",
     "allauth.account",
+    "allauth.mfa",
     "csp",
 ]
 
@@ -139,6 +141,8 @@ MIDDLEWARE = [
     "django.contrib.messages.middleware.MessageMiddleware",
     "django.middleware.clickjacking.XFrameOptionsMiddleware",
     "allauth.account.middleware.AccountMiddleware",
+    # The admin site only for staff with MFA (core/accounts/mfa.py).
+    "core.accounts.mfa.AdminMfaMiddleware",
 ]
 
 ROOT_URLCONF = "portal.urls"
@@ -203,7 +207,25 @@ ACCOUNT_SIGNUP_FIELDS = ["email*", "username*", "password1*", "password2*"]
 ACCOUNT_EMAIL_VERIFICATION = env.str("ACCOUNT_EMAIL_VERIFICATION", default="optional")
 ACCOUNT_ALLOW_SIGNUP = env.bool("ACCOUNT_ALLOW_SIGNUP", default=False)
 ACCOUNT_ADAPTER = "core.accounts.adapter.AccountAdapter"
-ACCOUNT_RATE_LIMITS = False if DEBUG else {"login_failed": "10/m/ip,5/5m/key"}
+# Sign-in, failed sign-in, password reset (allauth's own limits besides): on in production,
+# answered with 429. The API's token sign-in (``amazing login``) counts against the same.
+ACCOUNT_RATE_LIMITS: dict[str, str] | bool = (
+    False if DEBUG else {"login_failed": "10/m/ip,5/5m/key", "reset_password": "20/m/ip,5/m/key"}
+)
+# A session lasts this long from its sign-in, then the person signs in again.
+SESSION_COOKIE_AGE = env.int("SESSION_AGE_S", default=12 * 3600)
+# TOTP and its recovery codes. Staff must have one before any robot control, approval or
+# admin page (core/accounts/mfa.py).
+MFA_SUPPORTED_TYPES = ["totp", "recovery_codes"]
+MFA_TOTP_ISSUER = env.str("MFA_TOTP_ISSUER", default="AMazING testbed")
+# A code of the previous or next 30 s step is accepted too: a phone's clock drifts, and a
+# code typed as its step ends still works.
+MFA_TOTP_TOLERANCE = 1
+# API tokens (core/accounts/models.py ApiToken): no expiry unless the user gives one.
+KNOX_TOKEN_MODEL = "accounts.ApiToken"  # noqa: S105 (a model name, not a secret)
+REST_KNOX = {"TOKEN_TTL": None, "TOKEN_PREFIX": "amz_"}
+# Knox's own table is never made: its migrations ignore that our model replaces it.
+MIGRATION_MODULES = {"knox": None}
 
 EMAIL_BACKEND = env.str("EMAIL_BACKEND", default="django.core.mail.backends.console.EmailBackend")
 DEFAULT_FROM_EMAIL = env.str("DEFAULT_FROM_EMAIL", default="AMazING testbed <noreply@localhost>")

@@ -1,12 +1,23 @@
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import factory
+from allauth.mfa import app_settings as mfa_settings
+from allauth.mfa.models import Authenticator
+from allauth.mfa.recovery_codes.internal.auth import RecoveryCodes
+from allauth.mfa.totp.internal.auth import (
+    TOTP,
+    format_hotp_value,
+    generate_totp_secret,
+    hotp_value,
+)
+from allauth.mfa.utils import decrypt
 
 from bookings.choices import ResourceKind
 from bookings.models import Resource
-from core.accounts.models import User
+from core.accounts.models import ApiToken, User
 from portal.experiments.models import Experiment
 
 
@@ -24,6 +35,14 @@ class UserFactory(factory.django.DjangoModelFactory):
     def _save(self, create: bool, extracted: Any, **kwargs: Any) -> None:
         if create:
             self.save()
+
+    @factory.post_generation
+    def mfa(self, create: bool, extracted: Any, **kwargs: Any) -> None:
+        """Staff have TOTP on, as they must to reach the robot and approvals; ``mfa=False``
+        makes one without."""
+        wanted = self.is_testbed_admin if extracted is None else bool(extracted)
+        if create and wanted:
+            mfa_on(self)
 
 
 class MobileResourceFactory(factory.django.DjangoModelFactory):
@@ -59,3 +78,32 @@ class ExperimentFactory(factory.django.DjangoModelFactory):
             {"velocity_mps": 0.8, "direction": "ccw", "duration_s": 3.0},
         ]
     )
+
+
+def mfa_on(user: User) -> str:
+    """Turn on TOTP and recovery codes for ``user`` (as its set-up page does); the TOTP
+    secret, to make codes with."""
+    secret = generate_totp_secret()
+    TOTP.activate(user, secret)
+    RecoveryCodes.activate(user)
+    return secret
+
+
+def totp_code(secret: str) -> str:
+    """The code an authenticator app shows now for ``secret``."""
+    return format_hotp_value(hotp_value(secret, int(time.time()) // mfa_settings.TOTP_PERIOD))
+
+
+def totp_secret_of(username: str) -> str | None:
+    """The TOTP secret of ``username``'s authenticator app, if it has one."""
+    found = Authenticator.objects.filter(
+        user__username=username, type=Authenticator.Type.TOTP
+    ).first()
+    return decrypt(found.data["secret"]) if found is not None else None
+
+
+def api_token(user: User, *, name: str = "test") -> str:
+    """A new API token of ``user``; a staff user gets MFA first (its tokens need it)."""
+    if user.is_testbed_admin and not Authenticator.objects.filter(user=user).exists():
+        mfa_on(user)
+    return ApiToken.objects.create(user=user, name=name)[1]

@@ -3,11 +3,10 @@
 
 from __future__ import annotations
 
-import hashlib
 from typing import Any
 
+from django.apps import apps
 from django.core.cache import cache
-from django.core.exceptions import ObjectDoesNotExist
 from django.db import connection, transaction
 
 from core.cache import database_namespace
@@ -15,15 +14,14 @@ from core.cache import database_namespace
 TOKEN_USER_CACHE_S = 60
 
 
-def cache_key(token_key: str) -> str:
-    # A digest: the cache never holds a usable token.
-    digest = hashlib.blake2b(token_key.encode(), digest_size=16).hexdigest()
+def cache_key(digest: str) -> str:
+    # By the token's digest, as the database keeps it: the cache never holds a usable token.
     return f"token-user:{database_namespace()}:{digest}"
 
 
-def forget_tokens(*token_keys: str) -> None:
-    """Drop the cached users of ``token_keys``, now and once the transaction commits."""
-    keys = [cache_key(k) for k in token_keys]
+def forget_tokens(*digests: str) -> None:
+    """Drop the cached users of the tokens ``digests``, now and once the transaction commits."""
+    keys = [cache_key(d) for d in digests]
     if not keys:
         return
     cache.delete_many(keys)
@@ -31,16 +29,26 @@ def forget_tokens(*token_keys: str) -> None:
         transaction.on_commit(lambda: cache.delete_many(keys))
 
 
+def forget_user_tokens(user_id: int) -> None:
+    """Drop the cached entries of every token of a user (its account or MFA changed)."""
+    # By name: this module is imported by the app config, before the models are.
+    tokens = apps.get_model("accounts", "ApiToken").objects.filter(user_id=user_id)
+    forget_tokens(*tokens.values_list("digest", flat=True))
+
+
 def token_deleted(sender: Any, instance: Any, **_: Any) -> None:
-    forget_tokens(instance.key)
+    forget_tokens(instance.digest)
 
 
-def user_saved(sender: Any, instance: Any, created: bool, **_: Any) -> None:
-    """A user saved (deactivated, made staff or not, renamed): its token's entry goes."""
-    if created:
+def user_saved(
+    sender: Any, instance: Any, created: bool, update_fields: Any = None, **_: Any
+) -> None:
+    """A user saved (deactivated, made staff or not, renamed): its tokens' entries go."""
+    if created or (update_fields is not None and set(update_fields) == {"last_login"}):
         return
-    try:
-        key = instance.auth_token.key
-    except ObjectDoesNotExist:
-        return
-    forget_tokens(key)
+    forget_user_tokens(instance.pk)
+
+
+def authenticator_changed(sender: Any, instance: Any, **_: Any) -> None:
+    """MFA added or removed: a staff user's tokens work only with it (``tokens.py``)."""
+    forget_user_tokens(instance.user_id)

@@ -1,3 +1,5 @@
+from importlib import import_module
+
 from django.apps import AppConfig
 
 
@@ -5,3 +7,8 @@ class AuditConfig(AppConfig):
     name = "core.audit"
     label = "audit"
     verbose_name = "Audit log"
+
+    def ready(self) -> None:
+        # Sign-ins and their failures are audited (core/audit/signins.py); the module
+        # reads models, so it is loaded now that they are.
+        import_module("core.audit.signins").connect()

@@ -9,6 +9,7 @@ from django.utils import timezone
 from bookings.models import Resource
 from bookings.selectors import resources_bookable
 from core.accounts.models import User
+from core.accounts.services import TOKEN_EXPIRY_MAX_DAYS, TOKEN_NAME_MAX_LENGTH
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
 
@@ -79,3 +80,16 @@ class BookingForm(forms.Form):
         super().__init__(*args, **kwargs)
         self.fields["resource"].queryset = resources_bookable()  # type: ignore[attr-defined]
         self.fields["experiment"].queryset = experiments_visible(user=user).filter(owner=user)  # type: ignore[attr-defined]
+
+
+class ApiTokenForm(forms.Form):
+    name = forms.CharField(
+        max_length=TOKEN_NAME_MAX_LENGTH, help_text="Where it is used, e.g. laptop."
+    )
+    expires_in_days = forms.IntegerField(
+        label="Expires in (days)",
+        min_value=1,
+        max_value=TOKEN_EXPIRY_MAX_DAYS,
+        required=False,
+        help_text="Empty: until you revoke it.",
+    )

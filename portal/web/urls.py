@@ -26,6 +26,7 @@ urlpatterns = [
     path("calendar/feeds/", views.calendar_feeds, name="calendar-feeds"),
     path("calendar/feed/<str:token>.ics", views.ical_personal, name="ical-personal"),
     path("calendar/feed/<str:token>/<slug:name>.ics", views.ical_resource, name="ical-resource"),
+    path("account/tokens/", views.api_tokens_page, name="api-tokens"),
     path("approvals/", views.approvals, name="approvals"),
     path("robot/<slug:name>/", views.robot_console, name="robot"),
     path("robot/<slug:name>/log.csv", console.robot_log_csv, name="robot-log-csv"),

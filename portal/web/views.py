@@ -32,7 +32,10 @@ from bookings.quotas import quota_summary
 from bookings.reports import GROUPINGS, usage_hours
 from bookings.rules import velocity_limit
 from bookings.selectors import resources_bookable
+from core.accounts.mfa import mfa_enabled, mfa_setup_redirect, needs_mfa_setup
 from core.accounts.models import User
+from core.accounts.selectors import api_tokens_of
+from core.accounts.services import api_token_create, api_token_revoke
 from core.audit.services import client_ip
 from core.errors import DomainError
 from core.health import health
@@ -62,7 +65,7 @@ from portal.runs.services.health import robots_held
 from portal.runs.services.robot import HOLD_REPEAT_MS, HOLD_TTL_S
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.builder import builder_context
-from portal.web.forms import BookingForm, ExperimentForm, PassForm
+from portal.web.forms import ApiTokenForm, BookingForm, ExperimentForm, PassForm
 
 
 @never_cache
@@ -75,18 +78,24 @@ def healthz(request: HttpRequest) -> JsonResponse:
     return JsonResponse(body, status=200 if ok else 503)
 
 
+NEW_TOKEN_SESSION_KEY = "api-token-created"  # noqa: S105 (a session key, not a secret)
+
+
 def _user(request: HttpRequest) -> Any:
     return request.user
 
 
 def admin_required(view: Callable[..., HttpResponse]) -> Callable[..., HttpResponse]:
-    """Anonymous visitors go to the login page; logged-in non-admins get 403."""
+    """Anonymous visitors go to the login page; logged-in non-admins get 403; admins without
+    MFA are sent to set it up first (robot control and approvals need it)."""
 
     @wraps(view)
     @login_required
     def wrapper(request: HttpRequest, *args: Any, **kwargs: Any) -> HttpResponse:
         if not _user(request).is_testbed_admin:
             raise PermissionDenied("This page is for the testbed's admins.")
+        if needs_mfa_setup(request.user):
+            return mfa_setup_redirect(request)
         return view(request, *args, **kwargs)
 
     return wrapper
@@ -366,6 +375,48 @@ def calendar_events(request: HttpRequest) -> JsonResponse:
             event["display"] = "background"
         events.append(event)
     return JsonResponse(events, safe=False)
+
+
+@login_required
+@never_cache
+def api_tokens_page(request: HttpRequest) -> HttpResponse:
+    """The user's API tokens: make one (shown once), see when each was last used, revoke."""
+    user = _user(request)
+    form = ApiTokenForm()
+    if request.method == "POST" and "revoke" in request.POST:
+        try:
+            api_token_revoke(user=user, digest=request.POST["revoke"], ip=client_ip(request))
+        except DomainError as exc:
+            messages.error(request, exc.message)
+        else:
+            messages.success(request, "Token revoked: it no longer works.")
+        return redirect("api-tokens")
+    if request.method == "POST":
+        form = ApiTokenForm(request.POST)
+        if form.is_valid():
+            try:
+                _, created = api_token_create(
+                    user=user,
+                    name=form.cleaned_data["name"],
+                    expires_in_days=form.cleaned_data["expires_in_days"],
+                    ip=client_ip(request),
+                )
+            except DomainError as exc:
+                _form_error(form, exc)
+            else:
+                # Shown by the next page only (a reload makes no second token).
+                request.session[NEW_TOKEN_SESSION_KEY] = created
+                return redirect("api-tokens")
+    return render(
+        request,
+        "web/tokens.html",
+        {
+            "form": form,
+            "created": request.session.pop(NEW_TOKEN_SESSION_KEY, None),
+            "tokens": api_tokens_of(user),
+            "needs_mfa": user.is_testbed_admin and not mfa_enabled(user),
+        },
+    )
 
 
 @login_required

@@ -26,7 +26,6 @@ from pathlib import Path
 
 import pytest
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 
 from bench.stack import REPO, free_port
 from portal.runs.services.booking import booking_create
@@ -36,6 +35,7 @@ from tests.factories import (
     FixedResourceFactory,
     MobileResourceFactory,
     UserFactory,
+    api_token,
 )
 from tests.integration.live import live_portal
 from tests.runs.driving import completed_run
@@ -71,7 +71,7 @@ def world(*, agent_url: str) -> dict:
         end_at=start + timedelta(minutes=30),
         experiment=ExperimentFactory(owner=erin),
     )
-    tokens = {u.username: Token.objects.create(user=u).key for u in (erin, bob, ada)}
+    tokens = {u.username: api_token(u) for u in (erin, bob, ada)}
     return {"tokens": tokens, "run": run.pk}
 
 

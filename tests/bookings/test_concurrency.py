@@ -9,11 +9,10 @@ import pytest
 import requests
 from django.db import IntegrityError, transaction
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 
 from bookings.choices import QuotaPeriod, ReservationState
 from bookings.models import QuotaPolicy, Reservation, ReservationItem
-from tests.factories import FixedResourceFactory, UserFactory
+from tests.factories import FixedResourceFactory, UserFactory, api_token
 
 pytestmark = pytest.mark.django_db(transaction=True)
 
@@ -37,7 +36,7 @@ def test_fifty_clients_racing_for_one_slot_get_exactly_one_booking(live_server):
         "start_at": start.isoformat(),
         "end_at": (start + timedelta(hours=1)).isoformat(),
     }
-    tokens = [Token.objects.create(user=UserFactory(username=f"racer{i}")).key for i in range(50)]
+    tokens = [api_token(UserFactory(username=f"racer{i}")) for i in range(50)]
     responses = _post_all(f"{live_server.url}/api/v1/reservations/", [(t, body) for t in tokens])
     codes = sorted(r.status_code for r in responses)
     assert codes == [201] + [409] * 49, codes
@@ -51,7 +50,7 @@ def test_a_two_hour_weekly_quota_admits_exactly_two_of_twenty_concurrent_hours(l
     QuotaPolicy.objects.create(
         name="Two hours a week", user=user, period=QuotaPeriod.WEEK, max_hours=2
     )
-    token = Token.objects.create(user=user).key
+    token = api_token(user)
     # Twenty different one-hour slots of twenty different nodes, all in next week.
     monday = timezone.localdate() + timedelta(days=7 - timezone.localdate().weekday())
     start = timezone.make_aware(timezone.datetime.combine(monday, timezone.datetime.min.time()))

@@ -14,10 +14,9 @@ import pytest
 import requests
 from django.utils import timezone
 from playwright.sync_api import Page, expect
-from rest_framework.authtoken.models import Token
 
 from tests.browser.conftest import login
-from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory, api_token
 from tests.integration.stack import Stack
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
@@ -27,7 +26,7 @@ PASSWORD = "correct horse battery"
 
 def _api(stack: Stack, username: str) -> requests.Session:
     session = requests.Session()
-    token = Token.objects.create(user=UserFactory(username=username)).key
+    token = api_token(UserFactory(username=username))
     session.headers["Authorization"] = f"Token {token}"
     return session
 

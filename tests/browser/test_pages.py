@@ -160,6 +160,9 @@ def test_no_page_breaks_the_content_security_policy(browser, live_server):
         "/usage/",
         "/scheduler-link/",
         "/accounts/password/change/",
+        "/account/tokens/",
+        "/accounts/2fa/",
+        "/accounts/2fa/recovery-codes/",
     ):
         response = page.goto(f"{live_server.url}{path}")
         assert response is not None, path

@@ -15,11 +15,10 @@ import requests
 from django.conf import settings
 from django.utils import timezone
 from playwright.sync_api import Page, expect
-from rest_framework.authtoken.models import Token
 
 from basestation.telemetry.rail import DEFAULT_RAIL_PATH
 from tests.browser.conftest import SCREENSHOTS, login
-from tests.factories import MobileResourceFactory, UserFactory
+from tests.factories import MobileResourceFactory, UserFactory, api_token
 from tests.integration.stack import Stack, running_stack
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
@@ -46,9 +45,7 @@ def roof_stack(tmp_path: Path) -> Iterator[Stack]:
 
 def _book(stack: Stack, username: str, *, ahead_s: float, program_s: float) -> int:
     api = requests.Session()
-    api.headers["Authorization"] = (
-        f"Token {Token.objects.create(user=UserFactory(username=username)).key}"
-    )
+    api.headers["Authorization"] = f"Token {api_token(UserFactory(username=username))}"
     experiment = api.post(
         f"{stack.web}/api/v1/experiments/",
         json={

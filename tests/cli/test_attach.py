@@ -8,14 +8,13 @@ from datetime import timedelta
 import pytest
 from django.contrib.auth.models import Permission
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 from typer.testing import CliRunner
 
 from amazing_cli.main import app
 from bookings.choices import BookedVia
 from bookings.services import reservation_create
 from portal.runs.models import Run
-from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
+from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory, api_token
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -28,7 +27,7 @@ def leased(live_web, monkeypatch, tmp_path):
     account = UserFactory(username="testbed-scheduler")
     account.user_permissions.add(Permission.objects.get(codename="lease_inbound"))
     monkeypatch.setenv("AMAZING_URL", live_web.url)
-    monkeypatch.setenv("AMAZING_TOKEN", Token.objects.create(user=erin).key)
+    monkeypatch.setenv("AMAZING_TOKEN", api_token(erin))
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.setenv("COLUMNS", "160")
     start = timezone.now().replace(microsecond=0) + timedelta(hours=2)

@@ -18,13 +18,13 @@ from pathlib import Path
 import pytest
 import requests
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 from typer.testing import CliRunner
 
 from amazing_cli.api import OPERATIONS, Api
 from amazing_cli.errors import CliError
 from amazing_cli.main import app
 from bookings.models import Reservation, Resource
+from core.accounts.models import ApiToken
 from portal.runs.services.booking import booking_create
 from tests.cli.schema_paths import undocumented
 from tests.factories import (
@@ -32,6 +32,9 @@ from tests.factories import (
     FixedResourceFactory,
     MobileResourceFactory,
     UserFactory,
+    api_token,
+    mfa_on,
+    totp_code,
 )
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -65,11 +68,12 @@ def portal(live_web, monkeypatch, tmp_path):
     FixedResourceFactory(name="node-01")
     erin = UserFactory(username="erin")
     monkeypatch.setenv("AMAZING_URL", live_web.url)
-    monkeypatch.setenv("AMAZING_TOKEN", Token.objects.create(user=erin).key)
+    token = api_token(erin)
+    monkeypatch.setenv("AMAZING_TOKEN", token)
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.setenv("COLUMNS", "160")
     monkeypatch.chdir(tmp_path)
-    return {"url": live_web.url, "erin": erin}
+    return {"url": live_web.url, "erin": erin, "token": token}
 
 
 def amazing(*args: str):
@@ -111,7 +115,7 @@ def test_every_operation_the_cli_knows_is_in_the_schema(portal):
 
 
 def test_login_stores_the_token_for_the_user_alone_and_the_environment_wins(portal, monkeypatch):
-    token = Token.objects.get(user=portal["erin"]).key
+    token = portal["token"]
     monkeypatch.delenv("AMAZING_TOKEN")
     monkeypatch.delenv("AMAZING_URL")
     result = amazing("login", "--url", portal["url"], "--token", token)
@@ -127,8 +131,41 @@ def test_login_stores_the_token_for_the_user_alone_and_the_environment_wins(port
     monkeypatch.setenv("AMAZING_TOKEN", "not-a-token")
     line = _one_line_error(amazing("quota"), 3)
     assert "Invalid token" in line
-    assert amazing("logout").exit_code == 0
+    logout = amazing("logout")
+    assert logout.exit_code == 0, logout.output
     assert not stored.exists()
+
+
+def test_login_with_a_password_and_the_code_asked_for_then_logout_revokes(portal, monkeypatch):
+    """``amazing login --username``: the portal makes a token for this computer, the
+    two-factor code asked for when the account has MFA; ``amazing logout`` revokes it."""
+    secret = mfa_on(portal["erin"])
+    monkeypatch.delenv("AMAZING_TOKEN")
+    monkeypatch.setenv("AMAZING_PASSWORD", "correct horse battery")
+    result = CliRunner().invoke(
+        app, ["login", "--username", "erin", "--name", "ci laptop"], input=totp_code(secret) + "\n"
+    )
+    assert result.exit_code == 0, result.output
+    assert "Two-factor code" in result.output
+    assert "as erin" in result.output
+    made = ApiToken.objects.get(name="ci laptop")
+    stored = json.loads((Path(portal_config_dir()) / "credentials.json").read_text())
+    assert stored["token"].startswith(made.token_key)
+    assert amazing("quota").exit_code == 0
+    logout = amazing("logout")
+    assert logout.exit_code == 0, logout.output
+    assert "revoked" in logout.output
+    assert not ApiToken.objects.filter(name="ci laptop").exists()
+    monkeypatch.setenv("AMAZING_TOKEN", stored["token"])
+    assert "Invalid token" in _one_line_error(amazing("quota"), 3)
+
+
+def test_login_with_a_wrong_password_stores_nothing(portal, monkeypatch):
+    monkeypatch.delenv("AMAZING_TOKEN")
+    monkeypatch.setenv("AMAZING_PASSWORD", "not it")
+    line = _one_line_error(amazing("login", "--username", "erin"), 2)
+    assert "username or the password is wrong" in line
+    assert not (Path(portal_config_dir()) / "credentials.json").exists()
 
 
 def portal_config_dir() -> str:
@@ -291,7 +328,7 @@ def test_a_script_retrying_with_its_key_books_once_and_sees_the_portals_status(p
     """The client's ``create`` with a key of the script's own: sent again (its answer lost),
     the portal replays the first booking instead of making a second; a refusal carries the
     portal's status, which tells a taken slot (409) from a portal that did not answer."""
-    api = Api(portal["url"], Token.objects.get(user=portal["erin"]).key)
+    api = Api(portal["url"], portal["token"])
     start = (timezone.now() + timedelta(hours=3)).replace(microsecond=0)
     body = {
         "resources": ["node-01"],

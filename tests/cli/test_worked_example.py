@@ -18,11 +18,10 @@ from pathlib import Path
 
 import pytest
 import requests
-from rest_framework.authtoken.models import Token
 
 from bench.stack import REPO
 from tests.cli.schema_paths import requests_in_access_log, undocumented
-from tests.factories import MobileResourceFactory, UserFactory
+from tests.factories import MobileResourceFactory, UserFactory, api_token
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -47,7 +46,7 @@ def test_the_worked_campaign_of_the_cli_manual_runs_as_written(stack, tmp_path):
         (tmp_path / name).write_text(body)
     (tmp_path / "campaign.sh").write_text(script)
     MobileResourceFactory(agent_url=stack["agent_url"])
-    token = Token.objects.create(user=UserFactory(username="erin")).key
+    token = api_token(UserFactory(username="erin"))
     env = {
         **os.environ,
         "AMAZING_URL": stack["web"],

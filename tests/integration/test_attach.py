@@ -12,11 +12,10 @@ import pytest
 import requests
 from django.contrib.auth.models import Permission
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 
 from bookings.choices import BookedVia
 from bookings.models import Reservation
-from tests.factories import MobileResourceFactory, UserFactory
+from tests.factories import MobileResourceFactory, UserFactory, api_token
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -37,8 +36,8 @@ def test_a_lease_api_booking_given_an_experiment_runs_it(stack):
     account = UserFactory(username="testbed-scheduler")
     account.user_permissions.add(Permission.objects.get(codename="lease_inbound"))
     web = stack.web
-    as_owner = {"Authorization": f"Token {Token.objects.create(user=owner).key}"}
-    as_scheduler = {"Authorization": f"Token {Token.objects.create(user=account).key}"}
+    as_owner = {"Authorization": f"Token {api_token(owner)}"}
+    as_scheduler = {"Authorization": f"Token {api_token(account)}"}
     experiment = requests.post(
         f"{web}/api/v1/experiments/",
         json={

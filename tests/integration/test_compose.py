@@ -259,8 +259,16 @@ def test_the_compose_services_run_in_production_mode_and_a_booked_run_completes(
         "ops@example.org",
         env={"DJANGO_SUPERUSER_PASSWORD": password},
     )
-    printed = deployment.run("web", "manage.py", "drf_create_token", "ops")
-    token = re.search(r"Generated token (\w+)", printed)
+    # An experimenter's account and API token (a staff account's token would need MFA).
+    deployment.run(
+        "web",
+        "manage.py",
+        "shell",
+        "-c",
+        "from core.accounts.models import User; User.objects.create_user('erin')",
+    )
+    printed = deployment.run("web", "manage.py", "api_token", "create", "erin", "--name", "compose")
+    token = re.search(r"^(amz_\w+)$", printed, re.MULTILINE)
     assert token, printed
     headers = {"Authorization": f"Token {token.group(1)}"}
     _wait_ready(deployment)

@@ -17,9 +17,8 @@ import pytest
 from django.urls import resolve
 from django.utils import timezone
 from prometheus_client.parser import text_string_to_metric_families
-from rest_framework.authtoken.models import Token
 
-from tests.factories import MobileResourceFactory, UserFactory
+from tests.factories import MobileResourceFactory, UserFactory, api_token
 from tests.integration.stack import METRICS_TOKEN
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -40,7 +39,7 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
 
     MobileResourceFactory(agent_url=stack["agent_url"])
     user = UserFactory(username="erin")
-    headers = {"Authorization": f"Token {Token.objects.create(user=user).key}"}
+    headers = {"Authorization": f"Token {api_token(user)}"}
     web = stack["web"]
     segments = [
         {"velocity_mps": 0.5, "direction": "cw", "duration_s": SEGMENT_S},

@@ -20,14 +20,13 @@ from typing import Any, TypeVar
 import pytest
 import requests
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 
 from basestation.client import AgentClient, AgentError
 from bench.stack import Proc
 from bookings.models import Resource
 from portal.runs.models import Run, Sample
 from portal.runs.services.collection import MissingRange
-from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory, api_token
 from tests.integration.stack import FAULT_ENV, Stack
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -63,7 +62,7 @@ class Experimenter:
         self.user = UserFactory(username=username)
         self.stack = stack
         self.session = requests.Session()
-        token = Token.objects.create(user=self.user).key
+        token = api_token(self.user)
         self.session.headers["Authorization"] = f"Token {token}"
 
     def book(

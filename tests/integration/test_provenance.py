@@ -16,10 +16,9 @@ import pytest
 import requests
 from django.conf import settings
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 
 from basestation.telemetry.rail import DEFAULT_RAIL_PATH
-from tests.factories import MobileResourceFactory, UserFactory
+from tests.factories import MobileResourceFactory, UserFactory, api_token
 from tests.integration.stack import running_stack
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -104,7 +103,7 @@ def test_the_stored_provenance_is_what_the_robot_and_the_agent_were_started_with
             robot.refresh_from_db()
         assert robot.agent_max_velocity_mps == 1.5, stack.output()
         user = UserFactory(username="gil")
-        headers = {"Authorization": f"Token {Token.objects.create(user=user).key}"}
+        headers = {"Authorization": f"Token {api_token(user)}"}
         first, first_end = _run_program(stack.web, headers)
         assert first["state"] == "completed", (first.get("reason"), stack.output())
 

@@ -12,11 +12,10 @@ from typing import Any
 import pytest
 import requests
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 
 from bookings.models import Reservation, SchedulerLink
 from bookings.notifications import reservation_message
-from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory, api_token
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -55,7 +54,7 @@ def world(stack_with_scheduler):
     for i in range(1, 7):
         FixedResourceFactory(name=f"node-{i:02d}")
     user = UserFactory(username="erin")
-    headers = {"Authorization": f"Token {Token.objects.create(user=user).key}"}
+    headers = {"Authorization": f"Token {api_token(user)}"}
     return stack, user, headers
 
 

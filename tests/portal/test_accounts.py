@@ -6,7 +6,8 @@ import re
 
 import pytest
 from django.core import mail
-from rest_framework.authtoken.models import Token
+
+from tests.factories import api_token
 
 pytestmark = pytest.mark.django_db
 
@@ -53,9 +54,9 @@ def test_a_forgotten_password_is_reset_by_email(client, owner):
 
 
 def test_the_api_takes_a_token_or_a_session(client, owner):
-    token = Token.objects.create(user=owner)
+    token = api_token(owner)
     assert client.get("/api/v1/runs/").status_code == 401
-    assert client.get("/api/v1/runs/", HTTP_AUTHORIZATION=f"Token {token.key}").status_code == 200
+    assert client.get("/api/v1/runs/", HTTP_AUTHORIZATION=f"Token {token}").status_code == 200
     client.force_login(owner)
     assert client.get("/api/v1/runs/").status_code == 200
     # A session-authenticated write needs the CSRF token, like any form.

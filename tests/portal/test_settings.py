@@ -141,3 +141,31 @@ def test_every_answer_carries_the_security_headers(client):
         assert response["Referrer-Policy"] == "same-origin"
         assert "camera=()" in response["Permissions-Policy"]
         assert response["X-Content-Type-Options"] == "nosniff"
+
+
+def test_production_limits_sign_ins_and_sessions_last_session_age_s(tmp_path):
+    env = {**PRODUCTION, "SESSION_AGE_S": "3600"}
+    check = (
+        "import django; django.setup(); from django.conf import settings; "
+        "from allauth.account import app_settings as a; "
+        "print(settings.SESSION_COOKIE_AGE, sorted(a.RATE_LIMITS))"
+    )
+    clean = {k: v for k, v in os.environ.items() if not k.startswith(_NOT_INHERITED)}
+    result = subprocess.run(
+        [sys.executable, "-c", check],
+        cwd=REPO,
+        env={
+            **clean,
+            "DJANGO_SETTINGS_MODULE": "portal.settings",
+            "AMAZING_VAR_DIR": str(tmp_path),
+            **env,
+        },
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    age, limits = result.stdout.strip().split(" ", 1)
+    assert age == "3600"
+    for action in ("login", "login_failed", "reset_password"):
+        assert f"'{action}'" in limits

@@ -14,7 +14,6 @@ from django.shortcuts import get_object_or_404
 from django.urls import reverse
 from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
-from rest_framework.permissions import IsAdminUser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
@@ -23,6 +22,7 @@ from bookings.choices import Channel, ReservationState
 from bookings.models import CALENDAR, Reservation, ReservationItem, Resource
 from bookings.rules import PROBLEM_CODES
 from core.accounts.models import User
+from core.accounts.permissions import StaffMfaRequired
 from core.api import (
     DateTimeInput,
     Pagination,
@@ -326,7 +326,7 @@ class DecisionInput(serializers.Serializer):
 
 
 class ReservationDecisionApi(APIView):
-    permission_classes = [IsAdminUser]
+    permission_classes = [StaffMfaRequired]
 
     @extend_schema(
         request=DecisionInput,

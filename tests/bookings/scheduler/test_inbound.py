@@ -15,13 +15,12 @@ from pathlib import Path
 import pytest
 from django.contrib.auth.models import Permission
 from django.utils import timezone
-from rest_framework.authtoken.models import Token
 
 from bookings.choices import BookedVia
 from bookings.models import Blackout, QuotaPolicy, Reservation
 from bookings.services import reservation_create
 from portal.runs.services.booking import booking_create
-from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
+from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory, api_token
 
 pytestmark = pytest.mark.django_db(transaction=True)
 
@@ -62,7 +61,7 @@ def broker_client(live_server, tmp_path):
 def service_token() -> str:
     account = UserFactory(username="testbed-scheduler")
     account.user_permissions.add(Permission.objects.get(codename="lease_inbound"))
-    return Token.objects.create(user=account).key
+    return api_token(account)
 
 
 @pytest.fixture
@@ -171,7 +170,7 @@ def test_without_the_service_account_nothing_is_answered_but_the_envelope(
         "status": 401,
         "body": {"exception": {"code": 401, "reason": "Missing or invalid credentials."}},
     }
-    token = Token.objects.create(user=owner).key
+    token = api_token(owner)
     plain_user = broker_client("GET", "/resources/leases", token=token)
     assert plain_user["status"] == 403
     assert not Reservation.objects.exists()
