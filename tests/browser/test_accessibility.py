@@ -83,6 +83,8 @@ def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_ser
         "usage": "/usage/",
         "scheduler-link": "/scheduler-link/",
         "password": "/accounts/password/change/",
+        "api-tokens": "/account/tokens/",
+        "two-factor": "/accounts/2fa/",
     }
     for name, path in pages.items():
         response = page.goto(f"{live_server.url}{path}")
