@@ -52,6 +52,11 @@ def _drop(url: str, name: str) -> None:
     from django.db import connections
 
     connections.close_all()
+    # Closing gives pooled connections back to the pool; dropping the database would kill
+    # them there, and the next benchmark would borrow a dead one.
+    for connection in connections.all():
+        if hasattr(connection, "close_pool"):
+            connection.close_pool()
     admin = urlunsplit(urlsplit(url)._replace(path="/postgres"))
     with psycopg.connect(admin, autocommit=True) as conn:
         conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
