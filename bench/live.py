@@ -111,25 +111,42 @@ def _follow_stream(
     redrawer = threading.Thread(target=redraw)
     redrawer.start()
     try:
-        with session.get(
-            f"{streams}/live/runs/{run_id}/", stream=True, timeout=(5, 60)
-        ) as response:
-            event = ""
-            for line in response.iter_lines(decode_unicode=True):
-                if stop.is_set():
+        # As a browser's EventSource does: a stream refused or dropped is opened again (what
+        # was announced meanwhile is missed, and counted so) until the run's last state.
+        while not stop.is_set():
+            try:
+                if _read_stream(session, f"{streams}/live/runs/{run_id}/", sse, dirty, stop):
                     return
-                if line.startswith("event:"):
-                    event = line.split(":", 1)[1].strip()
-                elif line.startswith("data:") and event == "samples":
-                    at_s = time.time()
-                    data = json.loads(line.split(":", 1)[1])
-                    sse.announce(int(data["first_seq"]), int(data["last_seq"]), at_s)
-                    dirty.set()
-                elif line.startswith("data:") and event == "state" and '"live":false' in line:
-                    return
+            except requests.RequestException:
+                sse.errors += 1
+            stop.wait(0.5)
     finally:
         done.set()
         redrawer.join(timeout=30)
+
+
+def _read_stream(
+    session: requests.Session, url: str, sse: Watcher, dirty: threading.Event, stop: Any
+) -> bool:
+    """One connection to the run's stream; True once it says the run has ended."""
+    with session.get(url, stream=True, timeout=(5, 60)) as response:
+        if response.status_code != 200:
+            sse.errors += 1
+            return False
+        event = ""
+        for line in response.iter_lines(decode_unicode=True):
+            if stop.is_set():
+                return True
+            if line.startswith("event:"):
+                event = line.split(":", 1)[1].strip()
+            elif line.startswith("data:") and event == "samples":
+                at_s = time.time()
+                data = json.loads(line.split(":", 1)[1])
+                sse.announce(int(data["first_seq"]), int(data["last_seq"]), at_s)
+                dirty.set()
+            elif line.startswith("data:") and event == "state" and '"live":false' in line:
+                return True
+    return False
 
 
 def _poll(web: str, session: requests.Session, run_id: int, polled: Watcher, stop: Any) -> None:

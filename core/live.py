@@ -264,8 +264,14 @@ def samples_publish(run_id: int, event: Mapping[str, Any]) -> bool:
     mark them announced, both or neither; False (logged) if the bus is down."""
     payload = json.dumps(event, separators=(",", ":"), default=str)
     seqs = range(int(event["first_seq"]), int(event["last_seq"]) + 1)
+    channel = run_channel(run_id)
     try:
-        bus().publish_marked(run_channel(run_id), payload, announced_key(run_id), seqs)
+        bus().publish_marked(channel, payload, announced_key(run_id), seqs)
+    except redis.ResponseError as exc:
+        # Redis refused the marks (not the connection): the pages still hear of the samples;
+        # only a crash before the next announcement could now repeat these.
+        logger.warning("live: samples of run %s announced without marks (%s)", run_id, exc)
+        return publish(channel, event)
     except (redis.RedisError, OSError) as exc:
         logger.info("live: samples of run %s not published (%s)", run_id, exc)
         return False

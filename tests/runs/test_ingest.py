@@ -169,3 +169,12 @@ def test_without_marks_on_the_bus_nothing_is_announced_again(run, settings, tmp_
     settings.LIVE_DIR = tmp_path / "live"
     samples_ingest(run=run, samples=_page(1, 10))
     assert collection.samples_announce_missed(run=run) == 0
+
+
+def test_marks_refused_by_redis_still_announce_the_samples(run, run_channel_events, monkeypatch):
+    def refuse(self, channel, payload, key, seqs):
+        raise redis.ResponseError("ERR unknown command 'BITFIELD'")
+
+    monkeypatch.setattr(live.RedisBus, "publish_marked", refuse)
+    assert live.samples_publish(run.pk, {"type": "samples", "first_seq": 1, "last_seq": 5})
+    assert run_channel_events(1) == [(1, 5)]
