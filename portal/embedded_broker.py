@@ -202,7 +202,11 @@ class Channel(filesystem.Channel):
             if owner == self._owner or _owner_alive(owner):
                 continue
             held = self.inflight_folder / owner
-            for name in sorted(os.listdir(held)) if held.is_dir() else []:
+            try:
+                names = sorted(os.listdir(held))
+            except (FileNotFoundError, NotADirectoryError):
+                continue  # another consumer recovered it and removed the folder meanwhile
+            for name in names:
                 with contextlib.suppress(FileNotFoundError):  # another consumer was quicker
                     os.rename(held / name, Path(self.data_folder_in) / name)
                     recovered += 1
