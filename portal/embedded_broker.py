@@ -7,6 +7,9 @@ redelivery is what recovers them). This subclass changes exactly those two steps
 
 - **write**: a message is written to a hidden temporary file in the queue's folder and renamed
   into place, so a consumer sees a whole message or none;
+- **bindings**: the table of queues bound to an exchange is changed under an exclusive lock on a
+  file of its own and replaced with one rename (kombu's truncates it in place, so a process
+  starting beside another could read an empty table and die on the JSON);
 - **take**: a consumer claims a message by renaming it into a folder of its own under
   ``inflight_folder`` (one rename: one consumer wins); the file is removed when the message is
   acknowledged (or rejected), and put back into the queue when the message is restored. Files
@@ -24,6 +27,7 @@ Used through the broker URL ``filesystem://`` with ``broker_transport`` naming t
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import logging
 import os
 import time
@@ -139,6 +143,52 @@ class Channel(filesystem.Channel):
             with contextlib.suppress(OSError):
                 temporary.unlink()
             raise ChannelError(f"cannot add message {name!r} to {folder}") from exc
+
+    # Exchange tables (kombu keeps them as JSON files in the control folder).
+    def get_table(self, exchange: str) -> list[filesystem.exchange_queue_t]:
+        try:
+            text = self._exchange_file(exchange).read_bytes()
+        except FileNotFoundError:
+            return []
+        except OSError as exc:
+            raise ChannelError(f"cannot read the bindings of exchange {exchange!r}") from exc
+        return [filesystem.exchange_queue_t(*row) for row in loads(text.decode())]
+
+    def _queue_bind(  # type: ignore[override]
+        self, exchange: str, routing_key: str, pattern: str, queue: str
+    ) -> None:
+        bound = filesystem.exchange_queue_t(routing_key or "", pattern or "", queue or "")
+        with self._table_changed(exchange) as table:
+            if bound not in table:
+                table.insert(0, bound)
+
+    def _delete(  # type: ignore[override]
+        self, queue: str, exchange: str, routing_key: str, pattern: str, *args: Any, **kwargs: Any
+    ) -> None:
+        virtual.Channel._delete(self, queue, exchange, routing_key, pattern, *args, **kwargs)
+        bound = filesystem.exchange_queue_t(routing_key or "", pattern or "", queue or "")
+        with self._table_changed(exchange) as table:
+            if bound in table:
+                table.remove(bound)
+
+    @contextlib.contextmanager
+    def _table_changed(self, exchange: str) -> Iterator[list[filesystem.exchange_queue_t]]:
+        """The exchange's table to change in place; written back whole when the block ends.
+        One process at a time: an exclusive lock on a lock file of the exchange's own (the
+        table itself is replaced, so it cannot carry the lock)."""
+        file = self._exchange_file(exchange)
+        try:
+            with open(file.with_name(f"{file.name}.lock"), "a") as lock:
+                fcntl.flock(lock.fileno(), fcntl.LOCK_EX)
+                table = self.get_table(exchange)
+                before = list(table)
+                yield table
+                if table != before:
+                    temporary = file.with_name(f"{_TEMPORARY_PREFIX}{uuid.uuid4()}")
+                    temporary.write_bytes(dumps(table).encode())
+                    os.replace(temporary, file)
+        except OSError as exc:
+            raise ChannelError(f"cannot change the bindings of exchange {exchange!r}") from exc
 
     def _get(self, queue: str, timeout: float | None = None) -> Any:
         """Claim the oldest message of ``queue`` by moving it into this consumer's folder."""

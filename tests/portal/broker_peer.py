@@ -2,22 +2,26 @@
 
     python -m tests.portal.broker_peer produce FOLDER QUEUE FIRST COUNT
     python -m tests.portal.broker_peer consume FOLDER QUEUE OUT_FILE [--hold-after N]
+    python -m tests.portal.broker_peer bind FOLDER EXCHANGE PREFIX COUNT
 
 A producer publishes the ids FIRST … FIRST+COUNT-1. A consumer writes each id it has handled to
 OUT_FILE (one a line, flushed) and then acknowledges it; it stops when DONE appears in FOLDER
 and neither the queue nor any consumer's in-flight folder holds a message. With
 ``--hold-after N`` it takes an (N+1)th message and never acknowledges it, writing HOLDING to
-its file — the test then kills it.
+its file — the test then kills it. A binder writes ready-PREFIX to FOLDER once connected and,
+when GO appears there, declares the queues PREFIX-0 … PREFIX-(COUNT-1) bound to EXCHANGE,
+reading the exchange's table after each.
 """
 
 from __future__ import annotations
 
+import os
 import queue as stdlib_queue
 import sys
 import time
 from pathlib import Path
 
-from kombu import Connection
+from kombu import Connection, Exchange, Queue
 
 TRANSPORT = "portal.embedded_broker:Transport"
 
@@ -44,6 +48,12 @@ def produce(folder: Path, name: str, first: int, count: int) -> None:
         work.close()
 
 
+def _anything_in_flight(inflight: Path) -> bool:
+    # os.walk rather than Path.rglob: another consumer may remove a dead one's folder
+    # between the listing and the look inside, which rglob raises on.
+    return any(files for _, _, files in os.walk(inflight))
+
+
 def consume(folder: Path, name: str, out_file: Path, hold_after: int | None) -> None:
     handled = 0
     with connection(folder) as conn, out_file.open("a", buffering=1) as out:
@@ -55,7 +65,7 @@ def consume(folder: Path, name: str, out_file: Path, hold_after: int | None) -> 
             except stdlib_queue.Empty:
                 # Done when the producers are, nothing is queued, and nothing is held in
                 # flight (a killed consumer's message is put back within a few seconds).
-                held = any(p.is_file() for p in (folder / "inflight").rglob("*"))
+                held = _anything_in_flight(folder / "inflight")
                 if (folder / "DONE").exists() and work.qsize() == 0 and not held:
                     break
                 continue
@@ -69,9 +79,24 @@ def consume(folder: Path, name: str, out_file: Path, hold_after: int | None) -> 
         work.close()
 
 
+def bind(folder: Path, exchange_name: str, prefix: str, count: int) -> None:
+    with connection(folder) as conn:
+        channel = conn.default_channel
+        exchange = Exchange(exchange_name, type="direct", durable=False)
+        (folder / f"ready-{prefix}").touch()
+        while not (folder / "GO").exists():  # all binders start together
+            time.sleep(0.01)
+        for number in range(count):
+            queue_name = f"{prefix}-{number}"
+            Queue(queue_name, exchange, routing_key=queue_name)(channel).declare()
+            channel.get_table(exchange_name)  # raises if it ever reads a half-written table
+
+
 def main(argv: list[str]) -> int:
     role, folder, name = argv[0], Path(argv[1]), argv[2]
-    if role == "produce":
+    if role == "bind":
+        bind(folder, name, argv[3], int(argv[4]))
+    elif role == "produce":
         produce(folder, name, int(argv[3]), int(argv[4]))
     else:
         hold_after = int(argv[5]) if len(argv) > 5 and argv[4] == "--hold-after" else None

@@ -149,6 +149,26 @@ def test_a_message_put_back_by_a_live_consumer_is_delivered_again(tmp_path):
     assert list((tmp_path / "queue").iterdir()) == []
 
 
+def test_processes_binding_queues_to_one_exchange_at_once_lose_no_binding(tmp_path):
+    """Celery's worker, beat and web declare their queues at the same moment when ``make run``
+    starts: the exchange's table of bindings is never read half written, and no binding is
+    lost to another process's write."""
+    binders, per_binder = 6, 150
+    processes = [
+        _peer("bind", str(tmp_path), "shared", f"b{i}", str(per_binder)) for i in range(binders)
+    ]
+    _wait(lambda: len(list(tmp_path.glob("ready-*"))) == binders, 60, "the binders to connect")
+    (tmp_path / "GO").touch()
+    for process in processes:
+        code, output = _finish(process, 120)
+        assert code == 0, output
+    with connection(tmp_path) as conn:
+        table = conn.default_channel.get_table("shared")
+    assert sorted(row.queue for row in table) == sorted(
+        f"b{i}-{n}" for i in range(binders) for n in range(per_binder)
+    )
+
+
 def test_the_embedded_default_uses_this_transport(tmp_path):
     """Without a broker URL (``make run``), Celery connects through this transport."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("CELERY_", "REDIS_"))}
