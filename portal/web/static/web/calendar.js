@@ -5,7 +5,6 @@
   if (!el || typeof FullCalendar === "undefined") return;
   const zone = el.dataset.zone;
   const DateTime = luxon.DateTime;
-  const csrf = document.querySelector("[name=csrfmiddlewaretoken]").value;
   const filter = document.getElementById("resource-filter");
   const dialog = document.getElementById("booking-dialog");
   const form = document.getElementById("booking-form");
@@ -13,28 +12,7 @@
   const eventDialog = document.getElementById("event-dialog");
   let selected = null;
 
-  async function api(method, url, body, extraHeaders) {
-    const response = await fetch(url, {
-      method,
-      headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" }, extraHeaders || {}),
-      body: body === undefined ? undefined : JSON.stringify(body),
-      credentials: "same-origin",
-    });
-    let data = null;
-    try { data = await response.json(); } catch (e) { data = null; }
-    return { ok: response.ok, status: response.status, data };
-  }
-
-  function explain(data) {
-    if (!data) return "The server did not answer clearly; try again.";
-    const parts = [data.detail || ""];
-    if (data.fields) {
-      for (const [field, messages] of Object.entries(data.fields)) {
-        for (const m of [].concat(messages)) if (m && m !== data.detail) parts.push(field === "quota" ? m : `${field}: ${m}`);
-      }
-    }
-    return parts.filter(Boolean).join(" ");
-  }
+  const { api, explain } = window.AmazingApi;
 
   // datetime-local values are wall-clock times in the testbed's zone.
   const toLocalInput = (date) => DateTime.fromJSDate(date, { zone }).toFormat("yyyy-LL-dd'T'HH:mm");

@@ -5,7 +5,6 @@
   const root = document.getElementById("robot");
   if (!root) return;
   const base = `/api/v1/resources/${root.dataset.name}`;
-  const csrf = root.querySelector("[name=csrfmiddlewaretoken]").value;
   const feedback = document.getElementById("console-feedback");
 
   function say(text, isError) {
@@ -14,19 +13,9 @@
     feedback.className = "flash" + (isError ? " error" : "");
   }
   async function call(method, path, body) {
-    const response = await fetch(base + path, {
-      method,
-      headers: { "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" },
-      body: body === undefined ? undefined : JSON.stringify(body),
-      credentials: "same-origin",
-    });
-    let data = null;
-    try { data = await response.json(); } catch (e) { data = null; }
-    if (!response.ok) {
-      const detail = data && (data.detail || JSON.stringify(data.fields || data));
-      throw new Error(detail || response.statusText);
-    }
-    return data;
+    const answer = await window.AmazingApi.api(method, base + path, body);
+    if (!answer.ok) throw new Error(window.AmazingApi.explain(answer.data));
+    return answer.data;
   }
   const set = (id, text) => { document.getElementById(id).textContent = text; };
   const fmt = (value, unit, digits) => (value === null || value === undefined ? "—" : `${Number(value).toFixed(digits)} ${unit}`);

@@ -9,7 +9,6 @@
   if (!el || typeof EventCalendar === "undefined") return;
   const zone = el.dataset.zone;
   const DateTime = luxon.DateTime;
-  const csrf = document.querySelector("[name=csrfmiddlewaretoken]").value;
   const rows = JSON.parse(document.getElementById("timeline-rows").textContent);
   const leaves = rows.flatMap((group) => group.children);
   const order = leaves.map((r) => r.id); // rows top to bottom: a drag takes those between
@@ -21,28 +20,7 @@
   const FLOATING = "yyyy-LL-dd'T'HH:mm:ss";
   const SLOT_MIN = 30;
 
-  async function api(method, url, body, extraHeaders) {
-    const response = await fetch(url, {
-      method,
-      headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" }, extraHeaders || {}),
-      body: body === undefined ? undefined : JSON.stringify(body),
-      credentials: "same-origin",
-    });
-    let data = null;
-    try { data = await response.json(); } catch (e) { data = null; }
-    return { ok: response.ok, status: response.status, data };
-  }
-
-  function explain(data) {
-    if (!data) return "The server did not answer clearly; try again.";
-    const parts = [data.detail || ""];
-    if (data.fields) {
-      for (const [field, messages] of Object.entries(data.fields)) {
-        for (const m of [].concat(messages)) if (m && m !== data.detail) parts.push(field === "quota" ? m : `${field}: ${m}`);
-      }
-    }
-    return parts.filter(Boolean).join(" ");
-  }
+  const { api, explain } = window.AmazingApi;
 
   // Event Calendar's dates carry the testbed's wall-clock time in the browser's fields.
   const wall = (d) => DateTime.fromObject(
