@@ -11,49 +11,17 @@ import signal
 from datetime import timedelta
 
 import pytest
-import requests
 from django.utils import timezone
 from playwright.sync_api import Page, expect
 
 from tests.browser.conftest import login
-from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory, api_token
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.integration.experimenter import Experimenter
 from tests.integration.stack import Stack
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 
 PASSWORD = "correct horse battery"
-
-
-def _api(stack: Stack, username: str) -> requests.Session:
-    session = requests.Session()
-    token = api_token(UserFactory(username=username))
-    session.headers["Authorization"] = f"Token {token}"
-    return session
-
-
-def _book_run(stack: Stack, api: requests.Session, *, ahead_s: float, program_s: float) -> int:
-    experiment = api.post(
-        f"{stack.web}/api/v1/experiments/",
-        json={
-            "title": "watched run",
-            "segments": [{"velocity_mps": 0.4, "direction": "cw", "duration_s": program_s}],
-        },
-        timeout=10,
-    )
-    assert experiment.status_code == 201, experiment.text
-    start = timezone.now() + timedelta(seconds=ahead_s)
-    booking = api.post(
-        f"{stack.web}/api/v1/reservations/",
-        json={
-            "resource": "mobile-1",
-            "experiment": experiment.json()["id"],
-            "start_at": start.isoformat(),
-            "end_at": (start + timedelta(seconds=program_s + 4)).isoformat(),
-        },
-        timeout=10,
-    )
-    assert booking.status_code == 201, booking.text
-    return int(booking.json()["run"]["id"])
 
 
 SCRIPT_ERRORS: list[str] = []
@@ -83,9 +51,8 @@ def test_the_run_page_reconnects_when_the_web_process_restarts_and_ends_complete
     browser, fault_stack
 ):
     MobileResourceFactory(agent_url=fault_stack.agent_url)
-    api = _api(fault_stack, "gale")
     # Long enough to be still running when both servers are back.
-    run_id = _book_run(fault_stack, api, ahead_s=4, program_s=40)
+    run_id = Experimenter(fault_stack, "gale").run("mobile-1", ahead_s=4, program_s=40)
     page = _page(browser, fault_stack, "gale")
     page.goto(f"{fault_stack.web}/runs/{run_id}/")
     live = page.locator("#live-status")
@@ -116,8 +83,7 @@ def test_the_run_page_survives_answers_without_the_run_and_keeps_refreshing(brow
     """During a deploy the page may get anything: an empty object, an error page, a body cut
     short. Each is reported, and the next read carries on to the run's end."""
     MobileResourceFactory(agent_url=fault_stack.agent_url)
-    api = _api(fault_stack, "gale")
-    run_id = _book_run(fault_stack, api, ahead_s=3, program_s=6)
+    run_id = Experimenter(fault_stack, "gale").run("mobile-1", ahead_s=3, program_s=6)
     page = _page(browser, fault_stack, "gale")
     bad_answers = [
         {"status": 200, "content_type": "application/json", "body": "{}"},
@@ -174,7 +140,7 @@ def test_the_console_and_the_calendar_show_a_hold_and_new_bookings_without_a_rel
 
     # Someone else books: the calendar shows it as busy, without a reload.
     node = FixedResourceFactory()
-    other = _api(fault_stack, "ivan").post(
+    other = Experimenter(fault_stack, "ivan").session.post(
         f"{fault_stack.web}/api/v1/reservations/",
         json={
             "resources": [node.name],

@@ -7,18 +7,16 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Iterator
-from datetime import timedelta
 from pathlib import Path
 
 import pytest
-import requests
 from django.conf import settings
-from django.utils import timezone
 from playwright.sync_api import Page, expect
 
 from basestation.telemetry.rail import DEFAULT_RAIL_PATH
 from tests.browser.conftest import SCREENSHOTS, login
-from tests.factories import MobileResourceFactory, UserFactory, api_token
+from tests.factories import MobileResourceFactory, UserFactory
+from tests.integration.experimenter import Experimenter
 from tests.integration.stack import Stack, running_stack
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
@@ -41,33 +39,6 @@ def roof_stack(tmp_path: Path) -> Iterator[Stack]:
         extra_env={"AGENT_RAIL_FILE": str(rail_file), "HEALTH_POLL_INTERVAL_S": "1"},
     ) as stack:
         yield stack
-
-
-def _book(stack: Stack, username: str, *, ahead_s: float, program_s: float) -> int:
-    api = requests.Session()
-    api.headers["Authorization"] = f"Token {api_token(UserFactory(username=username))}"
-    experiment = api.post(
-        f"{stack.web}/api/v1/experiments/",
-        json={
-            "title": "roof watch",
-            "segments": [{"velocity_mps": 0.5, "direction": "cw", "duration_s": program_s}],
-        },
-        timeout=10,
-    )
-    assert experiment.status_code == 201, experiment.text
-    start = timezone.now() + timedelta(seconds=ahead_s)
-    booking = api.post(
-        f"{stack.web}/api/v1/reservations/",
-        json={
-            "resource": "mobile-1",
-            "experiment": experiment.json()["id"],
-            "start_at": start.isoformat(),
-            "end_at": (start + timedelta(seconds=program_s + 4)).isoformat(),
-        },
-        timeout=10,
-    )
-    assert booking.status_code == 201, booking.text
-    return int(booking.json()["run"]["id"])
 
 
 def _check_map(page: Page) -> None:
@@ -100,7 +71,10 @@ def _moves(page: Page) -> None:
 def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, roof_stack):
     MobileResourceFactory(agent_url=roof_stack.agent_url)
     UserFactory(username="root", is_staff=True, is_superuser=True)
-    run_id = _book(roof_stack, "ines", ahead_s=5, program_s=20)
+    one_way = [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 20}]
+    run_id = Experimenter(roof_stack, "ines").run(
+        "mobile-1", ahead_s=5, program_s=20, segments=one_way
+    )
 
     context = browser.new_context(viewport={"width": 1280, "height": 1000})
     errors: list[str] = []

@@ -11,7 +11,8 @@ import time
 import pytest
 
 from tests.factories import MobileResourceFactory
-from tests.integration.test_faults import Experimenter, assert_same_samples, wait_for, wait_state
+from tests.integration.experimenter import Experimenter
+from tests.integration.test_faults import assert_same_samples, wait_for, wait_state
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 

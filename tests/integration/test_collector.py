@@ -19,9 +19,9 @@ import redis
 
 from core.live import REDIS_PREFIX, run_channel
 from tests.factories import MobileResourceFactory
+from tests.integration.experimenter import Experimenter
 from tests.integration.stack import FAULT_ENV, RedisServer, Stack, running_stack
 from tests.integration.test_faults import (
-    Experimenter,
     assert_same_samples,
     wait_for,
     wait_state,

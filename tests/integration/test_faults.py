@@ -14,8 +14,8 @@ import signal
 import time
 from collections import Counter
 from collections.abc import Callable
-from datetime import datetime, timedelta
-from typing import Any, TypeVar
+from datetime import timedelta
+from typing import TypeVar
 
 import pytest
 import requests
@@ -26,7 +26,8 @@ from bench.stack import Proc
 from bookings.models import Resource
 from portal.runs.models import Run, Sample
 from portal.runs.services.collection import MissingRange
-from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory, api_token
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.integration.experimenter import Experimenter
 from tests.integration.stack import FAULT_ENV, Stack
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -45,65 +46,6 @@ def wait_for(what: str, stack: Stack, check: Callable[[], T | None], timeout_s: 
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out waiting for {what}\n{stack.output()}")
         time.sleep(0.2)
-
-
-def _segments(seconds: float, velocity_mps: float = 0.4) -> list[dict[str, Any]]:
-    half = seconds / 2
-    return [
-        {"velocity_mps": velocity_mps, "direction": "cw", "duration_s": half},
-        {"velocity_mps": velocity_mps, "direction": "ccw", "duration_s": half},
-    ]
-
-
-class Experimenter:
-    """A user booking over the REST API, as a script would."""
-
-    def __init__(self, stack: Stack, username: str) -> None:
-        self.user = UserFactory(username=username)
-        self.stack = stack
-        self.session = requests.Session()
-        token = api_token(self.user)
-        self.session.headers["Authorization"] = f"Token {token}"
-
-    def book(
-        self,
-        resource: str,
-        *,
-        ahead_s: float,
-        program_s: float,
-        slack_s: float = 4.0,
-        start: datetime | None = None,
-    ) -> requests.Response:
-        web = self.stack.web
-        experiment = self.session.post(
-            f"{web}/api/v1/experiments/",
-            json={"title": f"{resource} fault run", "segments": _segments(program_s)},
-            timeout=10,
-        )
-        assert experiment.status_code == 201, experiment.text
-        start = start or timezone.now() + timedelta(seconds=ahead_s)
-        return self.session.post(
-            f"{web}/api/v1/reservations/",
-            json={
-                "resource": resource,
-                "experiment": experiment.json()["id"],
-                "start_at": start.isoformat(),
-                "end_at": (start + timedelta(seconds=program_s + slack_s)).isoformat(),
-            },
-            timeout=10,
-        )
-
-    def run(
-        self,
-        resource: str,
-        *,
-        ahead_s: float = 3.0,
-        program_s: float = 4.0,
-        start: datetime | None = None,
-    ) -> int:
-        booking = self.book(resource, ahead_s=ahead_s, program_s=program_s, start=start)
-        assert booking.status_code == 201, booking.text
-        return int(booking.json()["run"]["id"])
 
 
 def _run(run_id: int) -> Run:
