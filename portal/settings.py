@@ -53,9 +53,18 @@ if _secret_key is None:
     if not _key_file.exists():
         from django.core.management.utils import get_random_secret_key
 
+        # Processes starting together must agree on one key: each writes its own whole file
+        # and links it into place; a link fails if another was first, whose key is then read.
         _key_file.parent.mkdir(parents=True, exist_ok=True)
-        _key_file.write_text(get_random_secret_key())
-        _key_file.chmod(0o600)
+        _mine = _key_file.with_name(f".{_key_file.name}.{os.getpid()}")
+        _mine.write_text(get_random_secret_key())
+        _mine.chmod(0o600)
+        try:
+            os.link(_mine, _key_file)
+        except FileExistsError:
+            pass
+        finally:
+            _mine.unlink()
     _secret_key = _key_file.read_text().strip()
 SECRET_KEY: str = _secret_key
 # Earlier secret keys, still accepted for signatures and for reading the agent tokens stored

@@ -59,10 +59,13 @@ def _moves(page: Page) -> None:
     roof = page.locator("#roof")
     expect(roof).to_have_attribute("data-track-m", re.compile(r"^\d"), timeout=30_000)
     expect(page.locator("#roof-text")).to_contain_text("moving clockwise", timeout=30_000)
-    first = roof.get_attribute("data-track-m")
-    where = page.locator("#roof-robot").get_attribute("transform")
-    expect(roof).not_to_have_attribute("data-track-m", first or "", timeout=30_000)
-    assert page.locator("#roof-robot").get_attribute("transform") != where
+    # Both read at once: a reading may come between two separate reads.
+    first, where = page.evaluate(
+        "() => [document.getElementById('roof').dataset.trackM,"
+        " document.getElementById('roof-robot').getAttribute('transform')]"
+    )
+    expect(roof).not_to_have_attribute("data-track-m", first, timeout=30_000)
+    expect(page.locator("#roof-robot")).not_to_have_attribute("transform", where)
     expect(page.locator("#roof-text")).to_contain_text(
         re.compile(r"\d m along the rail, cell [A-D]\d")
     )
