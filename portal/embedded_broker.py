@@ -145,9 +145,15 @@ class Channel(filesystem.Channel):
             raise ChannelError(f"cannot add message {name!r} to {folder}") from exc
 
     # Exchange tables (kombu keeps them as JSON files in the control folder).
-    def get_table(self, exchange: str) -> list[filesystem.exchange_queue_t]:
+    def _table_file(self, exchange: str) -> Path:
+        """kombu's file of the exchange's table (it refuses names that are not a file's)."""
+        file: Path = self._exchange_file(exchange)  # type: ignore[attr-defined]
+        return file
+
+    # (Typed as kombu's filesystem channel has it; kombu's stubs type the base class apart.)
+    def get_table(self, exchange: str) -> list[filesystem.exchange_queue_t]:  # type: ignore[override]
         try:
-            text = self._exchange_file(exchange).read_bytes()
+            text = self._table_file(exchange).read_bytes()
         except FileNotFoundError:
             return []
         except OSError as exc:
@@ -162,7 +168,7 @@ class Channel(filesystem.Channel):
             if bound not in table:
                 table.insert(0, bound)
 
-    def _delete(  # type: ignore[override]
+    def _delete(
         self, queue: str, exchange: str, routing_key: str, pattern: str, *args: Any, **kwargs: Any
     ) -> None:
         virtual.Channel._delete(self, queue, exchange, routing_key, pattern, *args, **kwargs)
@@ -176,7 +182,7 @@ class Channel(filesystem.Channel):
         """The exchange's table to change in place; written back whole when the block ends.
         One process at a time: an exclusive lock on a lock file of the exchange's own (the
         table itself is replaced, so it cannot carry the lock)."""
-        file = self._exchange_file(exchange)
+        file = self._table_file(exchange)
         try:
             with open(file.with_name(f"{file.name}.lock"), "a") as lock:
                 fcntl.flock(lock.fileno(), fcntl.LOCK_EX)

@@ -330,6 +330,8 @@ CELERY_TASK_ROUTES = {
     "bookings.tasks.reservation_notify": {"queue": MAIL_QUEUE},
     "portal.runs.tasks.run_notify": {"queue": MAIL_QUEUE},
     "portal.runs.tasks.robot_hold_notify": {"queue": MAIL_QUEUE},
+    # Not the runs' worker: a dry run in the simulator never delays staging a real run.
+    "portal.runs.tasks.dry_run_execute": {"queue": MAIL_QUEUE},
 }
 CELERY_TIMEZONE = "UTC"
 # How often beat sweeps the database for runs to stage and collect, and how far ahead of
@@ -343,6 +345,12 @@ RESERVATION_REMINDER_LEAD_S = env.float("RESERVATION_REMINDER_LEAD_S", default=3
 # only, which cannot tell a booking in progress) how old an orphan lease must be to go.
 SCHEDULER_SYNC_INTERVAL_S = env.float("SCHEDULER_SYNC_INTERVAL_S", default=30.0)
 SCHEDULER_ORPHAN_GRACE_S = env.float("SCHEDULER_ORPHAN_GRACE_S", default=120.0)
+# Dry runs ("Try on the simulator"): how many run at once (each a short-lived process), how
+# many one person may have waiting, and after how long a dry run still marked running is
+# taken for lost (its worker killed) and its place given to the next.
+DRY_RUN_SLOTS = env.int("DRY_RUN_SLOTS", default=2)
+DRY_RUN_MAX_WAITING = env.int("DRY_RUN_MAX_WAITING", default=3)
+DRY_RUN_STALE_S = env.float("DRY_RUN_STALE_S", default=300.0)
 # A run not on its base station by this long after its start fails (its owner is told).
 RUN_START_GRACE_S = env.float("RUN_START_GRACE_S", default=60.0)
 # How long after a run's end its base station may stay unreachable, or keep samples back,

@@ -124,9 +124,69 @@ class RunEvent(models.Model):
         return f"{self.from_state or '∅'} → {self.to_state}"
 
 
+class DryRun(models.Model):
+    """A program tried on a simulated robot of its own before a booking is spent on it
+    (``portal/runs/services/dry_run.py``). It has no booking and no robot: nothing in it names
+    a resource or a base station, and its samples are kept here, whole, as the model made
+    them."""
+
+    class State(models.TextChoices):
+        QUEUED = "queued", "waiting for a simulator"
+        RUNNING = "running", "running on the simulator"
+        COMPLETED = "completed", "completed"
+        FAILED = "failed", "failed"
+
+    owner = models.ForeignKey(
+        settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="dry_runs"
+    )
+    # The experiment it was tried from; the program is copied, as a run's is.
+    experiment = models.ForeignKey(
+        Experiment, null=True, blank=True, on_delete=models.SET_NULL, related_name="dry_runs"
+    )
+    title = models.CharField(max_length=200)
+    segments = models.JSONField()
+    # The limits it ran under: the strictest of the robots the owner may book.
+    limits = models.JSONField()
+    rail_length_m = models.FloatField()
+    state = models.CharField(
+        max_length=16, choices=State.choices, default=State.QUEUED, db_index=True
+    )
+    # Which of the simulator places it holds while running (0 … DRY_RUN_SLOTS-1): a unique
+    # place per running dry run is what bounds how many run at once.
+    slot = models.PositiveSmallIntegerField(null=True, blank=True)
+    reason = models.TextField(blank=True)
+    # The agent's samples (its API's JSON objects), once it has run.
+    samples = models.JSONField(default=list, blank=True)
+    created_at = models.DateTimeField(auto_now_add=True)
+    started_at = models.DateTimeField(null=True, blank=True)
+    ended_at = models.DateTimeField(null=True, blank=True)
+
+    class Meta:
+        ordering = ["-created_at", "-pk"]
+        constraints = [
+            models.UniqueConstraint(
+                fields=["slot"],
+                condition=models.Q(state="running"),
+                name="dry_run_one_per_slot",
+            ),
+            models.CheckConstraint(
+                condition=models.Q(state="running", slot__isnull=False)
+                | (~models.Q(state="running") & models.Q(slot__isnull=True)),
+                name="dry_run_slot_while_running",
+            ),
+        ]
+
+    def __str__(self) -> str:
+        return f"dry run {self.pk} ({self.state})"
+
+    @property
+    def duration_s(self) -> float:
+        return float(sum(float(s["duration_s"]) for s in self.segments))
+
+
 # The columns of a sample are the contract's (``basestation/contract.py``): the order the
 # downloads give them in. A test checks the model below against the contract.
-__all__ = ["SAMPLE_FIELDS", "Run", "RunEvent", "Sample"]
+__all__ = ["SAMPLE_FIELDS", "DryRun", "Run", "RunEvent", "Sample"]
 
 
 class Sample(models.Model):

@@ -15,7 +15,8 @@ from django.db.models import FloatField, Func, Max, QuerySet
 
 from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS
 from bookings.models import PeriodQuerySet, Reservation
-from bookings.selectors import reservations_visible
+from bookings.rules import velocity_limit
+from bookings.selectors import mobiles_bookable, reservations_visible
 from core.accounts.models import User
 from core.cache import database_namespace
 from portal.runs.analysis import (
@@ -25,8 +26,39 @@ from portal.runs.analysis import (
     analyse_columns,
     chart_series,
 )
-from portal.runs.models import Run, Sample
+from portal.runs.models import DryRun, Run, Sample
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
+
+
+def robots_for_programs() -> list[dict[str, Any]]:
+    """The robots that may be booked, with the limits booking holds a program to (``None``:
+    none) and their rails' lengths as last measured (``None``: never)."""
+    robots = []
+    for robot in mobiles_bookable():
+        limit = velocity_limit(robot)
+        accel = robot.max_accel_mps2
+        if robot.agent_max_accel_mps2 is not None:
+            accel = (
+                robot.agent_max_accel_mps2
+                if accel is None
+                else min(accel, robot.agent_max_accel_mps2)
+            )
+        # The rail is measured by the robot on each run; its latest run says it best.
+        rail_m = (
+            Run.objects.filter(resource=robot, rail_length_m__isnull=False)
+            .order_by("-start_at")
+            .values_list("rail_length_m", flat=True)
+            .first()
+        )
+        robots.append(
+            {
+                "name": robot.name,
+                "max_velocity_mps": limit.mps if limit is not None else None,
+                "max_accel_mps2": accel,
+                "rail_length_m": rail_m,
+            }
+        )
+    return robots
 
 
 def runs_visible(*, user: User) -> QuerySet[Run]:
@@ -326,6 +358,37 @@ def _run_report_computed(run: Run, pass_at_m: float | None, max_points: int) -> 
         columns, segments=run.segments, rail_length_m=run.rail_length_m, max_points=max_points
     )
     return RunReport(analysis, series, first_at)
+
+
+def dry_run_report(
+    *, dry_run: DryRun, pass_at_m: float | None = None, max_points: int = CHART_MAX_POINTS
+) -> RunReport:
+    """What a dry run's page shows, as a run's (``run_report``): its samples are its own,
+    timed from its start. Raises ``ValueError`` for a position off the rail."""
+    samples = dry_run.samples or []
+    t0 = float(samples[0]["t"]) if samples else 0.0
+    columns = SampleColumns.from_rows(
+        SampleRow(
+            seq=int(s["seq"]),
+            t_s=float(s["t"]) - t0,
+            segment=s["segment"],
+            commanded_velocity_mps=float(s["commanded_velocity_mps"]),
+            velocity_mps=float(s["velocity_mps"]),
+            direction=str(s["direction"]),
+            battery_v=float(s["battery_v"]),
+            track_m=float(s["track_m"]),
+            fix_quality=s["fix_quality"],
+        )
+        for s in samples
+    )
+    rail_m = dry_run.rail_length_m
+    analysis = analyse_columns(
+        columns, segments=dry_run.segments, rail_length_m=rail_m, pass_at_m=pass_at_m
+    )
+    series = chart_series(
+        columns, segments=dry_run.segments, rail_length_m=rail_m, max_points=max_points
+    )
+    return RunReport(analysis, series, dry_run.started_at if samples else None)
 
 
 def _at(first_at: datetime | None, t_s: float) -> str | None:

@@ -17,7 +17,7 @@ from django.utils import timezone
 from basestation.client import AgentError
 from core.health import SWEEP, heartbeat_record
 from portal.runs import notifications
-from portal.runs.services import collection, health, staging
+from portal.runs.services import collection, dry_run, health, staging
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +42,8 @@ def runs_sweep() -> None:
         run_collect.apply_async((run_id,), expires=expires_s)
     for run_id in notifications.runs_owner_untold().values_list("pk", flat=True):
         run_notify.apply_async((run_id,), expires=expires_s)
+    for dry_run_id in dry_run.dry_runs_next():
+        dry_run_execute.apply_async((dry_run_id,), expires=expires_s)
     heartbeat_record(SWEEP)
 
 
@@ -51,6 +53,15 @@ def _retry_if_transient(task: Task, exc: AgentError) -> None:
     countdown_s = min(30, 2**task.request.retries)
     logger.warning("%s: %s; retry in %ss", task.name, exc, countdown_s)
     raise task.retry(exc=exc, countdown=countdown_s, max_retries=MAX_RETRIES)
+
+
+@shared_task(time_limit=180, soft_time_limit=170)
+def dry_run_execute(dry_run_id: int) -> None:
+    """Run a dry run if a simulator place is free (the sweep asks again while it waits), then
+    start the next in line at once."""
+    if dry_run.dry_run_execute(dry_run_id):
+        for next_id in dry_run.dry_runs_next():
+            dry_run_execute.delay(next_id)
 
 
 @shared_task(bind=True, time_limit=60, soft_time_limit=50)

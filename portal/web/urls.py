@@ -1,11 +1,14 @@
 from django.urls import path
 
-from portal.web import attach, console, live, my_runs, roof, timeline, views
+from portal.web import attach, console, dry_runs, live, my_runs, roof, timeline, views
 
 urlpatterns = [
     path("", views.home, name="home"),
     path("experiments/new/", views.experiment_edit, name="experiment-new"),
     path("experiments/<int:pk>/", views.experiment_edit, name="experiment-edit"),
+    path("experiments/<int:pk>/dry-run/", dry_runs.dry_run_start, name="dry-run-start"),
+    path("dry-runs/<int:pk>/", dry_runs.dry_run_page, name="dry-run"),
+    path("dry-runs/<int:pk>/data.json", dry_runs.dry_run_data, name="dry-run-data"),
     path("book/", views.book, name="book"),
     path("reservations/<int:pk>/cancel/", views.reservation_cancel_view, name="reservation-cancel"),
     path(

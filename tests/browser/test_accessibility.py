@@ -11,8 +11,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from django.utils import timezone
 from playwright.sync_api import Page
 
+from basestation.dryrun import dry_run
+from core.accounts.models import User
+from portal.runs.models import DryRun
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
 from tests.runs.driving import completed_run
@@ -54,6 +58,28 @@ def _check(page: Page, name: str, width: str, found: list[str]) -> None:
     )
 
 
+def _dry_runs(owner: User) -> tuple[DryRun, DryRun]:
+    """A dry run the simulator has run (in this process, as its own process would), and one
+    still waiting for a place."""
+    segments = [
+        {"velocity_mps": 0.8, "direction": "cw", "duration_s": 20.0},
+        {"velocity_mps": 0.4, "direction": "ccw", "duration_s": 10.0},
+    ]
+    limits = {"max_velocity_mps": 1.0, "max_accel_mps2": 0.5}
+    result = dry_run(segments, **limits, rail_length_m=120.0)
+    common = {"owner": owner, "title": "sweep", "segments": segments, "limits": limits}
+    tried = DryRun.objects.create(
+        **common,
+        rail_length_m=120.0,
+        state=DryRun.State.COMPLETED,
+        samples=result["samples"],
+        started_at=timezone.now(),
+        ended_at=timezone.now(),
+    )
+    waiting = DryRun.objects.create(**common, rail_length_m=120.0)
+    return tried, waiting
+
+
 @pytest.mark.parametrize("width", list(VIEWPORTS))
 def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_server, width):
     assert AXE.exists(), "axe-core is missing: `make setup` installs it from npm"
@@ -61,6 +87,7 @@ def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_ser
     robot = MobileResourceFactory()
     first = completed_run(admin, robot, [(1.0, "cw", 40.0), (0.5, "ccw", 20.0)])
     second = completed_run(admin, MobileResourceFactory(name="mobile-2"), [(0.8, "cw", 30.0)])
+    tried, waiting = _dry_runs(admin)
     found: list[str] = []
     context = browser.new_context(viewport=VIEWPORTS[width], timezone_id="Europe/Lisbon")
     page = context.new_page()
@@ -78,6 +105,8 @@ def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_ser
         "run": f"/runs/{first.pk}/",
         "my-runs": "/runs/",
         "compare": f"/runs/compare/?ids={first.pk},{second.pk}",
+        "dry-run": f"/dry-runs/{tried.pk}/",
+        "dry-run-waiting": f"/dry-runs/{waiting.pk}/",
         "approvals": "/approvals/",
         "robot-console": f"/robot/{robot.name}/",
         "usage": "/usage/",

@@ -12,36 +12,12 @@ from playwright.sync_api import Page, expect
 from portal.experiments.models import Experiment
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
+from tests.runs.driving import ramped_travel
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 PASSWORD = "correct horse battery"
 ACCEL_MPS2 = 1.0
 RAIL_M = 5.0
-
-
-def _travel(segments: list[tuple[float, str, float]], accel_mps2: float) -> tuple[float, float]:
-    """Distance and signed displacement (cw +) of the robot slewing its velocity at
-    ``accel_mps2`` towards each segment's, then to a stop: integrated in small steps, apart
-    from the page's exact arithmetic."""
-    step_s = 1e-4
-    v = distance = displacement = 0.0
-    targets = [((1 if d == "cw" else -1) * mps, s) for mps, d, s in segments]
-
-    def drive(target: float, for_s: float | None) -> None:
-        nonlocal v, distance, displacement
-        elapsed = 0.0
-        while (elapsed < for_s - step_s / 2) if for_s is not None else abs(v) > 1e-12:
-            dv = max(-accel_mps2 * step_s, min(accel_mps2 * step_s, target - v))
-            mean = v + dv / 2
-            v += dv
-            distance += abs(mean) * step_s
-            displacement += mean * step_s
-            elapsed += step_s
-
-    for target, duration_s in targets:
-        drive(target, duration_s)
-    drive(0.0, None)
-    return distance, displacement
 
 
 def _fill(page: Page, segments: list[tuple[float, str, float]]) -> None:
@@ -90,7 +66,7 @@ def test_the_builder_checks_limits_and_previews_distance_laps_and_end(page):
     program = [(1.0, "cw", 10.0), (0.5, "ccw", 6.0)]
     _fill(page, program)
     page.get_by_label("rail length in m").fill(str(RAIL_M))
-    distance_m, displacement_m = _travel(program, ACCEL_MPS2)
+    distance_m, displacement_m = ramped_travel(program, ACCEL_MPS2)
     expect(page.get_by_test_id("builder-duration")).to_have_text("16.0 s")
     expect(page.get_by_test_id("builder-distance")).to_have_text(f"{distance_m:.2f} m")
     expect(page.get_by_test_id("builder-laps")).to_have_text(f"{distance_m / RAIL_M:.2f}")

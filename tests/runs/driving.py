@@ -100,3 +100,30 @@ def completed_run(
     Run.objects.filter(pk=run.pk).update(state=RunState.COMPLETED, rail_length_m=rail_length_m)
     run.refresh_from_db()
     return run
+
+
+def ramped_travel(
+    segments: list[tuple[float, str, float]], accel_mps2: float
+) -> tuple[float, float]:
+    """Distance and signed displacement (cw +) of the robot slewing its velocity at
+    ``accel_mps2`` towards each segment's, then to a stop: integrated in small steps, apart
+    from the page's exact arithmetic."""
+    step_s = 1e-4
+    v = distance = displacement = 0.0
+    targets = [((1 if d == "cw" else -1) * mps, s) for mps, d, s in segments]
+
+    def drive(target: float, for_s: float | None) -> None:
+        nonlocal v, distance, displacement
+        elapsed = 0.0
+        while (elapsed < for_s - step_s / 2) if for_s is not None else abs(v) > 1e-12:
+            dv = max(-accel_mps2 * step_s, min(accel_mps2 * step_s, target - v))
+            mean = v + dv / 2
+            v += dv
+            distance += abs(mean) * step_s
+            displacement += mean * step_s
+            elapsed += step_s
+
+    for target, duration_s in targets:
+        drive(target, duration_s)
+    drive(0.0, None)
+    return distance, displacement

@@ -1,0 +1,28 @@
+// A dry run that waits or runs: its place in line and state, read every second; once it has
+// ended the page is loaded again, with the charts and statistics of the run page.
+(function () {
+  "use strict";
+  const status = document.getElementById("run-status");
+  if (!status || status.dataset.waiting !== "1") return;
+  const state = document.getElementById("run-state");
+  const place = document.getElementById("dry-run-place");
+  const progress = document.getElementById("run-progress");
+  const POLL_MS = 1000;
+
+  async function poll() {
+    try {
+      const response = await fetch(status.dataset.url, { headers: { Accept: "application/json" } });
+      if (!response.ok) throw new Error(response.statusText || "HTTP " + response.status);
+      const data = await response.json();
+      if (!data.live) { window.location.reload(); return; }
+      state.textContent = data.state_label;
+      state.dataset.state = data.state;
+      place.textContent = data.place ? `Place in line: ${data.place}.` : "";
+      progress.textContent = "";
+    } catch (error) {
+      progress.textContent = "(could not refresh: " + error.message + ")";
+    }
+    setTimeout(poll, POLL_MS);
+  }
+  setTimeout(poll, POLL_MS);
+})();
