@@ -121,3 +121,18 @@ def eager_tasks():
     yield
     celery_app.conf.task_always_eager = False
     celery_app.conf.task_eager_propagates = False
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Files that start real processes (integration and browser tests) first, the rest after:
+    the workers (pytest-xdist, a file each) take the long files while the short ones are left
+    to fill the end, instead of one worker finishing a long file alone. Within a file the
+    order is unchanged. (After pytest-django's ordering: under xdist a file runs whole on one
+    worker anyway, so its database groups already interleave with other files'.)"""
+    slow_files = {
+        item.nodeid.partition("::")[0]
+        for item in items
+        if item.get_closest_marker("integration") or item.get_closest_marker("browser")
+    }
+    items.sort(key=lambda item: item.nodeid.partition("::")[0] not in slow_files)
