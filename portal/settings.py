@@ -330,8 +330,6 @@ CELERY_TASK_ROUTES = {
     "bookings.tasks.reservation_notify": {"queue": MAIL_QUEUE},
     "portal.runs.tasks.run_notify": {"queue": MAIL_QUEUE},
     "portal.runs.tasks.robot_hold_notify": {"queue": MAIL_QUEUE},
-    # Not the runs' worker: a dry run in the simulator never delays staging a real run.
-    "portal.runs.tasks.dry_run_execute": {"queue": MAIL_QUEUE},
 }
 CELERY_TIMEZONE = "UTC"
 # How often beat sweeps the database for runs to stage and collect, and how far ahead of

@@ -125,14 +125,24 @@ def eager_tasks():
 
 @pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Files that start real processes (integration and browser tests) first, the rest after:
-    the workers (pytest-xdist, a file each) take the long files while the short ones are left
-    to fill the end, instead of one worker finishing a long file alone. Within a file the
-    order is unchanged. (After pytest-django's ordering: under xdist a file runs whole on one
-    worker anyway, so its database groups already interleave with other files'.)"""
-    slow_files = {
-        item.nodeid.partition("::")[0]
-        for item in items
-        if item.get_closest_marker("integration") or item.get_closest_marker("browser")
-    }
-    items.sort(key=lambda item: item.nodeid.partition("::")[0] not in slow_files)
+    """The longest files first (a test marked ``long``), then the files that start real
+    processes (integration and browser tests), then the rest: the workers (pytest-xdist, a
+    file each) take the long files while the short ones are left to fill the end, instead of
+    one worker finishing a long file alone. Within a file the order is unchanged. (After
+    pytest-django's ordering: under xdist a file runs whole on one worker anyway, so its
+    database groups already interleave with other files'.)"""
+
+    def files_marked(*names: str) -> set[str]:
+        return {
+            item.nodeid.partition("::")[0]
+            for item in items
+            if any(item.get_closest_marker(name) for name in names)
+        }
+
+    long_files, slow_files = files_marked("long"), files_marked("integration", "browser")
+
+    def rank(item: pytest.Item) -> int:
+        file = item.nodeid.partition("::")[0]
+        return 0 if file in long_files else 1 if file in slow_files else 2
+
+    items.sort(key=rank)

@@ -22,7 +22,10 @@ def _no_horizontal_scroll(page: Page, timeout_ms: float = 15_000) -> bool:
     the load event, later on a busy machine), fits the window's width."""
     try:
         page.wait_for_function(
-            "document.documentElement.scrollWidth <= window.innerWidth + 1", timeout=timeout_ms
+            # A function, not an expression: Playwright evaluates an expression with eval() on
+            # each poll, which the pages' Content Security Policy refuses.
+            "() => document.documentElement.scrollWidth <= window.innerWidth + 1",
+            timeout=timeout_ms,
         )
     except PlaywrightTimeoutError:
         return False

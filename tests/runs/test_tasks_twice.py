@@ -22,8 +22,8 @@ from core.audit.models import AuditEvent, IdempotencyKey
 from core.audit.tasks import idempotency_keys_delete_expired
 from portal.celery import app as celery_app
 from portal.runs import notifications, tasks
-from portal.runs.models import Run, RunEvent, Sample
-from portal.runs.services import staging
+from portal.runs.models import DryRun, Run, RunEvent, Sample
+from portal.runs.services import dry_run, staging
 from portal.runs.services.booking import booking_cancel, booking_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
@@ -40,6 +40,7 @@ COVERED = {
     "portal.runs.tasks.robots_health_sweep",
     "portal.runs.tasks.robot_health_check",
     "portal.runs.tasks.robot_hold_notify",
+    "portal.runs.tasks.dry_run_execute",
     "bookings.tasks.reservation_notify",
     "bookings.tasks.reservations_remind",
     "core.audit.tasks.idempotency_keys_delete_expired",
@@ -164,6 +165,21 @@ def test_telling_the_admins_of_a_hold_twice_sends_one_mail(agent, mobile, admin_
     mail.outbox.clear()
     twice(tasks.robot_hold_notify, mobile.pk)
     assert len(mail.outbox) == 1
+
+
+def test_a_dry_run_delivered_twice_runs_once(owner, mobile, monkeypatch):
+    started: list[int] = []
+    simulate = dry_run._simulate
+
+    def counted(what: DryRun) -> dict:
+        started.append(what.pk)
+        return simulate(what)
+
+    monkeypatch.setattr(dry_run, "_simulate", counted)
+    tried = dry_run.dry_run_request(user=owner, experiment=ExperimentFactory(owner=owner))
+    twice(tasks.dry_run_execute, tried.pk)
+    tried.refresh_from_db()
+    assert (tried.state, started) == (DryRun.State.COMPLETED, [tried.pk])
 
 
 def test_a_booking_mail_delivered_twice_is_sent_once(owner):
