@@ -1,0 +1,66 @@
+"""In Chromium against the real stack: a booking made through the lease API shows on its
+owner's home page with "Attach an experiment"; the owner attaches one on that page, lands on
+its run page, and the robot runs it to the end."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+import pytest
+import requests
+from django.contrib.auth.models import Permission
+from django.utils import timezone
+from playwright.sync_api import expect
+
+from bookings.choices import BookedVia
+from bookings.models import Reservation
+from tests.browser.conftest import login
+from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory, api_token
+
+pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
+
+
+def test_the_owner_attaches_an_experiment_on_the_page_and_it_runs(browser, stack):
+    MobileResourceFactory(agent_url=stack.agent_url)
+    owner = UserFactory(username="erin")
+    ExperimentFactory(
+        owner=owner,
+        title="attached later",
+        segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 3.0}],
+    )
+    account = UserFactory(username="testbed-scheduler")
+    account.user_permissions.add(Permission.objects.get(codename="lease_inbound"))
+    # Whole seconds, as the lease vocabulary has them; far enough ahead to attach first.
+    start = (timezone.now() + timedelta(seconds=20)).replace(microsecond=0)
+    lease = requests.post(
+        f"{stack.web}/scheduler/resources/leases",
+        json={
+            "name": "robot-session",
+            "valid_from": start.strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "valid_until": (start + timedelta(seconds=10)).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "account_attributes": {"name": "erin"},
+            "components": [{"name": "mobile-1"}],
+        },
+        headers={"Authorization": f"Token {api_token(account)}"},
+        timeout=20,
+    )
+    assert lease.status_code == 200, lease.text
+    reservation = Reservation.objects.get(booked_via=BookedVia.SCHEDULER)
+
+    context = browser.new_context(viewport={"width": 375, "height": 812})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    login(page, stack.web, "erin", "correct horse battery")
+    page.get_by_role("link", name="Attach an experiment").click()
+    expect(page).to_have_url(f"{stack.web}/reservations/{reservation.pk}/attach/")
+    page.get_by_label("Experiment").select_option(label="attached later (3 s)")
+    page.get_by_role("button", name="Attach").click()
+    expect(page.locator("p.flash.success")).to_contain_text("mobile-1 will run “attached later”")
+    expect(page).to_have_url(f"{stack.web}/runs/{reservation.run.pk}/")
+    expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
+    assert stack.agent is not None
+    on_agent = stack.agent.get_run(f"run-{reservation.run.pk}")
+    expect(page.locator("#sample-count")).to_have_text(str(on_agent["sample_count"]))
+    assert not errors, errors
+    context.close()
