@@ -127,9 +127,8 @@ def eager_tasks():
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The longest files first (a test marked ``long``), then the files that start real
     processes (integration and browser tests), then the rest: the workers (pytest-xdist, a
-    file each, handed out in this order: ``--no-loadscope-reorder`` in pyproject.toml) take the
-    long files while the short ones are left to fill the end, instead of one worker finishing a
-    long file alone. Within a file the order is unchanged. (After
+    file each) take the long files while the short ones are left to fill the end, instead of
+    one worker finishing a long file alone. Within a file the order is unchanged. (After
     pytest-django's ordering: under xdist a file runs whole on one worker anyway, so its
     database groups already interleave with other files'.)"""
 
@@ -140,18 +139,10 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             if any(item.get_closest_marker(name) for name in names)
         }
 
-    # ``long(minutes=N)``: about how long the file takes; the longest is handed out first.
-    long_minutes: dict[str, float] = {}
-    for item in items:
-        marker = item.get_closest_marker("long")
-        if marker is not None:
-            long_minutes[item.nodeid.partition("::")[0]] = float(marker.kwargs.get("minutes", 1))
-    slow_files = files_marked("integration", "browser")
+    long_files, slow_files = files_marked("long"), files_marked("integration", "browser")
 
-    def rank(item: pytest.Item) -> tuple[int, float]:
+    def rank(item: pytest.Item) -> int:
         file = item.nodeid.partition("::")[0]
-        if file in long_minutes:
-            return 0, -long_minutes[file]
-        return (1 if file in slow_files else 2), 0.0
+        return 0 if file in long_files else 1 if file in slow_files else 2
 
     items.sort(key=rank)

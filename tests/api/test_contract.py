@@ -40,11 +40,7 @@ from tests.factories import (
 from tests.integration.live import live_portal
 from tests.runs.driving import completed_run
 
-pytestmark = [
-    pytest.mark.integration,
-    pytest.mark.long(minutes=5),
-    pytest.mark.django_db(transaction=True),
-]
+pytestmark = [pytest.mark.integration, pytest.mark.long, pytest.mark.django_db(transaction=True)]
 
 SEED = 20261123
 MAX_EXAMPLES = 12

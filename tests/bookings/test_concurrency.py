@@ -14,7 +14,7 @@ from bookings.choices import QuotaPeriod, ReservationState
 from bookings.models import QuotaPolicy, Reservation, ReservationItem
 from tests.factories import FixedResourceFactory, UserFactory, api_token
 
-pytestmark = [pytest.mark.long(minutes=1.5), pytest.mark.django_db(transaction=True)]
+pytestmark = [pytest.mark.long, pytest.mark.django_db(transaction=True)]
 
 
 def _post_all(url: str, jobs: list[tuple[str, dict]]) -> list[requests.Response]:

@@ -19,11 +19,7 @@ from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFac
 from tests.integration.experimenter import Experimenter
 from tests.integration.stack import Stack
 
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.long(minutes=1.5),
-    pytest.mark.django_db(transaction=True),
-]
+pytestmark = [pytest.mark.browser, pytest.mark.long, pytest.mark.django_db(transaction=True)]
 
 PASSWORD = "correct horse battery"
 

@@ -23,11 +23,7 @@ from bench.stack import REPO
 from tests.cli.schema_paths import requests_in_access_log, undocumented
 from tests.factories import MobileResourceFactory, UserFactory, api_token
 
-pytestmark = [
-    pytest.mark.integration,
-    pytest.mark.long(minutes=1),
-    pytest.mark.django_db(transaction=True),
-]
+pytestmark = [pytest.mark.integration, pytest.mark.long, pytest.mark.django_db(transaction=True)]
 
 DOC = REPO / "docs" / "cli.md"
 FILE_BLOCK = re.compile(r"`(campaign/[^`]+)`[^\n]*:\n\n```(?:yaml|json)\n(.*?)```", re.S)

@@ -15,7 +15,7 @@ from django.utils import timezone
 from bench.stack import Proc, free_port, python
 from tests.integration.processes import processes_matching_env
 
-pytestmark = [pytest.mark.integration, pytest.mark.long(minutes=2)]
+pytestmark = [pytest.mark.integration, pytest.mark.long]
 
 
 def _csrf(session: requests.Session, url: str) -> str:

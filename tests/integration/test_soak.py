@@ -19,7 +19,7 @@ import pytest
 from bench.soak import CHECKS, FAULT_NAMES
 from bench.stack import REPO
 
-pytestmark = [pytest.mark.integration, pytest.mark.long(minutes=3.5)]
+pytestmark = [pytest.mark.integration, pytest.mark.long]
 
 MINUTES = 2.0
 # At most 14 s apart: the eight kinds fit in the first 112 s of the 120.
