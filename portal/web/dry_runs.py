@@ -3,7 +3,6 @@ which shows its place in line while it waits and then the run page's charts and 
 
 from __future__ import annotations
 
-from datetime import datetime, timedelta
 from typing import Any
 
 from django.contrib import messages
@@ -20,7 +19,7 @@ from portal.runs.models import DryRun
 from portal.runs.selectors import dry_run_report
 from portal.runs.services.dry_run import dry_run_place, dry_run_request
 from portal.runs.tasks import dry_run_execute
-from portal.web.forms import PassForm
+from portal.web.views import report_context
 
 
 def _user(request: HttpRequest) -> User:
@@ -51,28 +50,12 @@ def dry_run_start(request: HttpRequest, pk: int) -> HttpResponse:
 
 
 def _context(request: HttpRequest, dry_run: DryRun) -> dict[str, Any]:
-    form = PassForm(request.GET or None)
-    pass_at_m = form.cleaned_data["at_m"] if form.is_valid() else None
-    try:
-        report = dry_run_report(dry_run=dry_run, pass_at_m=pass_at_m)
-    except ValueError as exc:
-        form.add_error("at_m", str(exc))
-        report = dry_run_report(dry_run=dry_run)
-    waiting = dry_run.state in (DryRun.State.QUEUED, DryRun.State.RUNNING)
-
-    def at(t_s: float) -> datetime | None:
-        return None if report.first_at is None else report.first_at + timedelta(seconds=t_s)
-
     return {
         "dry_run": dry_run,
         "place": dry_run_place(dry_run),
-        "waiting": waiting,
-        "report": report,
-        "analysis": report.analysis,
-        "laps": [(lap, at(lap.end_s)) for lap in report.analysis.laps],
-        "passes": [(p, at(p.t_s)) for p in report.analysis.passes],
-        "pass_form": form,
+        "waiting": dry_run.state in (DryRun.State.QUEUED, DryRun.State.RUNNING),
         "missing": [],
+        **report_context(request, lambda at_m: dry_run_report(dry_run=dry_run, pass_at_m=at_m)),
     }
 
 

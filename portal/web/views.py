@@ -49,6 +49,7 @@ from portal.runs.downloads import (
 from portal.runs.models import Run
 from portal.runs.provenance import provenance_summary
 from portal.runs.selectors import (
+    RunReport,
     reservations_with_runs_visible,
     run_ids_by_reservation,
     run_report,
@@ -204,28 +205,39 @@ def reservation_cancel_view(request: HttpRequest, pk: int) -> HttpResponse:
     return render(request, "web/confirm_cancel.html", {"reservation": reservation})
 
 
-def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
-    """The run page's analysis and its passes form (``?at_m=``), for the page and its poll."""
+def report_context(
+    request: HttpRequest, report_for: Callable[[float | None], RunReport]
+) -> dict[str, Any]:
+    """A report's analysis with its passes form (``?at_m=``), for the run page, the dry run's
+    page and their polls: ``report_for(pass_at_m)`` computes it (``ValueError`` for a position
+    off the rail, shown on the form)."""
     form = PassForm(request.GET or None)
     pass_at_m = form.cleaned_data["at_m"] if form.is_valid() else None
     try:
-        report = run_report(run=run, pass_at_m=pass_at_m)
+        report = report_for(pass_at_m)
     except ValueError as exc:
         form.add_error("at_m", str(exc))
-        report = run_report(run=run)
+        report = report_for(None)
 
     def at(t_s: float) -> datetime | None:
         return None if report.first_at is None else report.first_at + timedelta(seconds=t_s)
 
     return {
-        "run": run,
-        "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES),
-        "missing": missing_described(run.missing),
         "report": report,
         "analysis": report.analysis,
         "laps": [(lap, at(lap.end_s)) for lap in report.analysis.laps],
         "passes": [(p, at(p.t_s)) for p in report.analysis.passes],
         "pass_form": form,
+    }
+
+
+def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
+    """The run page's analysis and its passes form, for the page and its poll."""
+    return {
+        "run": run,
+        "live": run.state in (RunState.SCHEDULED, *RUN_ACTIVE_STATES),
+        "missing": missing_described(run.missing),
+        **report_context(request, lambda at_m: run_report(run=run, pass_at_m=at_m)),
     }
 
 
