@@ -7,12 +7,13 @@ the README links to.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 from django.utils import timezone
-from playwright.sync_api import Page
+from playwright.sync_api import Page, Request
 
 from basestation.dryrun import dry_run
 from core.accounts.models import User
@@ -44,10 +45,60 @@ def _axe(page: Page) -> list[dict[str, Any]]:
     return list(result["violations"])
 
 
-def _check(page: Page, name: str, width: str, found: list[str]) -> None:
-    page.wait_for_load_state("load")
-    # Charts, calendars and live parts draw after load; let them settle before judging.
-    page.wait_for_load_state("networkidle")
+# Each page's document notes when it last changed (the script runs before the page's own).
+WATCH_CHANGES = """
+window.__changedAt = performance.now();
+new MutationObserver(() => { window.__changedAt = performance.now(); }).observe(
+  document, {subtree: true, childList: true, attributes: true, characterData: true});
+"""
+QUIET_MS = 400
+SETTLE_S = 30.0
+
+
+class Settler:
+    """Waits until a page has drawn what it fetches after load (charts, calendars, live
+    parts): no request in flight but its streams, nothing still loading, and the document
+    unchanged for ``QUIET_MS``. Not Playwright's "networkidle": a page that polls while its
+    stream is away (the test server has none) may never be idle for 500 ms when the machine
+    is slow, yet it is settled between two polls."""
+
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        self.in_flight: set[Request] = set()
+        page.context.add_init_script(WATCH_CHANGES)
+        page.on("request", self._started)
+        page.on("requestfinished", self._ended)
+        page.on("requestfailed", self._ended)
+
+    def _started(self, request: Request) -> None:
+        if request.resource_type != "eventsource":
+            self.in_flight.add(request)
+
+    def _ended(self, request: Request) -> None:
+        self.in_flight.discard(request)
+
+    def wait(self, name: str) -> None:
+        self.page.wait_for_load_state("load")
+        deadline = time.monotonic() + SETTLE_S
+        while time.monotonic() < deadline:
+            quiet_ms = self.page.evaluate(
+                """() => document.readyState === "complete"
+                    && !document.querySelector('[data-loading="true"]')
+                    && window.__changedAt !== undefined
+                    ? performance.now() - window.__changedAt : 0"""
+            )
+            if not self.in_flight and quiet_ms >= QUIET_MS:
+                return
+            self.page.wait_for_timeout(100)
+        raise AssertionError(
+            f"{name} did not settle in {SETTLE_S:.0f} s: {len(self.in_flight)} requests "
+            f"in flight ({sorted(r.url for r in self.in_flight)[:3]})"
+        )
+
+
+def _check(settler: Settler, name: str, width: str, found: list[str]) -> None:
+    page = settler.page
+    settler.wait(name)
     for violation in _axe(page):
         if violation["impact"] in BLOCKING:
             targets = [" ".join(node["target"]) for node in violation["nodes"]][:5]
@@ -91,9 +142,10 @@ def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_ser
     found: list[str] = []
     context = browser.new_context(viewport=VIEWPORTS[width], timezone_id="Europe/Lisbon")
     page = context.new_page()
+    settler = Settler(page)
 
     page.goto(f"{live_server.url}/accounts/login/")
-    _check(page, "sign-in", width, found)
+    _check(settler, "sign-in", width, found)
     login(page, live_server.url, "ada", PASSWORD)
     pages = {
         "home": "/",
@@ -119,6 +171,6 @@ def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_ser
         response = page.goto(f"{live_server.url}{path}")
         assert response is not None, path
         assert response.status == 200, path
-        _check(page, name, width, found)
+        _check(settler, name, width, found)
     context.close()
     assert not found, "\n".join(found)

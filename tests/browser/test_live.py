@@ -128,9 +128,11 @@ def test_the_console_and_the_calendar_show_a_hold_and_new_bookings_without_a_rel
     calendar = _page(browser, fault_stack, "hana")
     calendar.goto(f"{fault_stack.web}/calendar/")
     expect(calendar.locator("#live-status")).to_have_attribute("data-state", "live", timeout=15_000)
-    # Someone else will book in an hour: show that week (on a Sunday evening, the next one),
-    # and count what it holds once its bookings are in.
-    start = timezone.now() + timedelta(hours=1)
+    # Someone else will book tomorrow at ten: show that week (on a Sunday, the next one), and
+    # count what it holds once its bookings are in. (An hour from now could cross midnight,
+    # and the week view draws a booking across midnight as two pieces.)
+    tomorrow = timezone.localtime() + timedelta(days=1)
+    start = tomorrow.replace(hour=10, minute=0, second=0, microsecond=0)
     shown = calendar.locator("#calendar")
     expect(shown).to_have_attribute("data-loading", "false", timeout=15_000)
     if timezone.localtime(start).isocalendar()[:2] != timezone.localtime().isocalendar()[:2]:

@@ -75,12 +75,13 @@ def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, ro
     MobileResourceFactory(agent_url=roof_stack.agent_url)
     UserFactory(username="root", is_staff=True, is_superuser=True)
     one_way = [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 20}]
-    run_id = Experimenter(roof_stack, "ines").run(
-        "mobile-1", ahead_s=5, program_s=20, segments=one_way
-    )
-
-    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    ines = Experimenter(roof_stack, "ines")
     errors: list[str] = []
+
+    # Both pages sign in (and the console is open) before the run is booked, so only the run
+    # page's own load stands between the booking and the run's 25 seconds: a slow machine
+    # cannot let the run end before the page has seen it moving.
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
     page = context.new_page()
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.on(
@@ -88,8 +89,6 @@ def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, ro
         lambda m: "Content Security Policy" in m.text and errors.append(m.text),
     )
     login(page, roof_stack.web, "ines", "correct horse battery")
-    page.goto(f"{roof_stack.web}/runs/{run_id}/")
-    _check_map(page)
 
     console_context = browser.new_context(viewport={"width": 375, "height": 900})
     console = console_context.new_page()
@@ -97,6 +96,10 @@ def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, ro
     login(console, roof_stack.web, "root", "correct horse battery")
     console.goto(f"{roof_stack.web}/robot/mobile-1/")
     _check_map(console)
+
+    run_id = ines.run("mobile-1", ahead_s=5, program_s=20, segments=one_way)
+    page.goto(f"{roof_stack.web}/runs/{run_id}/")
+    _check_map(page)
 
     expect(page.locator("#run-state")).to_have_attribute("data-state", "running", timeout=30_000)
     _moves(page)
