@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 from django.utils import timezone
-from playwright.sync_api import Page, Request
+from playwright.sync_api import Page, Request, expect
 
 from basestation.dryrun import dry_run
 from core.accounts.models import User
@@ -172,5 +172,13 @@ def test_every_page_passes_axe_at_a_laptops_and_a_phones_width(browser, live_ser
         assert response is not None, path
         assert response.status == 200, path
         _check(settler, name, width, found)
+        if name == "calendar":
+            # Its hours scroll, with or without a booking to tab to: reachable by keyboard,
+            # and opened at the morning.
+            hours = page.locator("#calendar .fc-view-harness")
+            expect(hours).to_have_attribute("role", "region")
+            expect(hours).to_have_attribute("tabindex", "0")
+            assert hours.evaluate("box => box.scrollHeight > box.clientHeight")
+            assert hours.evaluate("box => box.scrollTop > 0")
     context.close()
     assert not found, "\n".join(found)

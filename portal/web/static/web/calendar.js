@@ -124,6 +124,26 @@
     else document.getElementById("event-feedback").textContent = explain(result.data);
   });
 
+  // The hours scroll in the view's own box (app.css), not in a scroller inside the grid: an
+  // area that scrolls must be reachable by keyboard (WCAG 2.1.1) even on a day without a
+  // booking to tab to, and a focusable scroller inside the grid would break its rows'
+  // structure. The box opens at the morning, as the calendar's own scrollTime would.
+  function scrollArea() {
+    const box = el.querySelector(".fc-view-harness");
+    if (!box) return;
+    if (!box.hasAttribute("tabindex")) {
+      box.tabIndex = 0;
+      box.setAttribute("role", "region");  // named by the calendar's title (its own label)
+    }
+    window.requestAnimationFrame(() => {
+      const morning = box.querySelector('.fc-timegrid-slot-lane[data-time="08:00:00"]');
+      if (!morning) return;
+      const head = box.querySelector("thead");
+      const above = morning.getBoundingClientRect().top - box.getBoundingClientRect().top;
+      box.scrollTop += above - (head ? head.getBoundingClientRect().height : 0);
+    });
+  }
+
   const narrow = window.matchMedia("(max-width: 640px)").matches;
   const calendar = new FullCalendar.Calendar(el, {
     timeZone: zone,
@@ -140,9 +160,8 @@
     eventOverlap: false,
     allDaySlot: false,
     slotDuration: "00:30:00",
-    scrollTime: "08:00:00",
-    contentHeight: narrow ? 520 : 640,
-    expandRows: true,
+    height: "auto",
+    stickyHeaderDates: true,
     slotLabelFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     eventTimeFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     dayHeaderFormat: { weekday: "short", day: "numeric", month: "short" },
@@ -156,6 +175,8 @@
     // data-loading="false" once the shown range's bookings are in (tests and assistive
     // technology wait on it).
     loading: (busy) => { el.dataset.loading = busy ? "true" : "false"; el.setAttribute("aria-busy", String(busy)); },
+    viewDidMount: scrollArea,
+    datesSet: scrollArea,
     select: (info) => openBooking(info.start, info.end),
     eventDrop: move,
     eventResize: move,
@@ -163,6 +184,7 @@
   });
   filter.addEventListener("change", () => calendar.refetchEvents());
   calendar.render();
+  scrollArea();
   // The toolbar's arrow icons are drawn as images without a name; their buttons carry one.
   for (const icon of el.querySelectorAll(".fc-icon")) icon.setAttribute("aria-hidden", "true");
 
