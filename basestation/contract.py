@@ -66,15 +66,22 @@ _CONVERTERS: Final[dict[ColumnKind, Callable[[Any], Any]]] = {
 }
 
 
+# The largest integers the portal's smallint and integer columns store.
+INT16_MAX: Final = 2**15 - 1
+INT32_MAX: Final = 2**31 - 1
+
+
 @dataclass(frozen=True)
 class SampleColumn:
     """One column of a telemetry sample, as the agent sends it in JSON.
 
     ``epoch`` is seconds since 1970 (UTC) on the agent's clock; the portal stores it as a
     timestamp. ``max_length`` bounds a text column; ``choices`` lists the values it may take;
-    ``minimum`` is the least value of a number. ``doc`` is the column's description in both
-    APIs' schemas, ``unit`` its unit (SI symbols; empty for a count, a code or a text): the
-    downloads' README and data package describe every column by these two.
+    ``minimum`` and ``maximum`` bound a number (an integer column at least to what the
+    portal's column stores: nothing may wrap or fail there). ``doc`` is the column's
+    description in both APIs' schemas, ``unit`` its unit (SI symbols; empty for a count, a
+    code or a text): the downloads' README and data package describe every column by these
+    two.
     """
 
     name: str
@@ -83,6 +90,7 @@ class SampleColumn:
     max_length: int | None = None
     choices: tuple[str, ...] | None = None
     minimum: float | None = None
+    maximum: float | None = None
     doc: str = ""
     unit: str = ""
 
@@ -98,10 +106,15 @@ class SampleColumn:
             raise ValueError(f"{self.name}: {exc}") from None
         if self.max_length is not None and len(parsed) > self.max_length:
             raise ValueError(f"{self.name}: longer than {self.max_length} characters")
+        if self.kind == "text" and not _storable(parsed):
+            # No database text holds it: a page with one would fail to store again and again.
+            raise ValueError(f"{self.name}: holds a NUL character or a lone surrogate")
         if self.choices is not None and parsed not in self.choices:
             raise ValueError(f"{self.name}: {parsed!r} is not one of {', '.join(self.choices)}")
         if self.minimum is not None and parsed < self.minimum:
             raise ValueError(f"{self.name}: {parsed!r} is less than {self.minimum:g}")
+        if self.maximum is not None and parsed > self.maximum:
+            raise ValueError(f"{self.name}: {parsed!r} is more than {self.maximum:g}")
         return parsed
 
     def json_schema(self) -> dict[str, Any]:
@@ -116,6 +129,8 @@ class SampleColumn:
             schema["maxLength"] = self.max_length
         if self.minimum is not None:
             schema["minimum"] = self.minimum
+        if self.maximum is not None:
+            schema["maximum"] = self.maximum
         doc = f"{self.doc}; epoch seconds, agent clock" if self.kind == "epoch" else self.doc
         if doc:
             schema["description"] = doc
@@ -124,11 +139,20 @@ class SampleColumn:
 
 SAMPLE_COLUMNS: Final[tuple[SampleColumn, ...]] = (
     SampleColumn(
-        "seq", "int", minimum=1, doc="sequence number within the run, from 1, no gaps on the agent"
+        "seq",
+        "int",
+        minimum=1,
+        maximum=INT32_MAX,
+        doc="sequence number within the run, from 1, no gaps on the agent",
     ),
     SampleColumn("t", "epoch", doc="when the agent recorded it (control tick)", unit="UTC"),
     SampleColumn(
-        "segment", "int", nullable=True, doc="program segment (0-based); null once it is over"
+        "segment",
+        "int",
+        nullable=True,
+        minimum=0,
+        maximum=INT16_MAX,
+        doc="program segment (0-based); null once it is over",
     ),
     SampleColumn("commanded_velocity_mps", "float", doc="what the program asked for", unit="m/s"),
     SampleColumn("velocity_mps", "float", minimum=0, doc="what the robot measured", unit="m/s"),
@@ -141,6 +165,8 @@ SAMPLE_COLUMNS: Final[tuple[SampleColumn, ...]] = (
         "fix_quality",
         "int",
         nullable=True,
+        minimum=0,
+        maximum=INT16_MAX,
         doc="GPS fix: 0 none, 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK float; null without a GPS",
     ),
     SampleColumn(
@@ -159,7 +185,12 @@ SAMPLE_COLUMNS: Final[tuple[SampleColumn, ...]] = (
     ),
     SampleColumn("grid_id", "text", nullable=True, max_length=8, doc="thesis grid cell, e.g. A2"),
     SampleColumn(
-        "lap", "int", nullable=True, doc="whole laps since the run started; negative: ccw"
+        "lap",
+        "int",
+        nullable=True,
+        minimum=-INT32_MAX,
+        maximum=INT32_MAX,
+        doc="whole laps since the run started; negative: ccw",
     ),
 )
 SAMPLE_FIELDS: Final[tuple[str, ...]] = tuple(c.name for c in SAMPLE_COLUMNS)
@@ -200,6 +231,18 @@ _ACCEPTED_TYPES: Final[dict[ColumnKind, frozenset[type]]] = {
 }
 
 
+def _storable(text: str) -> bool:
+    """Whether a database's text can hold ``text``: no NUL, and valid UTF-8 (a JSON string
+    may hold half of a surrogate pair)."""
+    if "\x00" in text:
+        return False
+    try:
+        text.encode()
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def _column_plain(column: SampleColumn, values: Sequence[Any]) -> Sequence[Any] | None:
     """``values`` (one column of many samples) each as ``column.parse`` gives it, checked with
     built-ins over the whole column (no Python call per value). None means "look one value at
@@ -215,6 +258,8 @@ def _column_plain(column: SampleColumn, values: Sequence[Any]) -> Sequence[Any] 
         return None
     if column.minimum is not None and min(present, default=column.minimum) < column.minimum:
         return None
+    if column.maximum is not None and max(present, default=column.maximum) > column.maximum:
+        return None
     if column.kind in ("float", "epoch"):
         if int in types:
             try:
@@ -225,6 +270,8 @@ def _column_plain(column: SampleColumn, values: Sequence[Any]) -> Sequence[Any] 
         # NaN or an infinity anywhere makes the sum NaN or infinite.
         return values if math.isfinite(sum(present)) else None
     if column.max_length is not None and max(map(len, present), default=0) > column.max_length:
+        return None
+    if column.kind == "text" and not _storable("".join(present)):
         return None
     if column.choices is not None and not set(present) <= set(column.choices):
         return None

@@ -71,6 +71,25 @@ def test_the_json_download_holds_every_value_exactly(run, client):
     assert [list(s) for s in document["samples"]] == [list(SAMPLE_FIELDS)] * len(_samples())
 
 
+def test_the_json_download_is_whole_across_chunks_and_for_a_run_without_samples(
+    run, client, monkeypatch, owner, mobile, experiment
+):
+    client.force_login(owner)
+    # A chunk of about one row: every object's pieces meet across chunk borders.
+    monkeypatch.setattr("portal.runs.selectors.CHUNK_BYTES", 100)
+    document = json.loads(_body(client.get(f"/api/v1/runs/{run.pk}/samples.json")))
+    assert document["samples"] == _expected()
+
+    start = timezone.now() + timedelta(hours=2)
+    empty = booking_create(
+        owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=5),
+        experiment=experiment,
+    ).run  # fmt: skip
+    document = json.loads(_body(client.get(f"/api/v1/runs/{empty.pk}/samples.json")))
+    assert document["samples"] == []
+    assert document["run"] == empty.pk
+
+
 def test_the_csv_download_holds_every_value_exactly(run, client):
     client.force_login(run.reservation.owner)
     text = _body(client.get(f"/api/v1/runs/{run.pk}/samples.csv")).decode()

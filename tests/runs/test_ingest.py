@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import json
 import time
-from datetime import timedelta
+from datetime import UTC, datetime, timedelta
 
 import pytest
 import redis
+from django.db import connection
 from django.utils import timezone
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
+from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS
 from core import live
 from portal.runs.models import Sample
 from portal.runs.services import collection
@@ -178,3 +182,94 @@ def test_marks_refused_by_redis_still_announce_the_samples(run, run_channel_even
     monkeypatch.setattr(live.RedisBus, "publish_marked", refuse)
     assert live.samples_publish(run.pk, {"type": "samples", "first_seq": 1, "last_seq": 5})
     assert run_channel_events(1) == [(1, 5)]
+
+
+_FLOATS = st.floats(allow_nan=False, allow_infinity=False, width=64)
+_TEXT = st.text(
+    alphabet=st.characters(blacklist_characters="\x00", blacklist_categories=["Cs"]), max_size=8
+)
+
+
+def _sample(seq: int, values: tuple) -> dict:
+    t, velocity, track, lat, grid = values
+    return {
+        "seq": seq, "t": t, "segment": None if seq % 3 else seq, "commanded_velocity_mps": -track,
+        "velocity_mps": velocity, "direction": "ccw" if seq % 2 else "cw", "battery_v": track,
+        "track_m": track, "fix_quality": None if seq % 2 else 4, "lat_deg": lat,
+        "lon_deg": None, "grid_id": grid, "lap": -seq,
+    }  # fmt: skip
+
+
+_PAGES = st.lists(
+    st.tuples(
+        st.floats(min_value=0, max_value=4_000_000_000, allow_nan=False),
+        st.floats(min_value=0, allow_nan=False, allow_infinity=False),
+        _FLOATS,
+        st.none() | _FLOATS,
+        st.none() | _TEXT,
+    ),
+    min_size=1,
+    max_size=40,
+)
+
+
+@settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(pages=st.lists(_PAGES, min_size=1, max_size=3))
+def test_every_value_is_stored_as_the_agent_sent_it(run, pages):
+    """What the database holds is what the contract reads from the agent's JSON, value for
+    value (floats to the bit, times to the microsecond, any text), new page or merged."""
+    Sample.objects.filter(run=run).delete()
+    sent: dict[int, dict] = {}
+    for page in pages:
+        # Each page starts inside the one before it: the second and later are merged.
+        first = max(1, len(sent) - 2)
+        samples = [_sample(first + i, values) for i, values in enumerate(page)]
+        samples_ingest(run=run, samples=samples)
+        for sample in samples:
+            sent.setdefault(sample["seq"], sample)
+    stored = {row["seq"]: row for row in Sample.objects.filter(run=run).values(*SAMPLE_FIELDS)}
+    assert stored.keys() == sent.keys()
+    for seq, sample in sent.items():
+        row = stored[seq]
+        expected_t = datetime.fromtimestamp(sample["t"], tz=UTC)
+        assert row["t"] == expected_t, seq
+        for field in SAMPLE_FIELDS:
+            if field != "t":
+                assert row[field] == sample[field], (seq, field, row[field], sample[field])
+
+
+def test_text_no_database_can_hold_is_refused_and_nothing_is_stored(run):
+    page = _page(1, 3)
+    page[1]["grid_id"] = "A\x001"
+    with pytest.raises(ValueError, match="grid_id: holds a NUL character or a lone surrogate"):
+        samples_ingest(run=run, samples=page)
+    page[1]["grid_id"] = "A\ud8001"
+    with pytest.raises(ValueError, match="grid_id: holds a NUL character or a lone surrogate"):
+        samples_ingest(run=run, samples=page)
+    assert not Sample.objects.filter(run=run).exists()
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("segment", 40_000), ("fix_quality", -1), ("seq", 2**31), ("lap", -(2**31))],
+)
+def test_an_integer_its_column_cannot_store_is_refused_not_wrapped(run, field, value):
+    page = _page(1, 3)
+    page[1][field] = value
+    with pytest.raises(ValueError, match=f"{field}: {value}"):
+        samples_ingest(run=run, samples=page)
+    assert not Sample.objects.filter(run=run).exists()
+
+
+def test_the_contracts_integer_bounds_fit_the_portals_columns():
+    for column in SAMPLE_COLUMNS:
+        if column.kind != "int":
+            continue
+        field = Sample._meta.get_field(column.name)
+        low, high = connection.ops.integer_field_range(field.get_internal_type())
+        assert column.minimum is not None, column.name
+        assert column.maximum is not None, column.name
+        assert low <= column.minimum, column.name
+        assert column.maximum <= high, column.name
