@@ -1,6 +1,8 @@
 """Hold-to-drive on the admin console in Chromium, against the real agent and simulated robot:
-the robot moves only while held; letting go stops it within its ramp; a page that vanishes
-mid-hold, its stop lost too, is stopped by the base station within the command's TTL."""
+the robot moves only while held; letting go commands 0 at once and the robot ramps down to a
+stand; a page that vanishes mid-hold, its stop lost too, is stopped by the base station when
+the command's TTL runs out. (How fast the drive ramps and how promptly a TTL expires are
+timed in simulated time by the simulator's and the control loop's own tests.)"""
 
 from __future__ import annotations
 
@@ -21,12 +23,9 @@ from tests.factories import MobileResourceFactory, UserFactory
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 
 VELOCITY_MPS = 0.5
-ACCEL_MPS2 = 1.0  # the agent's default max_accel_mps2: the stack's robot ramps at this
-RAMP_S = VELOCITY_MPS / ACCEL_MPS2
-# A control tick or two and this test's polling of the agent. The ramp is timed from the
-# moment the page's stop was answered: how long the request took on its way through the
-# portal depends on the machine's load, not on the robot.
-SLACK_S = 0.5
+# Only bounds a hang: how fast the drive ramps down is the simulated robot's physics, tested
+# in simulated time (tests/basestation/sim); in wall time it stretches on a loaded machine.
+STOP_DEADLINE_S = 15.0
 
 
 def _velocity_mps(agent: AgentClient) -> float:
@@ -41,6 +40,33 @@ def _wait_velocity(agent: AgentClient, reached, deadline_s: float) -> float:
         if reached(velocity):
             return time.monotonic() - start
         assert time.monotonic() - start < deadline_s, f"velocity stayed {velocity} m/s"
+        time.sleep(0.02)
+
+
+def _stops(agent: AgentClient, deadline_s: float = STOP_DEADLINE_S) -> None:
+    """From now on the base station's command only falls (it ramps down to 0 at the robot's
+    deceleration) and the robot, never faster than it was held at (the drive lags the
+    command a little), comes to a stand."""
+    start = time.monotonic()
+    commanded_mps = float("inf")
+    while True:
+        robot = agent.status()["robot"]
+        now_commanded = float(robot["commanded_velocity_mps"] or 0.0)
+        velocity_mps = float(robot["velocity_mps"] or 0.0)
+        assert now_commanded <= commanded_mps + 1e-6, f"command rose to {now_commanded} m/s"
+        assert velocity_mps <= VELOCITY_MPS + 0.01, f"sped up to {velocity_mps} m/s"
+        commanded_mps = now_commanded
+        if commanded_mps == 0.0 and velocity_mps < 0.005:
+            return
+        assert time.monotonic() - start < deadline_s, f"still at {velocity_mps} m/s"
+        time.sleep(0.02)
+
+
+def _commanded_zero(agent: AgentClient, deadline_s: float) -> None:
+    """Poll until the base station commands 0 (fails at the deadline)."""
+    start = time.monotonic()
+    while agent.status()["robot"]["commanded_velocity_mps"] != 0.0:
+        assert time.monotonic() - start < deadline_s, "the base station still drives"
         time.sleep(0.02)
 
 
@@ -68,7 +94,7 @@ def _console(browser, stack, username: str) -> Page:
     return page
 
 
-def test_the_robot_drives_only_while_held_and_stops_within_its_ramp(browser, stack):
+def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(browser, stack):
     MobileResourceFactory(agent_url=stack.agent_url)
     UserFactory(username="root", is_staff=True, is_superuser=True)
     page = _console(browser, stack, "root")
@@ -87,8 +113,7 @@ def test_the_robot_drives_only_while_held_and_stops_within_its_ramp(browser, sta
     expect(page.locator("#hold-state")).to_have_attribute("data-state", "driving")
     expect(hold).to_have_attribute("aria-pressed", "true")
     _release(page, page.mouse.up)
-    took_s = _wait_velocity(stack.agent, lambda v: v < 0.005, deadline_s=RAMP_S + SLACK_S)
-    assert took_s <= RAMP_S + SLACK_S
+    _stops(stack.agent)
     expect(page.locator("#hold-state")).to_have_text("Stopped.")
     # Held long enough to be repeated, yet audited once, and its stop once.
     assert len(sent) >= 3
@@ -107,7 +132,7 @@ def test_the_robot_drives_only_while_held_and_stops_within_its_ramp(browser, sta
     page.keyboard.down("ArrowRight")
     _wait_velocity(stack.agent, lambda v: v >= 0.2, deadline_s=10)
     _release(page, lambda: page.keyboard.up("ArrowRight"))
-    _wait_velocity(stack.agent, lambda v: v < 0.005, deadline_s=RAMP_S + SLACK_S)
+    _stops(stack.agent)
 
     # The day's log names the admin's manual session, on screen and as a download.
     page.get_by_role("button", name="Show").click()
@@ -121,7 +146,7 @@ def test_the_robot_drives_only_while_held_and_stops_within_its_ramp(browser, sta
     page.context.close()
 
 
-def test_a_page_closed_mid_hold_with_its_stop_lost_stops_within_the_ttl(browser, stack):
+def test_a_page_closed_mid_hold_with_its_stop_lost_is_stopped_by_the_ttl(browser, stack):
     MobileResourceFactory(agent_url=stack.agent_url)
     UserFactory(username="root", is_staff=True, is_superuser=True)
     page = _console(browser, stack, "root")
@@ -133,7 +158,5 @@ def test_a_page_closed_mid_hold_with_its_stop_lost_stops_within_the_ttl(browser,
     page.context.close()
     # The last command expires on the base station, and the robot ramps down from at most
     # the held velocity.
-    took_s = _wait_velocity(
-        stack.agent, lambda v: v < 0.005, deadline_s=HOLD_TTL_S + RAMP_S + SLACK_S
-    )
-    assert took_s <= HOLD_TTL_S + RAMP_S + SLACK_S
+    _commanded_zero(stack.agent, deadline_s=HOLD_TTL_S + STOP_DEADLINE_S)
+    _stops(stack.agent)
