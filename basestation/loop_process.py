@@ -409,6 +409,8 @@ class LoopProcess:
         # What the loop process last said (whole objects swapped, read lock-free).
         self._state: LoopState | None = None
         self._state_at_s: float | None = None  # monotonic
+        # The supervisor thread and a caller catching up (``running``) both take states.
+        self._drain_lock = threading.Lock()
         self._view: tuple[int, EstopLatch | None, ManualDrive | None] = (0, None, None)
         self._view_lock = threading.Lock()
         self._ring_size = max(1, math.ceil(STATS_WINDOW_S * config.control_hz))
@@ -461,9 +463,17 @@ class LoopProcess:
         at_s = self._state_at_s
         if not self.alive or at_s is None:
             return False
+        stale_after_s = max(STALE_AFTER_S, 5.0 / self.hz)
+        if time.monotonic() - at_s > stale_after_s:
+            # This process may be the one that stood still (starved, stopped, swapped out)
+            # while the loop kept sending: read what waits before judging the loop.
+            sock = self._state_sock
+            if sock is not None:
+                self._drain(sock)
+            at_s = self._state_at_s or at_s
         state = self._state
         # Before its first state: the grace from its start (_state_at_s is set then).
-        fresh = time.monotonic() - at_s <= max(STALE_AFTER_S, 5.0 / self.hz)
+        fresh = time.monotonic() - at_s <= stale_after_s
         return fresh and (state is None or state.writer_alive)
 
     def _spawn(self) -> None:
@@ -591,6 +601,10 @@ class LoopProcess:
     # -- state from the loop -----------------------------------------------------------------------
 
     def _drain(self, sock: socket.socket) -> None:
+        with self._drain_lock:
+            self._drain_unlocked(sock)
+
+    def _drain_unlocked(self, sock: socket.socket) -> None:
         while True:
             try:
                 data = sock.recv(1 << 20)

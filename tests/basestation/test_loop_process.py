@@ -10,7 +10,9 @@
 from __future__ import annotations
 
 import os
+import pickle
 import signal
+import socket
 import sqlite3
 import time
 from collections.abc import Callable, Iterator
@@ -20,6 +22,8 @@ from typing import TypeVar
 import pytest
 
 from basestation.client import AgentClient, AgentError
+from basestation.loop_process import STALE_AFTER_S, LoopProcess, LoopState
+from basestation.manager import AgentSnapshot
 from tests.basestation.conftest import TOKEN, run_body
 from tests.basestation.processes import Agent, sim_robot_process, start_agent
 
@@ -183,3 +187,30 @@ def test_a_burst_of_sigterms_as_the_agent_dies_stops_the_loop_process(
         except ProcessLookupError:
             break
     _wait_for(lambda: not _alive(loop_pid), timeout_s=15.0)
+
+
+class _Alive:
+    def is_alive(self) -> bool:
+        return True
+
+
+def test_a_loop_whose_states_wait_unread_is_running_not_stopped(agent_config) -> None:
+    """This process stood still (starved, SIGSTOP) while the loop kept sending: the states
+    waiting on the socket are read before the loop is called stopped."""
+    loop = LoopProcess(agent_config)
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    with ours, theirs:
+        ours.setblocking(False)
+        loop._process = _Alive()
+        loop._state_sock = ours
+        loop._state_at_s = time.monotonic() - 10 * STALE_AFTER_S
+        assert not loop.running  # nothing waits: stale is stale
+
+        state = LoopState(
+            pid=1, api_version=0, snapshot=AgentSnapshot(ticks=7), estop=None, manual=None,
+            ticks=7, late_ticks=0, skipped_ticks=0, tick_errors=0, max_lateness_s=0.0,
+            realtime=False, pinned_cpu=None, writer_alive=True, timings=((7, 0.001, 0.002),),
+        )  # fmt: skip
+        theirs.send(pickle.dumps(state))
+        assert loop.running
+        assert loop.stats().ticks == 7
