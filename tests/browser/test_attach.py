@@ -4,18 +4,14 @@ its run page, and the robot runs it to the end."""
 
 from __future__ import annotations
 
-from datetime import timedelta
-
 import pytest
-import requests
-from django.contrib.auth.models import Permission
-from django.utils import timezone
 from playwright.sync_api import expect
 
 from bookings.choices import BookedVia
 from bookings.models import Reservation
 from tests.browser.conftest import login
-from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory, api_token
+from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
+from tests.integration.experimenter import lease_robot_session
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 
@@ -28,22 +24,8 @@ def test_the_owner_attaches_an_experiment_on_the_page_and_it_runs(browser, stack
         title="attached later",
         segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 3.0}],
     )
-    account = UserFactory(username="testbed-scheduler")
-    account.user_permissions.add(Permission.objects.get(codename="lease_inbound"))
-    # Whole seconds, as the lease vocabulary has them; far enough ahead to attach first.
-    start = (timezone.now() + timedelta(seconds=20)).replace(microsecond=0)
-    lease = requests.post(
-        f"{stack.web}/scheduler/resources/leases",
-        json={
-            "name": "robot-session",
-            "valid_from": start.strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "valid_until": (start + timedelta(seconds=10)).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "account_attributes": {"name": "erin"},
-            "components": [{"name": "mobile-1"}],
-        },
-        headers={"Authorization": f"Token {api_token(account)}"},
-        timeout=20,
-    )
+    # Far enough ahead to attach first.
+    lease = lease_robot_session(stack.web, "erin", ahead_s=20)
     assert lease.status_code == 200, lease.text
     reservation = Reservation.objects.get(booked_via=BookedVia.SCHEDULER)
 

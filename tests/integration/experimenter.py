@@ -7,6 +7,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 import requests
+from django.contrib.auth.models import Permission
 from django.utils import timezone
 
 from bench.stack import Stack
@@ -81,3 +82,24 @@ class Experimenter:
         )
         assert booking.status_code == 201, booking.text
         return int(booking.json()["run"]["id"])
+
+
+def lease_robot_session(web: str, owner: str, *, ahead_s: float) -> requests.Response:
+    """The testbed's scheduler (an account allowed to lease inbound) leases mobile-1 for
+    ``owner`` over the lease API, without a program: 10 s from ``ahead_s`` from now, in whole
+    seconds, as the lease vocabulary has them."""
+    account = UserFactory(username="testbed-scheduler")
+    account.user_permissions.add(Permission.objects.get(codename="lease_inbound"))
+    start = (timezone.now() + timedelta(seconds=ahead_s)).replace(microsecond=0)
+    return requests.post(
+        f"{web}/scheduler/resources/leases",
+        json={
+            "name": "robot-session",
+            "valid_from": start.strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "valid_until": (start + timedelta(seconds=10)).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "account_attributes": {"name": owner},
+            "components": [{"name": "mobile-1"}],
+        },
+        headers={"Authorization": f"Token {api_token(account)}"},
+        timeout=20,
+    )

@@ -5,17 +5,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from datetime import timedelta
 from typing import Any
 
 import pytest
 import requests
-from django.contrib.auth.models import Permission
-from django.utils import timezone
 
 from bookings.choices import BookedVia
 from bookings.models import Reservation
 from tests.factories import MobileResourceFactory, UserFactory, api_token
+from tests.integration.experimenter import lease_robot_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -33,11 +31,8 @@ def _until(what: str, check: Callable[[], Any], timeout_s: float, stack: Any) ->
 def test_a_lease_api_booking_given_an_experiment_runs_it(stack):
     MobileResourceFactory(agent_url=stack.agent_url)
     owner = UserFactory(username="erin")
-    account = UserFactory(username="testbed-scheduler")
-    account.user_permissions.add(Permission.objects.get(codename="lease_inbound"))
     web = stack.web
     as_owner = {"Authorization": f"Token {api_token(owner)}"}
-    as_scheduler = {"Authorization": f"Token {api_token(account)}"}
     experiment = requests.post(
         f"{web}/api/v1/experiments/",
         json={
@@ -48,20 +43,8 @@ def test_a_lease_api_booking_given_an_experiment_runs_it(stack):
         timeout=10,
     )
     assert experiment.status_code == 201, experiment.text
-    # Whole seconds, as the lease vocabulary has them; far enough ahead to attach first.
-    start = (timezone.now() + timedelta(seconds=8)).replace(microsecond=0)
-    lease = requests.post(
-        f"{web}/scheduler/resources/leases",
-        json={
-            "name": "robot-session",
-            "valid_from": start.strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "valid_until": (start + timedelta(seconds=10)).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "account_attributes": {"name": "erin"},
-            "components": [{"name": "mobile-1"}],
-        },
-        headers=as_scheduler,
-        timeout=20,
-    )
+    # Far enough ahead to attach first.
+    lease = lease_robot_session(web, "erin", ahead_s=8)
     assert lease.status_code == 200, lease.text
     reservation = Reservation.objects.get(
         public_id=lease.json()["resource_response"]["resource"]["uuid"]
