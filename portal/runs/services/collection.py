@@ -29,6 +29,7 @@ and the final check stays :func:`run_collect`'s.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import asdict, dataclass
@@ -197,13 +198,14 @@ def _overlaps_stored(run_id: int, rows: list[tuple[Any, ...]]) -> bool:
     return Sample.objects.filter(run_id=run_id, seq__gte=min(seqs), seq__lte=max(seqs)).exists()
 
 
-def _copy_types(with_run: bool) -> list[str]:
+@functools.cache
+def _copy_types(with_run: bool) -> tuple[str, ...]:
     """The column types of a binary ``COPY`` of a page (the run id first when ``with_run``),
     the model's own (the contract test keeps model and contract in step)."""
     fields = {f.name: f for f in Sample._meta.concrete_fields}
     names = ["run", *SAMPLE_FIELDS] if with_run else SAMPLE_FIELDS
     # varchar(n) travels as text: the same bytes, and the column still checks n.
-    return [str(fields[name].db_type(connection)).partition("(")[0] for name in names]
+    return tuple(str(fields[name].db_type(connection)).partition("(")[0] for name in names)
 
 
 def _copy_page(cursor: Any, target: str, rows: list[tuple[Any, ...]], run_id: int | None) -> None:
