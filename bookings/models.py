@@ -1,14 +1,14 @@
 from __future__ import annotations
 
 import uuid
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import TypeVar
 from urllib.parse import urlsplit
 
 from django.conf import settings
 from django.contrib.auth.models import Group
 from django.core.exceptions import ValidationError
-from django.db import models
+from django.db import connection, models
 
 from bookings.choices import BookedVia, QuotaPeriod, ReservationState, ResourceKind
 from core.accounts.models import User
@@ -37,6 +37,32 @@ class PeriodQuerySet(ChangeTrackedQuerySet[_Timed]):
         if start_at is not None:
             qs = qs.filter(end_at__gt=start_at)
         return qs
+
+
+def table_sql(model: type[models.Model]) -> str:
+    """``model``'s table, quoted for hand-written SQL."""
+    return connection.ops.quote_name(model._meta.db_table)
+
+
+def instant_sql(column: str) -> str:
+    """A ``DateTimeField`` column read as ISO 8601 text in UTC, for hand-written SQL that
+    reads many rows (``instant_from_sql`` turns it back): Django reads a timestamptz through a
+    Python call per value, five times slower than ``datetime.fromisoformat`` on this text."""
+    if connection.vendor == "postgresql":
+        return f"to_char({column} AT TIME ZONE 'UTC', 'YYYY-MM-DD\"T\"HH24:MI:SS.US')"
+    return column  # SQLite keeps a UTC instant as such text already
+
+
+def instant_from_sql(value: str | datetime) -> datetime:
+    """What ``instant_sql`` read, as an aware UTC datetime."""
+    instant = value if isinstance(value, datetime) else datetime.fromisoformat(value)
+    return instant.replace(tzinfo=UTC)
+
+
+def overlap_sql(alias: str) -> str:
+    """``PeriodQuerySet.overlapping`` for hand-written SQL (the booking check's one round
+    trip): the row ``alias`` shares an instant with ``[%s, %s)``, given as (end, start)."""
+    return f"{alias}.start_at < %s AND {alias}.end_at > %s"
 
 
 def validate_agent_url(value: str) -> None:
@@ -444,3 +470,8 @@ track_changes(
     QuotaPolicy,
 )
 track_saves(CALENDAR, Group, User.groups.through)
+# The active quota policies, read under the booking lock on every booking: kept in the cache
+# until one is written (a booking that begins in the moment between a policy's commit and this
+# counter moving on still judges by the policies before it).
+QUOTA_POLICIES = Generation("quota-policies")
+track_changes(QUOTA_POLICIES, QuotaPolicy)

@@ -18,7 +18,7 @@ from functools import partial
 from typing import Any, Literal
 
 from django.core.exceptions import ValidationError
-from django.db import IntegrityError, transaction
+from django.db import IntegrityError, connection, transaction
 from django.utils import timezone
 
 from bookings.choices import (
@@ -47,6 +47,7 @@ from bookings.models import (
     Reservation,
     ReservationItem,
     Resource,
+    table_sql,
 )
 from bookings.rules import (
     Problem,
@@ -81,6 +82,16 @@ def _release_lease_after_commit(reservation: Reservation) -> None:
         transaction.on_commit(partial(lease_cancel.delay, reservation.lease_uuid))
 
 
+def _hold_items(reservation: Reservation, items: list[ReservationItem]) -> None:
+    """Keep the items just written as the reservation's ``items``, as a prefetch leaves
+    them: whoever answers with the new booking reads them (and their resources) without
+    asking the database again."""
+    held = reservation.items.all()
+    held._result_cache = items
+    held._prefetch_done = True  # type: ignore[attr-defined]
+    reservation._prefetched_objects_cache = {"items": held}  # type: ignore[attr-defined]
+
+
 def _refuse(problems: Sequence[Problem]) -> None:
     """Raise the first problem, if there is one."""
     if problems:
@@ -93,9 +104,21 @@ def _lock(owner: User, resources: Sequence[Resource]) -> list[Resource]:
     Returns the resources as locked: whether one is in service is judged on these rows, so
     taking it out of service while someone books it cannot let the booking through.
     """
-    list(User.objects.select_for_update().filter(pk=owner.pk).values_list("pk"))
+    ids = sorted({r.pk for r in resources})
+    if connection.vendor != "postgresql":
+        # SQLite has no row locks: each transaction takes the database's write lock as it
+        # begins (``transaction_mode`` IMMEDIATE in settings), so bookings run one at a time.
+        return list(Resource.objects.filter(pk__in=ids).order_by("pk"))
+    # One round trip: the user's row first (the CTE yields it before the join can give a
+    # resource row to lock), then the resources in id order.
+    in_ids = ", ".join(["%s"] * len(ids))
     return list(
-        Resource.objects.select_for_update().filter(pk__in=[r.pk for r in resources]).order_by("pk")
+        Resource.objects.raw(
+            f"WITH owner AS MATERIALIZED (SELECT id FROM {table_sql(User)} WHERE id = %s "  # noqa: S608
+            f"FOR UPDATE) SELECT r.* FROM {table_sql(Resource)} r, owner WHERE r.id IN ({in_ids}) "
+            "ORDER BY r.id FOR UPDATE OF r",
+            [owner.pk, *ids],
+        )
     )
 
 
@@ -320,12 +343,13 @@ def reservation_create(
             # public id needs no uniqueness query either: the unique index stands behind it).
             reservation.full_clean(exclude=["owner", "public_id"], validate_constraints=False)
             reservation.save()
-            ReservationItem.objects.bulk_create(
+            items = ReservationItem.objects.bulk_create(
                 ReservationItem(
                     reservation=reservation, resource=r, start_at=start_at, end_at=end_at
                 )
                 for r in resources
             )
+            _hold_items(reservation, items)
             if lease is not None:
                 lease_record(lease=lease, reservation=reservation, resources=owned)
             audit_record(

@@ -88,11 +88,12 @@ _START_NAME = re.compile(r"(^|_)(start|starts|started|from)(_|$)")
 _END_NAME = re.compile(r"(^|_)(end|ends|ended|until)(_|$)")
 _ORDERING = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
 _LOOKUP = re.compile(r"^(?:\w+__)?(\w+?)__(lt|lte|gt|gte)$")
-_SQL_COMPARISON = re.compile(r"\b([a-z_]+)\s*(<=|>=|<|>)\s*(\?|[a-z_]+)")
+_SQL_COMPARISON = re.compile(r"\b([a-z_]+)\s*(<=|>=|<|>)\s*(\?|%s|[a-z_]+)")
 
 OVERLAP_PLACES = {
     ("bookings/periods.py", ""),
     ("bookings/models.py", "PeriodQuerySet.overlapping"),
+    ("bookings/models.py", "overlap_sql"),
     ("basestation/store.py", "overlap_condition"),
 }
 # Comparisons of a start with an end that are not "do these two periods overlap".
@@ -109,6 +110,8 @@ NOT_OVERLAP = {
     ("bookings/services.py", "reservation_check", "start_at < end_at"),
     ("bookings/services.py", "reservation_reschedule", "start_at < end_at"),
     ("bookings/services.py", "blackout_create", "end_at <= start_at"),
+    # "Still to come": a booking that ends after now (an instant, not a period's start).
+    ("bookings/quotas.py", "_upcoming", "end_at > %s"),
     ("bookings/scheduler/adapter.py", "covering_window", "valid_from >= valid_until"),
     ("bookings/scheduler/omf.py", "lease_from_resource", "valid_from >= valid_until"),
     ("bookings/scheduler/standin.py", "Broker._check_window", "valid_from_s >= valid_until_s"),
@@ -186,7 +189,7 @@ def interval_comparisons(source: str, path: str) -> list[tuple[str, str, str]]:
             for match in _SQL_COMPARISON.finditer(node.value):
                 column, _, other = match.groups()
                 # A parameter hides what it holds: an end compared with one counts.
-                parameter = other == "?" and _end_kind(column) is not None
+                parameter = other in ("?", "%s") and _end_kind(column) is not None
                 if parameter or {_end_kind(column), _end_kind(other)} == {"start", "end"}:
                     found.append((path, scope, match.group(0)))
         for child in ast.iter_child_nodes(node):
@@ -217,7 +220,8 @@ def test_no_period_comparison_outside_the_overlap_places():
                 found.append(finding)
     assert not found, (
         "compare periods with bookings/periods.py (Python), PeriodQuerySet.overlapping "
-        "(queries) or basestation.store.overlap_condition (agent SQL); a comparison that is "
+        "(queries), bookings.models.overlap_sql (portal SQL) or "
+        "basestation.store.overlap_condition (agent SQL); a comparison that is "
         f"no overlap test goes on NOT_OVERLAP with why: {found}"
     )
     assert not NOT_OVERLAP - seen, f"NOT_OVERLAP names what is gone: {NOT_OVERLAP - seen}"
@@ -238,6 +242,7 @@ def listed(qs, query):
     return qs.filter(end_at__gt=query["start"], start_at__lte=now)
 
 SQL = "SELECT id FROM runs WHERE started_at < ? AND seq > ?"
+PORTAL_SQL = "SELECT id FROM items WHERE end_at > %s"
 """
     assert interval_comparisons(source, "x.py") == [
         ("x.py", "Calendar.busy", "lease.valid_from < end_at"),
@@ -246,6 +251,7 @@ SQL = "SELECT id FROM runs WHERE started_at < ? AND seq > ?"
         ("x.py", "used_s", "max(a_start, b_start, key=None)"),
         ("x.py", "listed", "end_at__gt=query['start']"),
         ("x.py", "", "started_at < ?"),
+        ("x.py", "", "end_at > %s"),
     ]
     assert allowed(("bookings/periods.py", "clip", "max(start, window_start)"))
     assert allowed(("bookings/models.py", "PeriodQuerySet.overlapping", "end_at__gt=start_at"))

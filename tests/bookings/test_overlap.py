@@ -2,9 +2,10 @@
 
 The Python predicate (``bookings/periods.py``), the portal's queries
 (``PeriodQuerySet.overlapping``), PostgreSQL's own ``tstzrange(…, '[)') &&`` (the operator of
-the exclusion constraint on reservation items, and the constraint itself) and the agent's
-SQLite condition (``basestation.store.overlap_condition``) must answer alike, touching ends
-above all: back to back is no overlap.
+the exclusion constraint on reservation items, and the constraint itself), the booking
+check's SQL (``bookings.models.overlap_sql``) and the agent's SQLite condition
+(``basestation.store.overlap_condition``) must answer alike, touching ends above all: back to
+back is no overlap.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from hypothesis import strategies as st
 
 from basestation.store import overlap_condition
 from bookings.choices import ResourceKind
-from bookings.models import Blackout, Reservation, ReservationItem, Resource
+from bookings.models import Blackout, Reservation, ReservationItem, Resource, overlap_sql
 from bookings.periods import clip, gaps, overlap_s, overlaps, within
 from bookings.scheduler import Lease, LeaseStatus
 from core.accounts.models import User
@@ -113,6 +114,15 @@ def test_the_predicate_the_queryset_and_postgresql_agree(
             )
             by_ranges = {row[0] for row in cursor.fetchall()}
         assert by_predicate == by_queryset == by_ranges
+        if window_start is not None and window_end is not None:
+            # The booking check's hand-written SQL (``bookings.rules``), closed windows only.
+            with connection.cursor() as cursor:
+                condition = overlap_sql("r")
+                cursor.execute(
+                    f"SELECT id FROM bookings_reservation r WHERE id = ANY(%s) AND {condition}",  # noqa: S608
+                    [ids, window_end, window_start],
+                )
+                assert {row[0] for row in cursor.fetchall()} == by_predicate
         transaction.set_rollback(True)
 
 

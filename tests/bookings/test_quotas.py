@@ -11,12 +11,22 @@ from zoneinfo import ZoneInfo
 
 import pytest
 from django.contrib.auth.models import Group
+from django.db import connection, transaction
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bookings.choices import QuotaPeriod
-from bookings.models import QuotaPolicy, ResourceGroup
+from bookings.models import (
+    QuotaPolicy,
+    Reservation,
+    ResourceGroup,
+    instant_from_sql,
+    instant_sql,
+)
 from bookings.quotas import period_bounds, policies_for, quota_summary
 from bookings.rules import QuotaExceeded
 from bookings.services import reservation_cancel, reservation_create
+from core.accounts.models import User
 from core.audit.models import AuditEvent
 from core.errors import NotAllowed
 from tests.factories import FixedResourceFactory
@@ -26,6 +36,7 @@ pytestmark = pytest.mark.django_db
 LISBON = ZoneInfo("Europe/Lisbon")
 # Real elapsed hours are added in UTC: Python adds to a zoned datetime by wall clock.
 BEFORE = datetime(2026, 1, 1, tzinfo=LISBON)  # "now" for every booking below
+MICROSECOND = timedelta(microseconds=1)
 
 
 def at(*args: int) -> datetime:
@@ -206,3 +217,26 @@ def test_the_summary_shows_what_is_left(owner):
     assert row["policy"] == "Weekly robot time"
     assert row["used_hours"] == 1.5
     assert row["remaining_hours"] == 2.5
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    start=st.datetimes(
+        min_value=datetime(2000, 1, 1), max_value=datetime(2100, 1, 1), timezones=st.just(UTC)
+    )
+)
+def test_usage_reads_each_instant_as_stored(start: datetime) -> None:
+    """The quota's usage reads its rows' instants as text (``instant_sql``), to the
+    microsecond, whatever the date."""
+    with transaction.atomic():
+        owner = User.objects.create(username="instants")
+        kept = Reservation.objects.create(owner=owner, start_at=start, end_at=start + MICROSECOND)
+        with connection.cursor() as cursor:
+            cursor.execute(
+                f"SELECT {instant_sql('start_at')}, {instant_sql('end_at')} "  # noqa: S608
+                "FROM bookings_reservation WHERE id = %s",
+                [kept.pk],
+            )
+            read = [instant_from_sql(value) for value in cursor.fetchone()]
+        assert read == [start, start + MICROSECOND]
+        transaction.set_rollback(True)

@@ -31,6 +31,11 @@ try:
     reservation_create(owner=bob, resource=node, start_at=half, end_at=half + hour)
 except Conflict as exc:
     print("refused:", exc.message)
+# Back to back is no overlap: the hour after alice's is free.
+after = reservation_create(
+    owner=alice, resource=node, start_at=start + hour, end_at=start + 2 * hour
+)
+print("back to back:", after.start_at == first.end_at)
 blackout_create(
     by=admin, start_at=start + 3 * hour, end_at=start + 4 * hour, reason="mast", resources=[node]
 )
@@ -58,6 +63,7 @@ print("override:", booked.override_reason)
 def test_booking_rules_hold_on_sqlite(tmp_path):
     output = run_on_sqlite(SCRIPT, tmp_path)
     assert "override: calibration" in output
+    assert "back to back: True" in output
     lines = [line for line in output if line.startswith("refused:")]
     assert lines[0].startswith("refused: node-01 is already booked from")
     assert lines[1].startswith("refused: Maintenance “mast”")

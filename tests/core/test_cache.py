@@ -21,6 +21,8 @@ from bookings.models import (
     ResourceGroup,
     SchedulerLease,
 )
+from bookings.rules import QuotaExceeded
+from bookings.services import reservation_create
 from core.cache import ChangeTrackedQuerySet, Generation, cached_answer
 from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
 
@@ -301,3 +303,27 @@ def test_the_redis_cache_keeps_one_client_per_pool_and_serves_threads():
     for t in threads:
         t.join()
     assert seen == [1] * 8
+
+
+@pytest.mark.django_db(transaction=True)
+def test_the_next_booking_judges_by_a_policy_just_written():
+    """The active quota policies are kept in the cache (``QUOTA_POLICIES``): a policy
+    created, tightened or switched off is what the next booking is judged by."""
+    node = FixedResourceFactory()
+    owner = UserFactory()
+    start = timezone.now() + timedelta(days=2)
+
+    def book(hour: int) -> None:
+        at = start + timedelta(hours=hour)
+        reservation_create(owner=owner, resource=node, start_at=at, end_at=at + timedelta(hours=1))
+
+    book(0)  # no policy yet: the empty list is what the cache keeps
+    policy = QuotaPolicy.objects.create(name="one at a time", max_future=1)
+    with pytest.raises(QuotaExceeded):
+        book(2)
+    policy.max_future = 2
+    policy.save()
+    book(2)
+    QuotaPolicy.objects.filter(pk=policy.pk).update(active=False)
+    book(4)
+    assert Reservation.objects.filter(owner=owner).count() == 3

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from django.db.models import Prefetch, prefetch_related_objects
 from django.http import HttpResponse
 from django.shortcuts import get_object_or_404
 from django.urls import reverse
@@ -197,11 +196,9 @@ class ReservationListApi(APIView):
         data = valid_input(ReservationInput, request.data)
         owner = data.pop("owner", None) or user
         experiment = _experiment(request, data.pop("experiment", None))
+        # The new booking holds its items and their resources: the answer asks nothing more.
         reservation = booking.booking_create(
             owner=owner, by=user, experiment=experiment, ip=client_ip(request), **data
-        )
-        prefetch_related_objects(
-            [reservation], Prefetch("items", ReservationItem.objects.select_related("resource"))
         )
         return Response(ReservationOutput(reservation).data, status=status.HTTP_201_CREATED)
 
@@ -246,9 +243,6 @@ class RunAgainApi(APIView):
         user = request_user(request)
         run = get_object_or_404(runs_visible(user=user).select_related("experiment"), pk=pk)
         reservation = booking.booking_repeat(run=run, by=user, ip=client_ip(request))
-        prefetch_related_objects(
-            [reservation], Prefetch("items", ReservationItem.objects.select_related("resource"))
-        )
         return Response(ReservationOutput(reservation).data, status=status.HTTP_201_CREATED)
 
 
