@@ -241,6 +241,8 @@ class ControlLoop:
         )
         start_s = self._monotonic()
         k = 0
+        duration_s = 0.0  # the last tick's work
+        last_late_log_s = -math.inf
         while True:
             deadline_s = slot_deadline(start_s=start_s, period_s=self.period_s, k=k)
             while (delay_s := deadline_s - self._monotonic()) > 0:
@@ -264,6 +266,17 @@ class ControlLoop:
             on_grid = tick_slot(start_s=start_s, period_s=self.period_s, k=k, woke_s=woke_s)
             lateness_s = on_grid.lateness_s
             self.max_lateness_s = max(self.max_lateness_s, lateness_s)
+            if lateness_s > self.period_s / 2 and woke_s - last_late_log_s >= 1.0:
+                # Whether the tick before overran or this thread was held up says where to
+                # look (the link, or the machine); at most one line a second.
+                last_late_log_s = woke_s
+                logger.warning(
+                    "control tick %.1f ms late (the tick before took %.1f ms of the %.0f ms "
+                    "period)",
+                    lateness_s * 1000,
+                    duration_s * 1000,
+                    self.period_s * 1000,
+                )
             if on_grid.missed:
                 # This tick missed its slot (the previous tick ran long, or the thread was
                 # not scheduled): count it once, and move onto the grid slot now current.

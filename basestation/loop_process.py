@@ -48,6 +48,7 @@ import time
 import types
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 from basestation.config import AUTO_CPU, AgentConfig, ConfigError
@@ -180,6 +181,23 @@ def _realtime_helpers(rt_priority: int) -> None:
         logger.warning("the loop's helper threads stay at normal priority (%s)", exc)
 
 
+def _pin_process(cpu: int) -> None:
+    """Keep every thread of this process (the request thread, the store writer, the robot
+    link's) on the tick's CPU. Why: a helper holding the GIL on another CPU holds up the tick
+    whenever that CPU is taken away, by an interrupt or, on a virtual machine, by the host (a
+    stall of 10-20 ms on the other CPU was seen to make the tick as late). On its own CPU the
+    tick preempts a helper, which hands the GIL over within the switch interval. The loop's
+    thread pins itself too and says so; a refusal here is only logged."""
+    tasks = Path("/proc/self/task")
+    tids = [int(t.name) for t in tasks.iterdir()] if tasks.is_dir() else [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, {cpu})
+        except (OSError, AttributeError, ValueError) as exc:
+            logger.warning("the loop's helper threads not pinned to CPU %d (%s)", cpu, exc)
+            return
+
+
 def _orphaned(parent_pid: int, wait_s: float = 0.2) -> bool:
     """Whether the agent's process is gone. Its death signal can come as its first thread
     dies, a moment before the kernel hands us to a new parent: look for that moment."""
@@ -298,13 +316,16 @@ def loop_main(
     # passes, which hold the GIL (and so the tick) for their whole length.
     gc.collect()
     gc.freeze()
+    cpu = pick_cpu(config.control_cpu)
+    if cpu is not None:
+        _pin_process(cpu)  # before the writer starts: it inherits the CPU
     publisher = _Publisher(state_sock, manager)
     manager.writer.start()
     loop = ControlLoop(
         manager.tick,
         hz=config.control_hz,
         rt_priority=config.rt_priority,
-        cpu=pick_cpu(config.control_cpu),
+        cpu=cpu,
         urgent=manager.urgent,
         urgent_at=manager.next_start_s,
         after_tick=publisher.after_tick,

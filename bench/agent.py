@@ -17,6 +17,7 @@ import os
 import re
 import secrets
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -38,6 +39,14 @@ TARGET_P99_MS_50HZ = 2.0
 TARGET_MAX_MS_50HZ = 10.0
 STATS_WINDOW_S = 60.0  # the agent's statistics window (basestation.control)
 RUN_ID = "bench-load"
+# The simulated robot's process: below the agent's loop (AGENT_RT_PRIORITY 10) and its
+# helpers (9).
+ROBOT_RT_PRIORITY = 5
+ROBOT_READY = re.compile(r"radio=udp://127\.0\.0\.1:(\d+)")
+# Where the simulated robot runs: "sim-udp" in a process of its own (as on the roof, where
+# the tick waits on the air while the robot computes), "sim" inside the agent's loop process
+# (its firmware and physics then take most of each tick's CPU).
+ROBOTS = ("sim-udp", "sim")
 
 
 @dataclass
@@ -128,6 +137,62 @@ class AgentProcess:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait(5)
+
+
+def realtime(tid: int) -> bool:
+    """SCHED_FIFO at ``ROBOT_RT_PRIORITY`` for a thread (0: this one) where allowed. The robot
+    is a microcontroller that never waits for a CPU; on a busy machine its simulation would,
+    and every exchange (so every tick that waits for one) would take longer than on the roof."""
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(ROBOT_RT_PRIORITY))
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class RobotProcess:
+    """The simulated robot (firmware core on rail physics, ``python -m basestation.sim``) in a
+    process of its own, as on the roof the robot is a computer of its own: its radio listens
+    on ``radio_port`` and answers to ``peer_port``. Its threads run under SCHED_FIFO where
+    allowed (``realtime`` says whether they do)."""
+
+    def __init__(self, radio_port: int, peer_port: int) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "basestation.sim", "--radio-port", str(radio_port),
+             "--peer-port", str(peer_port), "--inspect-port", "0"],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )  # fmt: skip
+        try:
+            assert self.process.stdout is not None
+            first = self.process.stdout.readline()
+            if not ROBOT_READY.search(first):
+                raise RuntimeError(f"the simulated robot did not start: {first.strip()}")
+            tasks = Path(f"/proc/{self.process.pid}/task")
+            self.realtime = tasks.is_dir() and all(
+                [realtime(int(task.name)) for task in tasks.iterdir()]
+            )
+            stdout = self.process.stdout
+            threading.Thread(target=lambda: [None for _ in stdout], daemon=True).start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(5)
+        if self.process.stdout is not None:
+            self.process.stdout.close()
 
 
 def _hammer(
@@ -226,12 +291,32 @@ def run(
     threads: int = 8,
     page: int = 1000,
     control_cpu: str | None = None,
+    robot: str = "sim-udp",
 ) -> str:
-    """``control_cpu`` sets ``AGENT_CONTROL_CPU`` (a CPU, or "none"; None: the default)."""
+    """``control_cpu`` sets ``AGENT_CONTROL_CPU`` (a CPU, or "none"; None: the default);
+    ``robot`` is one of ``ROBOTS``."""
+    if robot not in ROBOTS:
+        raise ValueError(f"robot must be one of {', '.join(ROBOTS)}, not {robot!r}")
     token = secrets.token_urlsafe(24)
     extra = {} if control_cpu is None else {"AGENT_CONTROL_CPU": control_cpu}
     with tempfile.TemporaryDirectory(prefix="amazing-bench-agent-") as scratch:
-        agent = AgentProcess(Path(scratch), token, hz, threads, **extra)
+        robot_process: RobotProcess | None = None
+        if robot == "sim-udp":
+            base_port, robot_port = free_udp_port(), free_udp_port()
+            robot_process = RobotProcess(robot_port, base_port)
+            extra.update(
+                AGENT_ROBOT="sim-udp",
+                AGENT_SIM_BASE_PORT=str(base_port),
+                AGENT_SIM_ROBOT_PORT=str(robot_port),
+            )
+        else:
+            extra["AGENT_ROBOT"] = "sim"
+        try:
+            agent = AgentProcess(Path(scratch), token, hz, threads, **extra)
+        except BaseException:
+            if robot_process is not None:
+                robot_process.stop()
+            raise
         try:
             session = requests.Session()
             session.headers["Authorization"] = f"Bearer {token}"
@@ -304,7 +389,30 @@ def run(
             session.close()
         finally:
             agent.stop()
-    return _report(idle, load, hz=hz, threads=threads, page=page, run=run_state)
+            if robot_process is not None:
+                robot_process.stop()
+            # What the agent said of its late ticks: whether the tick before overran.
+            late_lines = [
+                line.split("WARNING", 1)[-1].split(":", 1)[-1].strip()
+                for line in agent.log_path.read_text(errors="replace").splitlines()
+                if "control tick" in line and " late " in line
+            ]
+    robot_note = (
+        "the simulated robot in a process of its own"
+        + (" (SCHED_FIFO, below the loop)" if robot_process.realtime else " (normal priority)")
+        if robot_process is not None
+        else "the simulated robot inside the loop's process"
+    )
+    return _report(
+        idle,
+        load,
+        hz=hz,
+        threads=threads,
+        page=page,
+        run=run_state,
+        robot_note=robot_note,
+        late_lines=late_lines,
+    )
 
 
 def _fmt(value: float | None, digits: int = 2) -> str:
@@ -312,7 +420,15 @@ def _fmt(value: float | None, digits: int = 2) -> str:
 
 
 def _report(
-    idle: Phase, load: Phase, *, hz: float, threads: int, page: int, run: dict[str, Any]
+    idle: Phase,
+    load: Phase,
+    *,
+    hz: float,
+    threads: int,
+    page: int,
+    run: dict[str, Any],
+    robot_note: str,
+    late_lines: Sequence[str] = (),
 ) -> str:
     w = load.window
     fast = hz > 20.0
@@ -337,7 +453,8 @@ def _report(
         f"### Control loop at {hz:g} Hz under HTTP load (agent)",
         "",
         f"The real agent (`python -m basestation`, waitress, {threads} threads, the control "
-        f"loop in its own process) at {hz:g} Hz with a run recording a sample every tick; "
+        f"loop in its own process; {robot_note}) at {hz:g} Hz with a run recording a "
+        "sample every tick; "
         f"{load.clients} client threads (one `requests.Session` each) alternate "
         f"`GET /status` and `GET /runs/{{id}}/samples?limit={page}` on 127.0.0.1 for "
         f"{load.seconds:g} s. Lateness = wake-up minus deadline of each tick, from the "
@@ -372,6 +489,13 @@ def _report(
         f"sample was stored). Machine load average at the end: {os.getloadavg()[0]:.2f} "
         "(the clients run on the same machine; other processes count too).",
     ]
+    if late_lines:
+        shown = "; ".join(f"“{line}”" for line in late_lines[:5])
+        more = f" (and {len(late_lines) - 5} more)" if len(late_lines) > 5 else ""
+        lines += [
+            "",
+            f"The agent logged {len(late_lines)} late tick(s), idle phase included: {shown}{more}.",
+        ]
     return "\n".join(lines)
 
 
@@ -383,8 +507,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--idle", type=float, default=60.0)
     parser.add_argument("--clients", type=int, default=50)
     parser.add_argument("--hz", type=float, default=50.0)
+    parser.add_argument("--robot", choices=ROBOTS, default="sim-udp")
     args = parser.parse_args(argv)
-    print(run(duration_s=args.duration, idle_s=args.idle, clients=args.clients, hz=args.hz))
+    print(
+        run(
+            duration_s=args.duration,
+            idle_s=args.idle,
+            clients=args.clients,
+            hz=args.hz,
+            robot=args.robot,
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -18,14 +18,10 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import re
 import secrets
 import socket
 import statistics
 import struct
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -35,16 +31,13 @@ from typing import Any
 
 import requests
 
-from bench.agent import REPO, AgentProcess
+from bench.agent import AgentProcess, RobotProcess, free_udp_port, realtime
 
 TICK_S = 0.05  # 20 Hz, the agent's default
 STARTS = 20
 STOPS = 40
 # Linux: the kernel stamps each datagram's arrival (struct timespec, wall clock).
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
-# Below the agent's loop (AGENT_RT_PRIORITY 10) and its helpers (9).
-ROBOT_RT_PRIORITY = 5
-ROBOT_READY = re.compile(r"radio=udp://127\.0\.0\.1:(\d+)")
 
 
 def _iso(epoch_s: float) -> str:
@@ -102,7 +95,7 @@ class AirLog:
         from basestation.protocol.codec import decode_frame
         from basestation.protocol.frames import CommandFrame
 
-        _realtime(0)
+        realtime(0)
         while not self._closed:
             try:
                 payload, ancillary, _, (_, port) = sock.recvmsg(65536, 256)
@@ -144,30 +137,6 @@ class AirLog:
         self.towards_base.close()
 
 
-def _realtime(tid: int) -> bool:
-    """SCHED_FIFO for a thread (0: this one) where allowed. The robot is a microcontroller
-    that never waits for a CPU; on a busy machine its simulation and this relay would, and
-    every exchange (so every stop that waits for one) would take longer than on the roof."""
-    try:
-        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(ROBOT_RT_PRIORITY))
-    except (OSError, AttributeError):
-        return False
-    return True
-
-
-def _robot_realtime(pid: int) -> bool:
-    tasks = Path(f"/proc/{pid}/task")
-    if not tasks.is_dir():
-        return False
-    return all([_realtime(int(task.name)) for task in tasks.iterdir()])
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def _ms(values: list[float]) -> str:
     ordered = sorted(values)
     p95 = ordered[int(0.95 * (len(ordered) - 1))]
@@ -181,23 +150,13 @@ def run(*, starts: int = STARTS, stops: int = STOPS) -> str:
     from basestation.protocol.frames import CommandFlag
 
     token = secrets.token_hex(16)
-    base_port, robot_port = _free_udp_port(), _free_udp_port()
+    base_port, robot_port = free_udp_port(), free_udp_port()
     air = AirLog(robot_port)
     with tempfile.TemporaryDirectory() as scratch:
         # The robot answers to the relay's far side, which passes it on to the agent's chip.
-        robot = subprocess.Popen(
-            [sys.executable, "-m", "basestation.sim", "--radio-port", str(robot_port),
-             "--peer-port", str(air.robot_peer_port), "--inspect-port", "0"],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        )  # fmt: skip
+        robot = RobotProcess(robot_port, air.robot_peer_port)
         agent: AgentProcess | None = None
         try:
-            assert robot.stdout is not None
-            ready = ROBOT_READY.search(robot.stdout.readline())
-            assert ready, "the simulated robot did not start"
-            robot_realtime = _robot_realtime(robot.pid)
-            robot_stdout = robot.stdout
-            threading.Thread(target=lambda: [None for _ in robot_stdout], daemon=True).start()
             agent = AgentProcess(
                 Path(scratch),
                 token,
@@ -214,11 +173,8 @@ def run(*, starts: int = STARTS, stops: int = STOPS) -> str:
             if agent is not None:
                 agent.stop()
             air.close()
-            robot.terminate()
-            robot.wait(10)
-            if robot.stdout is not None:
-                robot.stdout.close()
-    return _report(start_lateness_s, stop_latency_s, robot_realtime=robot_realtime)
+            robot.stop()
+    return _report(start_lateness_s, stop_latency_s, robot_realtime=robot.realtime)
 
 
 def _measure(

@@ -140,6 +140,24 @@ def test_a_tick_up_to_one_period_late_keeps_its_slot() -> None:
     assert (loop.late_ticks, loop.skipped_ticks) == (0, 0)
 
 
+def test_a_late_tick_is_logged_with_what_the_tick_before_took(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # Tick 1 overran (works 1.75 periods): tick 2 wakes 0.75 of a period late and says so,
+    # naming the 1.75 periods the tick before took; tick 5's wait returned 0.6 of a period
+    # late with nothing before it slow (the thread was held up), but that is within the
+    # same second, so one line is all.
+    clock = SimClock(oversleep_s=lambda n: 0.6 * PERIOD_S if n == 4 else 0.0)
+    with caplog.at_level("WARNING", logger="basestation.control"):
+        run_ticks(clock, 8, hz=32.0, work_s=lambda i: 1.75 * PERIOD_S if i == 1 else 0.0)
+    late = [r.getMessage() for r in caplog.records if "late" in r.getMessage()]
+    period_ms = PERIOD_S * 1000
+    assert late == [
+        f"control tick {0.75 * period_ms:.1f} ms late (the tick before took "
+        f"{1.75 * period_ms:.1f} ms of the {period_ms:.0f} ms period)"
+    ]
+
+
 def test_it_survives_a_failing_tick() -> None:
     clock = SimClock()
     loop, stamps = run_ticks(clock, 10, hz=32.0, fail=lambda i: i == 1)

@@ -73,7 +73,11 @@ def test_the_loop_runs_in_its_own_process_and_ticks_on_while_http_is_frozen(
 ) -> None:
     data_dir = tmp_path / "data"
     agent = start_agent(
-        data_dir, tmp_path / "agent.log", AGENT_TOKEN=TOKEN, AGENT_CONTROL_HZ=str(HZ)
+        data_dir,
+        tmp_path / "agent.log",
+        AGENT_TOKEN=TOKEN,
+        AGENT_CONTROL_HZ=str(HZ),
+        AGENT_CONTROL_CPU="0",
     )
     agents.append(agent)
     with AgentClient(agent.url, TOKEN) as client:
@@ -83,6 +87,12 @@ def test_the_loop_runs_in_its_own_process_and_ticks_on_while_http_is_frozen(
         assert loop_pid != agent.process.pid
         assert _alive(loop_pid)
         assert control["hz"] == HZ
+        # The whole loop process (the tick, the request thread, the store writer, the robot
+        # link's) keeps to the tick's CPU: a helper elsewhere could hold the GIL up there.
+        assert control["cpu"] == 0
+        tids = [int(task.name) for task in Path(f"/proc/{loop_pid}/task").iterdir()]
+        assert len(tids) >= 3
+        assert {tid: os.sched_getaffinity(tid) for tid in tids} == {tid: {0} for tid in tids}
         segments = [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 60.0}]
         client.put_run("frozen", run_body(time.time() + 0.3, window_s=120.0, segments=segments))
         _wait_for(lambda: client.get_run("frozen")["state"] == "running")

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from basestation.config import AgentConfig, ConfigError
-from basestation.robot import Command, RobotLimits
+from basestation.robot import Command, RobotLimits, RobotLinkError
 from basestation.robots import build_robot, reply_timeout_s
 from basestation.telemetry.rail import Rail
 
@@ -39,7 +39,12 @@ def test_the_simulated_robot_drives_the_agents_rail_file(tmp_path: Path) -> None
         deadline_s = time.monotonic() + 10.0
         telemetry = None
         while time.monotonic() < deadline_s:
-            telemetry = robot.exchange(Command(velocity_mps=0.0, direction="cw"), time.time())
+            try:
+                telemetry = robot.exchange(Command(velocity_mps=0.0, direction="cw"), time.time())
+            except RobotLinkError:
+                # An answer later than the link waits for (a busy test machine delays the
+                # simulated robot's thread) is a lost exchange, as on the air: ask again.
+                continue
             if getattr(telemetry, "position_known", False):
                 break
             time.sleep(0.05)
