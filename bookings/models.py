@@ -44,6 +44,16 @@ def table_sql(model: type[models.Model]) -> str:
     return connection.ops.quote_name(model._meta.db_table)
 
 
+def placeholders(count: int) -> str:
+    """``count`` parameter marks for hand-written SQL, as in ``IN (%s, %s)``."""
+    return ", ".join(["%s"] * count)
+
+
+def instant_param(value: datetime) -> object:
+    """An instant as hand-written SQL takes it as a parameter (as the ORM would pass it)."""
+    return connection.ops.adapt_datetimefield_value(value)
+
+
 def instant_sql(column: str) -> str:
     """A ``DateTimeField`` column read as ISO 8601 text in UTC, for hand-written SQL that
     reads many rows (``instant_from_sql`` turns it back): Django reads a timestamptz through a

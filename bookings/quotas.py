@@ -28,8 +28,10 @@ from bookings.models import (
     ReservationItem,
     Resource,
     instant_from_sql,
+    instant_param,
     instant_sql,
     overlap_sql,
+    placeholders,
     table_sql,
 )
 from bookings.periods import overlap_s, overlaps, within
@@ -117,8 +119,10 @@ def _scoped(policy: QuotaPolicy, user: User, states: Sequence[str]) -> tuple[str
     The one spelling of a policy's scope. SQL because it runs under the booking lock on every
     booking, where building the same query through the ORM took longer than running it.
     """
-    marks = ", ".join(["%s"] * len(states))
-    sql = f"FROM {table_sql(Reservation)} r WHERE r.owner_id = %s AND r.state IN ({marks})"
+    sql = (
+        f"FROM {table_sql(Reservation)} r "
+        f"WHERE r.owner_id = %s AND r.state IN ({placeholders(len(states))})"
+    )
     params: list[Any] = [user.pk, *states]
     items = table_sql(ReservationItem)
     if policy.resource_id is not None:
@@ -173,12 +177,11 @@ def period_usage(
     exclude_id: int | None = None,
 ) -> PeriodUsage:
     where, params = _scoped(policy, user, RESERVATION_COUNTED_STATES)
-    adapt = connection.ops.adapt_datetimefield_value
     sql = (
         f"SELECT {instant_sql('r.start_at')}, {instant_sql('r.end_at')} {where} "
         f"AND {overlap_sql('r')}"
     )
-    params += [adapt(period_end), adapt(period_start)]
+    params += [instant_param(period_end), instant_param(period_start)]
     if exclude_id is not None:
         sql += " AND r.id <> %s"
         params.append(exclude_id)
@@ -197,7 +200,7 @@ def _upcoming(policy: QuotaPolicy, user: User, *, now: datetime, exclude_id: int
     states = [s for s in RESERVATION_COUNTED_STATES if s in RESERVATION_ACTIVE_STATES]
     where, params = _scoped(policy, user, states)
     sql = f"SELECT COUNT(*) {where} AND r.end_at > %s"
-    params.append(connection.ops.adapt_datetimefield_value(now))
+    params.append(instant_param(now))
     if exclude_id is not None:
         sql += " AND r.id <> %s"
         params.append(exclude_id)

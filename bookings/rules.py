@@ -49,7 +49,9 @@ from bookings.models import (
     ReservationItem,
     Resource,
     SchedulerLease,
+    instant_param,
     overlap_sql,
+    placeholders,
     table_sql,
 )
 from bookings.quotas import quota_violations
@@ -414,10 +416,9 @@ def _conflicts(
     """
     if not resources:
         return []
-    ops = connection.ops
     ids = [r.pk for r in resources]
-    period = [ops.adapt_datetimefield_value(end_at), ops.adapt_datetimefield_value(start_at)]
-    in_ids = ", ".join(["%s"] * len(ids))
+    period = [instant_param(end_at), instant_param(start_at)]
+    in_ids = placeholders(len(ids))
     through = Blackout.resources.through
     excluded = ""
     params: list[Any] = [*period, *ids, *period, *ids]
@@ -446,25 +447,22 @@ def _conflicts(
     )
     problems = []
     for kind, pk, _ in found:
-        row: Blackout | ReservationItem = blackouts[pk] if kind == "blackout" else items[pk]
-        since, until = _period(row.start_at), _period(row.end_at)
-        if isinstance(row, Blackout):
+        if kind == "blackout":
+            window = blackouts[pk]
+            since, until = _period(window.start_at), _period(window.end_at)
             problems.append(
                 Problem(
                     "blackout",
                     "start_at",
-                    f"Maintenance “{row.reason}” from {since} to {until}: nothing can be booked "
-                    "then.",
+                    f"Maintenance “{window.reason}” from {since} to {until}: nothing can be "
+                    "booked then.",
                 )
             )
         else:
-            problems.append(
-                Problem(
-                    "booked",
-                    "start_at",
-                    f"{row.resource.name} is already booked from {since} to {until}.",
-                )
-            )
+            item = items[pk]
+            since, until = _period(item.start_at), _period(item.end_at)
+            message = f"{item.resource.name} is already booked from {since} to {until}."
+            problems.append(Problem("booked", "start_at", message))
     return problems
 
 

@@ -47,6 +47,7 @@ from bookings.models import (
     Reservation,
     ReservationItem,
     Resource,
+    placeholders,
     table_sql,
 )
 from bookings.rules import (
@@ -111,7 +112,7 @@ def _lock(owner: User, resources: Sequence[Resource]) -> list[Resource]:
         return list(Resource.objects.filter(pk__in=ids).order_by("pk"))
     # One round trip: the user's row first (the CTE yields it before the join can give a
     # resource row to lock), then the resources in id order.
-    in_ids = ", ".join(["%s"] * len(ids))
+    in_ids = placeholders(len(ids))
     return list(
         Resource.objects.raw(
             f"WITH owner AS MATERIALIZED (SELECT id FROM {table_sql(User)} WHERE id = %s "  # noqa: S608
