@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 
 import pytest
@@ -51,3 +51,46 @@ def login(page: Page, web: str, username: str, password: str) -> None:
         page.locator("input[name=code]").fill(totp_code(secret))
         page.get_by_role("button", name="Sign In").click()
     expect(page.get_by_role("heading", name=f"Hello, {username}")).to_be_visible()
+
+
+# What a failed browser test leaves behind: each open page's address, console, uncaught errors
+# and last requests in the report, and a screenshot beside the others. A failure on a loaded
+# machine is then read from the run's output, not guessed at.
+REPORT_REQUESTS = 30
+
+
+def _page_report(page: Page, name: str) -> list[str]:
+    lines = [f"page {name}: {page.url}"]
+    lines += [f"  console {m.type}: {m.text}" for m in page.console_messages()]
+    lines += [f"  uncaught: {error}" for error in page.page_errors()]
+    asked = [r for r in page.requests() if "/static/" not in r.url]
+    for request in asked[-REPORT_REQUESTS:]:
+        took_ms = request.timing["responseEnd"]
+        timed = f"{took_ms:.0f} ms" if took_ms >= 0 else "not timed (still waiting, or cached)"
+        outcome = request.failure or timed
+        lines.append(f"  {request.method} {request.url} · {outcome}")
+    return lines
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(
+    item: pytest.Item, call: pytest.CallInfo[None]
+) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    report = yield
+    browser = getattr(item, "funcargs", {}).get("browser")
+    if report.when != "call" or not report.failed or browser is None:
+        return report
+    lines: list[str] = []
+    for c, context in enumerate(browser.contexts):
+        for p, page in enumerate(context.pages):
+            name = f"{c}.{p}"
+            try:
+                lines += _page_report(page, name)
+                shot = SCREENSHOTS / f"failed-{item.name}-{name}.png"
+                page.screenshot(path=str(shot), full_page=True)
+                lines.append(f"  screenshot: {shot.name}")
+            except Exception as error:  # a page that crashed: say so, keep the test's failure
+                lines.append(f"  (could not be read: {error})")
+    if lines:
+        report.sections.append(("open pages", "\n".join(lines)))
+    return report

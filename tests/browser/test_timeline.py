@@ -31,9 +31,13 @@ def _tomorrow() -> date:
     return (timezone.now().astimezone(ZoneInfo(settings.TIME_ZONE)) + timedelta(days=1)).date()
 
 
-def _open_day(page: Page, web: str, day: date) -> None:
+def _open_day(page: Page, web: str, day: date, *, streamed: bool = True) -> None:
     page.goto(f"{web}/calendar/timeline/")
     expect(page.locator("#timeline[data-loading=false]")).to_be_attached()
+    if streamed:
+        # The stream is open: the page's read on connecting is asked, not still to come
+        # mid-drag. (Django's test server serves no streams: the page polls instead.)
+        expect(page.locator("#live-status")).to_have_attribute("data-state", "live")
     page.locator(".ec-next").first.click()
     expect(page.locator(f".ec-col-head time[datetime='{day.isoformat()}']")).to_be_visible()
     expect(page.locator("#timeline[data-loading=false]")).to_be_attached()
@@ -99,8 +103,10 @@ def test_a_drag_over_the_robot_and_two_nodes_books_them_in_one_lease(browser, st
     _open_day(page, stack.web, day)
 
     _drag(page, day, (10, 11), ("mobile-1", "node-02"))
-    # While the button is still down, the live check has answered for all three rows: the
-    # robot still needs its experiment, chosen in the dialog.
+    # The page took the drag across the three rows (marked at once, before the check answers)...
+    expect(page.locator("#timeline .timeline-picked")).to_have_count(3)
+    # ...and while the button is still down, the live check has answered for them: the robot
+    # still needs its experiment, chosen in the dialog.
     check = page.get_by_test_id("timeline-check")
     expect(check).to_contain_text("mobile-1, node-01, node-02")
     expect(check).to_contain_text("Choose the experiment the robot will run.")
@@ -168,7 +174,7 @@ def test_the_timeline_shows_leases_maintenance_and_holds_on_their_rows(browser, 
     )
     page = context.new_page()
     login(page, live_server.url, "ines", PASSWORD)
-    _open_day(page, live_server.url, day)
+    _open_day(page, live_server.url, day, streamed=False)
 
     rows = page.locator(".ec-body .ec-grid .ec-day")
     # The rows: the robots' group, mobile-1, the fixed nodes' group, node-01, node-02.
