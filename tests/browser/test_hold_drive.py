@@ -1,8 +1,9 @@
 """Hold-to-drive on the admin console in Chromium, against the real agent and simulated robot:
-the robot moves only while held; letting go commands 0 at once and the robot ramps down to a
-stand; a page that vanishes mid-hold, its stop lost too, is stopped by the base station when
-the command's TTL runs out. (How fast the drive ramps and how promptly a TTL expires are
-timed in simulated time by the simulator's and the control loop's own tests.)"""
+the robot moves only while held; letting go commands 0 at once (again after a repeat that was
+still on its way) and the robot ramps down to a stand; a page that vanishes mid-hold, its stop
+lost too, is stopped by the base station when the command's TTL runs out. (How fast the drive
+ramps and how promptly a TTL expires are timed in simulated time by the simulator's and the
+control loop's own tests.)"""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Page, Request, expect
+from playwright.sync_api import Page, Request, Route, expect
 
 from basestation.client import AgentClient
 from core.audit.models import AuditEvent
@@ -32,15 +33,21 @@ def _velocity_mps(agent: AgentClient) -> float:
     return float(agent.status()["robot"]["velocity_mps"] or 0.0)
 
 
-def _wait_velocity(agent: AgentClient, reached, deadline_s: float) -> float:
-    """Poll the robot until ``reached(velocity)``; the seconds it took (fails at the deadline)."""
+def _wait_velocity(
+    agent: AgentClient, reached, deadline_s: float, page: Page | None = None
+) -> float:
+    """Poll the robot until ``reached(velocity)``; the seconds it took (fails at the deadline).
+    With ``page``, it waits on the page: a route the test set up is served meanwhile."""
     start = time.monotonic()
     while True:
         velocity = _velocity_mps(agent)
         if reached(velocity):
             return time.monotonic() - start
         assert time.monotonic() - start < deadline_s, f"velocity stayed {velocity} m/s"
-        time.sleep(0.02)
+        if page is None:
+            time.sleep(0.02)
+        else:
+            page.wait_for_timeout(20)
 
 
 def _stops(agent: AgentClient, deadline_s: float = STOP_DEADLINE_S) -> None:
@@ -77,11 +84,45 @@ def _is_stop(request: Request) -> bool:
     )
 
 
-def _release(page: Page, let_go: Callable[[], None]) -> None:
-    """``let_go()`` (a button or key released) and wait until its stop has been answered."""
+class Controls:
+    """The page's drive commands: those sent and not yet answered, and the last answered."""
+
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        self.waiting: list[Request] = []
+        self.last_answered: Request | None = None
+        page.on("request", lambda r: self._is_control(r) and self.waiting.append(r))
+        page.on("requestfinished", self._answered)
+        page.on("requestfailed", self._answered)
+
+    @staticmethod
+    def _is_control(request: Request) -> bool:
+        return "/robot/control/" in request.url
+
+    def _answered(self, request: Request) -> None:
+        if request in self.waiting:
+            self.waiting.remove(request)
+            self.last_answered = request
+
+    def settled_on_a_stop(self, deadline_s: float = STOP_DEADLINE_S) -> None:
+        """Poll until no command is on its way (fails at the deadline), and check the last
+        one answered was a stop."""
+        start = time.monotonic()
+        while self.waiting:
+            assert time.monotonic() - start < deadline_s, "a drive command is still unanswered"
+            self.page.wait_for_timeout(20)  # lets Playwright deliver the page's events
+        assert self.last_answered is not None, "no command was answered"
+        assert _is_stop(self.last_answered), self.last_answered.post_data
+
+
+def _release(page: Page, controls: Controls, let_go: Callable[[], None]) -> None:
+    """``let_go()`` (a button or key released), wait until its stop has been answered and no
+    command is on its way, and check the last one the base station was given is a stop (a
+    repeat that was still on its way when the hold ended is followed by another stop)."""
     with page.expect_response(lambda r: _is_stop(r.request), timeout=15_000) as answered:
         let_go()
     assert answered.value.ok, answered.value.status
+    controls.settled_on_a_stop()
 
 
 def _console(browser, stack, username: str) -> Page:
@@ -98,6 +139,7 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     MobileResourceFactory(agent_url=stack.agent_url)
     UserFactory(username="root", is_staff=True, is_superuser=True)
     page = _console(browser, stack, "root")
+    controls = Controls(page)
     sent: list[str] = []
     page.on("request", lambda r: "/robot/control/" in r.url and sent.append(r.post_data or ""))
     errors: list[str] = []
@@ -112,26 +154,28 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     _wait_velocity(stack.agent, lambda v: v >= VELOCITY_MPS - 0.05, deadline_s=10)
     expect(page.locator("#hold-state")).to_have_attribute("data-state", "driving")
     expect(hold).to_have_attribute("aria-pressed", "true")
-    _release(page, page.mouse.up)
+    _release(page, controls, page.mouse.up)
     _stops(stack.agent)
     expect(page.locator("#hold-state")).to_have_text("Stopped.")
     # Held long enough to be repeated, yet audited once, and its stop once.
     assert len(sent) >= 3
-    controls = list(
+    audit_rows = list(
         AuditEvent.objects.filter(action="robot.control")
         .order_by("pk")
         .values_list("data", flat=True)
     )
-    assert [(c["velocity_mps"], c.get("hold")) for c in controls] == [
-        (VELOCITY_MPS, True),
-        (0.0, True),
-    ]
+    # A hold and its stop, once each; again only if a repeat on its way when the button was let
+    # go reached the base station after the stop (the page then stops it once more).
+    audited = [(c["velocity_mps"], c.get("hold")) for c in audit_rows]
+    holds = len(audited) // 2
+    assert audited == [(VELOCITY_MPS, True), (0.0, True)] * holds
+    assert 1 <= holds <= sum(1 for body in sent if json.loads(body)["velocity_mps"] == 0)
 
     # The keyboard: → drives clockwise while held, its release stops.
     page.locator("body").click(position={"x": 5, "y": 5})
     page.keyboard.down("ArrowRight")
     _wait_velocity(stack.agent, lambda v: v >= 0.2, deadline_s=10)
-    _release(page, lambda: page.keyboard.up("ArrowRight"))
+    _release(page, controls, lambda: page.keyboard.up("ArrowRight"))
     _stops(stack.agent)
 
     # The day's log names the admin's manual session, on screen and as a download.
@@ -143,6 +187,45 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     assert lines[0] == "user,title,start,end,kind,run_id,state"
     assert lines[1].startswith("root,")
     assert not errors, errors
+    page.context.close()
+
+
+def test_a_repeat_still_on_its_way_when_let_go_is_followed_by_another_stop(browser, stack):
+    """A slow repeat can reach the base station after the stop sent on letting go, and would
+    drive the robot again until its TTL: the page stops it once more when it is answered."""
+    MobileResourceFactory(agent_url=stack.agent_url)
+    UserFactory(username="root", is_staff=True, is_superuser=True)
+    page = _console(browser, stack, "root")
+    controls = Controls(page)
+    armed = False
+    held_back: list[Route] = []
+
+    def hold_back_one_repeat(route: Route) -> None:
+        driving = json.loads(route.request.post_data or "{}").get("velocity_mps")
+        if armed and driving and not held_back:
+            held_back.append(route)  # answered when the test says
+        else:
+            route.continue_()
+
+    page.route("**/robot/control/", hold_back_one_repeat)
+    page.get_by_role("button", name="Hold: clockwise ▶").hover()
+    page.mouse.down()
+    _wait_velocity(stack.agent, lambda v: v >= 0.2, deadline_s=10, page=page)
+    armed = True
+    start = time.monotonic()
+    while not held_back:
+        assert time.monotonic() - start < STOP_DEADLINE_S, "the page repeated nothing"
+        page.wait_for_timeout(20)
+    # Let go while that repeat is on its way: the stop goes at once...
+    with page.expect_response(lambda r: _is_stop(r.request), timeout=15_000) as answered:
+        page.mouse.up()
+    assert answered.value.ok
+    # ...then the repeat arrives, late, and once it is answered the stop goes again.
+    with page.expect_request(_is_stop, timeout=15_000):
+        held_back[0].continue_()
+    controls.settled_on_a_stop()
+    _stops(stack.agent)
+    expect(page.locator("#hold-state")).to_have_text("Stopped.")
     page.context.close()
 
 

@@ -19,6 +19,9 @@
 
   let held = null; // {direction, timer, source}
   let inFlight = false;
+  // A repeat already on its way when the hold ends can reach the base station after the stop
+  // and drive again until its TTL: the stop goes once more when that repeat is answered.
+  let stopAgain = null; // {body, keepalive}
 
   function say(text, kind) {
     state.textContent = text;
@@ -61,6 +64,9 @@
       say("Not driving: " + error.message, "error");
     } finally {
       inFlight = false;
+      const stop = stopAgain;
+      stopAgain = null;
+      if (stop && !held) send(stop.body, stop.keepalive).catch(() => { /* the TTL stops the robot */ });
     }
   }
 
@@ -85,8 +91,9 @@
     for (const button of buttons) button.setAttribute("aria-pressed", "false");
     say("Stopped.", "idle");
     if (sendStop) {
-      send({ velocity_mps: 0, direction, ttl_s: ttlS, reason: reason.value || "hold released", force: false, hold: true }, keepalive)
-        .catch(() => { /* the command's TTL stops the robot */ });
+      const body = { velocity_mps: 0, direction, ttl_s: ttlS, reason: reason.value || "hold released", force: false, hold: true };
+      send(body, keepalive).catch(() => { /* the command's TTL stops the robot */ });
+      if (inFlight) stopAgain = { body, keepalive };
     }
   }
 
