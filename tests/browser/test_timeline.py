@@ -233,3 +233,28 @@ def test_the_timeline_fits_a_phone(browser, live_server):
     assert page.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1")
     page.screenshot(path=str(SCREENSHOTS / "timeline-narrow.png"), full_page=True)
     context.close()
+
+
+def test_a_check_without_any_answer_says_so(browser, live_server):
+    """The connection drops under the live check: the line says so (the pages' API helper
+    answers for a request that got no answer), and nothing on the page is left uncaught."""
+    UserFactory(username="jon")
+    for name in ("node-01", "node-02"):
+        FixedResourceFactory(name=name)
+    context = browser.new_context(
+        viewport={"width": 1280, "height": 1000}, timezone_id=settings.TIME_ZONE
+    )
+    page = context.new_page()
+    login(page, live_server.url, "jon", PASSWORD)
+    day = _tomorrow()
+    _open_day(page, live_server.url, day, streamed=False)
+    page.route("**/api/v1/reservations/check/", lambda route: route.abort("connectionreset"))
+
+    _drag(page, day, (9, 10), ("node-01", "node-02"))
+    check = page.get_by_test_id("timeline-check")
+    expect(check).to_contain_text("node-01, node-02")
+    expect(check).to_contain_text("The server did not answer clearly; try again.")
+    expect(check).to_have_attribute("data-fits", "false")
+    page.mouse.up()
+    assert not page.page_errors()
+    context.close()

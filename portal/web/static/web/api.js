@@ -8,14 +8,21 @@ window.AmazingApi = (function () {
     return input ? input.value : "";
   }
 
-  // Resolves to {ok, status, data}; data is null when the answer is not JSON.
+  // Resolves to {ok, status, data}; data is null when the answer is not JSON, and status 0
+  // when there was no answer at all (the connection dropped): never rejects, so every page
+  // says what went wrong instead of leaving a button busy or a line empty.
   async function api(method, url, body, extraHeaders) {
-    const response = await fetch(url, {
-      method,
-      headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf(), Accept: "application/json" }, extraHeaders || {}),
-      body: body === undefined ? undefined : JSON.stringify(body),
-      credentials: "same-origin",
-    });
+    let response;
+    try {
+      response = await fetch(url, {
+        method,
+        headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf(), Accept: "application/json" }, extraHeaders || {}),
+        body: body === undefined ? undefined : JSON.stringify(body),
+        credentials: "same-origin",
+      });
+    } catch (error) {
+      return { ok: false, status: 0, data: null };
+    }
     let data = null;
     try { data = await response.json(); } catch (e) { data = null; }
     return { ok: response.ok, status: response.status, data };

@@ -105,12 +105,7 @@
     const seq = ++checkSeq;
     const body = { resources, start_at: start.toISO(), end_at: end.toISO() };
     if (experiment) body.experiment = experiment;
-    let result;
-    try {
-      result = await api("POST", "/api/v1/reservations/check/", body);
-    } catch (error) {
-      result = { ok: false, data: null }; // no answer at all (the connection dropped): said so below
-    }
+    const result = await api("POST", "/api/v1/reservations/check/", body);
     if (seq !== checkSeq) return; // a newer drag has asked since
     let text;
     let fits = false;
