@@ -77,40 +77,49 @@ def _commanded_zero(agent: AgentClient, deadline_s: float) -> None:
         time.sleep(0.02)
 
 
+def _is_control(request: Request) -> bool:
+    return "/robot/control/" in request.url
+
+
 def _is_stop(request: Request) -> bool:
-    return (
-        "/robot/control/" in request.url
-        and json.loads(request.post_data or "{}").get("velocity_mps") == 0
-    )
+    return _is_control(request) and json.loads(request.post_data or "{}").get("velocity_mps") == 0
+
+
+def _on_page_until(page: Page, done: Callable[[], bool], what: str) -> None:
+    """Poll ``done()`` while waiting on the page, so that Playwright delivers the page's events
+    and serves the test's routes meanwhile (fails at the deadline, saying ``what``)."""
+    start = time.monotonic()
+    while not done():
+        assert time.monotonic() - start < STOP_DEADLINE_S, what
+        page.wait_for_timeout(20)
 
 
 class Controls:
-    """The page's drive commands: those sent and not yet answered, and the last answered."""
+    """The page's drive commands: those sent, those not yet answered, and the last answered."""
 
     def __init__(self, page: Page) -> None:
         self.page = page
+        self.sent: list[Request] = []
         self.waiting: list[Request] = []
         self.last_answered: Request | None = None
-        page.on("request", lambda r: self._is_control(r) and self.waiting.append(r))
+        page.on("request", self._sent)
         page.on("requestfinished", self._answered)
         page.on("requestfailed", self._answered)
 
-    @staticmethod
-    def _is_control(request: Request) -> bool:
-        return "/robot/control/" in request.url
+    def _sent(self, request: Request) -> None:
+        if _is_control(request):
+            self.sent.append(request)
+            self.waiting.append(request)
 
     def _answered(self, request: Request) -> None:
         if request in self.waiting:
             self.waiting.remove(request)
             self.last_answered = request
 
-    def settled_on_a_stop(self, deadline_s: float = STOP_DEADLINE_S) -> None:
+    def settled_on_a_stop(self) -> None:
         """Poll until no command is on its way (fails at the deadline), and check the last
         one answered was a stop."""
-        start = time.monotonic()
-        while self.waiting:
-            assert time.monotonic() - start < deadline_s, "a drive command is still unanswered"
-            self.page.wait_for_timeout(20)  # lets Playwright deliver the page's events
+        _on_page_until(self.page, lambda: not self.waiting, "a drive command is still unanswered")
         assert self.last_answered is not None, "no command was answered"
         assert _is_stop(self.last_answered), self.last_answered.post_data
 
@@ -140,8 +149,6 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     UserFactory(username="root", is_staff=True, is_superuser=True)
     page = _console(browser, stack, "root")
     controls = Controls(page)
-    sent: list[str] = []
-    page.on("request", lambda r: "/robot/control/" in r.url and sent.append(r.post_data or ""))
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
 
@@ -158,7 +165,7 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     _stops(stack.agent)
     expect(page.locator("#hold-state")).to_have_text("Stopped.")
     # Held long enough to be repeated, yet audited once, and its stop once.
-    assert len(sent) >= 3
+    assert len(controls.sent) >= 3
     audit_rows = list(
         AuditEvent.objects.filter(action="robot.control")
         .order_by("pk")
@@ -169,7 +176,7 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     audited = [(c["velocity_mps"], c.get("hold")) for c in audit_rows]
     holds = len(audited) // 2
     assert audited == [(VELOCITY_MPS, True), (0.0, True)] * holds
-    assert 1 <= holds <= sum(1 for body in sent if json.loads(body)["velocity_mps"] == 0)
+    assert 1 <= holds <= sum(1 for request in controls.sent if _is_stop(request))
 
     # The keyboard: → drives clockwise while held, its release stops.
     page.locator("body").click(position={"x": 5, "y": 5})
@@ -212,10 +219,7 @@ def test_a_repeat_still_on_its_way_when_let_go_is_followed_by_another_stop(brows
     page.mouse.down()
     _wait_velocity(stack.agent, lambda v: v >= 0.2, deadline_s=10, page=page)
     armed = True
-    start = time.monotonic()
-    while not held_back:
-        assert time.monotonic() - start < STOP_DEADLINE_S, "the page repeated nothing"
-        page.wait_for_timeout(20)
+    _on_page_until(page, lambda: bool(held_back), "the page repeated nothing")
     # Let go while that repeat is on its way: the stop goes at once...
     with page.expect_response(lambda r: _is_stop(r.request), timeout=15_000) as answered:
         page.mouse.up()
