@@ -12,12 +12,10 @@ the whole phase. An idle phase first gives the same figures without load.
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import secrets
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -30,6 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import requests
+
+from bench.stack import free_port
+from bench.stats import percentile
 
 REPO = Path(__file__).resolve().parent.parent
 LISTENING = re.compile(r"listening on http://127\.0\.0\.1:(\d+)")
@@ -76,13 +77,6 @@ class Phase:
 
 def _iso(epoch_s: float) -> str:
     return datetime.fromtimestamp(epoch_s, tz=UTC).isoformat()
-
-
-def _percentile(values: list[float], fraction: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return ordered[max(0, math.ceil(fraction * len(ordered)) - 1)]
 
 
 class AgentProcess:
@@ -148,12 +142,6 @@ def realtime(tid: int) -> bool:
     except (OSError, AttributeError):
         return False
     return True
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 class RobotProcess:
@@ -252,8 +240,8 @@ def _phase(
             values = [w[key] for w in windows if w[key] is not None]
             window[key] = max(values) if values else None
     latencies = [lat for stats in client_stats or [] for lat in stats.latencies_s]
-    p50 = _percentile(latencies, 0.50)
-    p99 = _percentile(latencies, 0.99)
+    p50 = percentile(latencies, 0.50)
+    p99 = percentile(latencies, 0.99)
     return Phase(
         name=name,
         seconds=seconds,
@@ -302,7 +290,7 @@ def run(
     with tempfile.TemporaryDirectory(prefix="amazing-bench-agent-") as scratch:
         robot_process: RobotProcess | None = None
         if robot == "sim-udp":
-            base_port, robot_port = free_udp_port(), free_udp_port()
+            base_port, robot_port = free_port(), free_port()
             robot_process = RobotProcess(robot_port, base_port)
             extra.update(
                 AGENT_ROBOT="sim-udp",

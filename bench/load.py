@@ -24,6 +24,8 @@ from pathlib import Path
 
 import requests
 
+from bench.stack import free_port
+
 REPO = Path(__file__).resolve().parent.parent
 USERS = (50, 200)
 WORKERS = (1, os.cpu_count() or 1)
@@ -59,14 +61,6 @@ def _seed(users: int) -> list[str]:
         for r, n in bookings
     )
     return [ApiToken.objects.create(user=person, name="bench")[1] for person in people]
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _start_web(database_url: str, workers: int, port: int, log: Path) -> subprocess.Popen[bytes]:
@@ -152,7 +146,7 @@ def run(
         rows: list[str] = []
         detail: list[dict[str, str]] = []
         for count in workers:
-            port = _free_port()
+            port = free_port()
             web = _start_web(database_url, count, port, work / "web.log")
             try:
                 for n in users:

@@ -15,7 +15,9 @@ No Django here: the caller names the database by URL.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
+import random
 import re
 import secrets
 import shutil
@@ -46,10 +48,46 @@ POSTGRES_LIB = Path("/usr/lib/postgresql")
 METRICS_TOKEN = "stack-metrics-token-0123456789"
 
 
+# The servers that the suite and the benchmarks start listen on ports taken below the kernel's
+# ephemeral range (32768 and up on Linux), which it hands to every outgoing connection and
+# every ``bind(0)``: a port picked there can be taken by anyone between the pick and the
+# server's bind. Below it, each port is reserved by a lock on a file of its own, held for the
+# life of the process that took it, so that two test workers (or two checkouts' suites on one
+# machine) never start servers on one port and never talk to each other's.
+PORT_RANGE = (20000, 32700)
+PORT_LOCKS = Path(tempfile.gettempdir()) / "amazing-ports"
+_reserved: dict[int, int] = {}  # port -> the descriptor whose lock reserves it
+_pick = random.SystemRandom()  # not the seeded ``random`` every worker shares the state of
+
+
+def _bindable(port: int) -> bool:
+    for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+        with socket.socket(socket.AF_INET, kind) as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                return False
+    return True
+
+
 def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+    """A port of 127.0.0.1, free for TCP and UDP now and reserved for this process's life."""
+    PORT_LOCKS.mkdir(exist_ok=True)
+    for _ in range(500):
+        port = _pick.randrange(*PORT_RANGE)
+        if port in _reserved:
+            continue
+        fd = os.open(PORT_LOCKS / f"{port}.lock", os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        if _bindable(port):
+            _reserved[port] = fd
+            return port
+        os.close(fd)  # closing the descriptor drops its lock
+    raise RuntimeError(f"no free port in {PORT_RANGE}")
 
 
 class Proc:
@@ -179,15 +217,22 @@ def printed_mails(lines: list[str]) -> list[EmailMessage]:
     return found
 
 
-def wait_http(url: str, timeout_s: float, procs: list[Proc]) -> None:
+def wait_http(url: str, timeout_s: float, procs: list[Proc], *, server: Proc | None = None) -> None:
+    """Wait until ``url`` answers. With ``server``, the answer counts only while that process
+    lives: a server that could not bind its port has exited, and whatever else answers there
+    is not it."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
+        if server is not None and not server.alive:
+            break
         try:
             requests.get(url, timeout=5)
-            return
         except requests.RequestException:
             # Refused while the server starts, or too slow to answer under load: try again.
             time.sleep(0.2)
+            continue
+        if server is None or server.alive:
+            return
     raise AssertionError(f"{url} did not answer\n" + "\n".join(p.output() for p in procs))
 
 
@@ -239,8 +284,11 @@ class RedisServer:
         client = redis.Redis(port=self.port, socket_connect_timeout=0.5)
         deadline = time.monotonic() + 15
         while time.monotonic() < deadline:
+            if not self.proc.alive:
+                break
             with contextlib.suppress(redis.RedisError):
-                if client.ping():
+                # Ours, not another server that answers on the port.
+                if client.info("server")["process_id"] == self.proc.popen.pid:
                     return
             time.sleep(0.1)
         raise AssertionError(f"redis-server did not start\n{self.proc.output()}")
@@ -358,15 +406,16 @@ class Stack:
 
     def wait_ready(self, name: str, timeout_s: float = 30) -> None:
         running = list(self.procs.values())
+        server = self.procs[name]
         if name.startswith("agent"):
             url = self.agent_url if name == "agent" else self.agent2_url
-            wait_http(f"{url}/healthz", timeout_s, running)
+            wait_http(f"{url}/healthz", timeout_s, running, server=server)
         elif name == "web":
-            wait_http(f"{self.web}/accounts/login/", timeout_s, running)
+            wait_http(f"{self.web}/accounts/login/", timeout_s, running, server=server)
         elif name == "streams":
-            wait_http(f"{self.streams}/healthz", timeout_s, running)
+            wait_http(f"{self.streams}/healthz", timeout_s, running, server=server)
         elif name == "broker":
-            wait_http(f"{self.standin}/resources/nodes", timeout_s, running)
+            wait_http(f"{self.standin}/resources/nodes", timeout_s, running, server=server)
         elif name in ("worker", "mail"):
             self.procs[name].wait_for_line(lambda line: "ready." in line, timeout_s)
         elif name == "collector":

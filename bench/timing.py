@@ -31,7 +31,8 @@ from typing import Any
 
 import requests
 
-from bench.agent import AgentProcess, RobotProcess, free_udp_port, realtime
+from bench.agent import AgentProcess, RobotProcess, realtime
+from bench.stack import free_port
 
 TICK_S = 0.05  # 20 Hz, the agent's default
 STARTS = 20
@@ -150,7 +151,7 @@ def run(*, starts: int = STARTS, stops: int = STOPS) -> str:
     from basestation.protocol.frames import CommandFlag
 
     token = secrets.token_hex(16)
-    base_port, robot_port = free_udp_port(), free_udp_port()
+    base_port, robot_port = free_port(), free_port()
     air = AirLog(robot_port)
     with tempfile.TemporaryDirectory() as scratch:
         # The robot answers to the relay's far side, which passes it on to the agent's chip.

@@ -5,13 +5,14 @@ from __future__ import annotations
 import contextlib
 import os
 import re
-import socket
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+
+from bench.stack import free_port
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 LISTENING = re.compile(r"listening on http://127\.0\.0\.1:(\d+)")
@@ -85,18 +86,12 @@ class SimRobot:
     inspect_port: int
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @contextlib.contextmanager
 def sim_robot_process() -> Iterator[SimRobot]:
     """``python -m basestation.sim`` started and ready; stopped on leaving."""
     from tests.basestation.sim.test_process import READY, lines_of
 
-    base_port, robot_port = free_udp_port(), free_udp_port()
+    base_port, robot_port = free_port(), free_port()
     robot = subprocess.Popen(
         [sys.executable, "-m", "basestation.sim", "--radio-port", str(robot_port),
          "--peer-port", str(base_port), "--inspect-port", "0"],
