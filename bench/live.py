@@ -22,7 +22,6 @@ that held a worker thread each would exhaust the pool and stall it.
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import secrets
@@ -39,16 +38,13 @@ import requests
 
 from basestation.client import AgentClient
 from bench.stack import RedisServer, Stack, running_stack
+from bench.stats import ms, percentile
 
 PROGRAM_S = 30.0
 POLL_S = 2.0  # the run page's polling interval before live pushes
 OPEN_STREAMS = 200
 PROBES = 100
-
-
-def _percentile(values: list[float], fraction: float) -> float:
-    ordered = sorted(values)
-    return ordered[max(0, math.ceil(fraction * len(ordered)) - 1)]
+LEAD_S = 8.0  # booking to the run's start: staged by the sweeps meanwhile
 
 
 def _login(web: str, username: str, password: str) -> requests.Session:
@@ -92,9 +88,11 @@ def _follow_stream(
     sse: Watcher,
     read: Watcher,
     stop: Any,
+    opened: threading.Event,
 ) -> None:
     """Read the run's stream; a page-data read follows each event on a thread of its own (as
-    the page redraws without holding the stream up), coalescing events that came meanwhile."""
+    the page redraws without holding the stream up), coalescing events that came meanwhile.
+    ``opened`` is set once the stream has answered (it is subscribed from then on)."""
     data_url = f"{web}/runs/{run_id}/data.json"
     dirty, done = threading.Event(), threading.Event()
 
@@ -115,7 +113,8 @@ def _follow_stream(
         # was announced meanwhile is missed, and counted so) until the run's last state.
         while not stop.is_set():
             try:
-                if _read_stream(session, f"{streams}/live/runs/{run_id}/", sse, dirty, stop):
+                url = f"{streams}/live/runs/{run_id}/"
+                if _read_stream(session, url, sse, dirty, stop, opened):
                     return
             except requests.RequestException:
                 sse.errors += 1
@@ -126,7 +125,12 @@ def _follow_stream(
 
 
 def _read_stream(
-    session: requests.Session, url: str, sse: Watcher, dirty: threading.Event, stop: Any
+    session: requests.Session,
+    url: str,
+    sse: Watcher,
+    dirty: threading.Event,
+    stop: Any,
+    opened: threading.Event,
 ) -> bool:
     """One connection to the run's stream; True once it says the run has ended."""
     with session.get(url, stream=True, timeout=(5, 60)) as response:
@@ -135,6 +139,7 @@ def _read_stream(
             return False
         event = ""
         for line in response.iter_lines(decode_unicode=True):
+            opened.set()
             if stop.is_set():
                 return True
             if line.startswith("event:"):
@@ -163,12 +168,16 @@ def _poll(web: str, session: requests.Session, run_id: int, polled: Watcher, sto
         stop.wait(POLL_S)
 
 
-def _delays(watcher: Watcher, stored_at: dict[int, float]) -> tuple[float, float, int]:
+def _delays(
+    watcher: Watcher, stored_at: dict[int, float]
+) -> tuple[float | None, float | None, int]:
     delays = [watcher.received_at[s] - t for s, t in stored_at.items() if s in watcher.received_at]
-    return _percentile(delays, 0.5), _percentile(delays, 0.95), len(delays)
+    return percentile(delays, 0.5), percentile(delays, 0.95), len(delays)
 
 
-def _probe(session: requests.Session, url: str, probes: int) -> tuple[float, float, int]:
+def _probe(
+    session: requests.Session, url: str, probes: int
+) -> tuple[float | None, float | None, int]:
     timings, errors = [], 0
     for _ in range(probes):
         started = time.perf_counter()
@@ -178,7 +187,7 @@ def _probe(session: requests.Session, url: str, probes: int) -> tuple[float, flo
             ok = False
         timings.append(time.perf_counter() - started)
         errors += 0 if ok else 1
-    return _percentile(timings, 0.5) * 1000, _percentile(timings, 0.95) * 1000, errors
+    return percentile(timings, 0.5), percentile(timings, 0.95), errors
 
 
 def _open_streams(web: str, session: requests.Session, count: int) -> list[Any]:
@@ -248,7 +257,10 @@ def _measure(stack: Stack, *, program_s: float, open_streams: int, probes: int) 
         title="live bench",
         segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": program_s}],
     )
-    start = timezone.now() + timedelta(seconds=8)
+    # Signed in before the run is booked: on a busy machine the sign-ins alone can take
+    # seconds, and a stream opened after the run has ended sees nothing of it.
+    follower, poller = _login(web, "bench", password), _login(web, "bench", password)
+    start = timezone.now() + timedelta(seconds=LEAD_S)
     reservation = booking_create(
         owner=user,
         resource=robot,
@@ -259,38 +271,65 @@ def _measure(stack: Stack, *, program_s: float, open_streams: int, probes: int) 
     run_id = reservation.run.pk
 
     sse, read, polled = Watcher(), Watcher(), Watcher()
-    stop = threading.Event()
+    stop, opened = threading.Event(), threading.Event()
     threads = [
         threading.Thread(
             target=_follow_stream,
-            args=(web, streams_base, _login(web, "bench", password), run_id, sse, read, stop),
+            args=(web, streams_base, follower, run_id, sse, read, stop, opened),
         ),
-        threading.Thread(
-            target=_poll, args=(web, _login(web, "bench", password), run_id, polled, stop)
-        ),
+        threading.Thread(target=_poll, args=(web, poller, run_id, polled, stop)),
     ]
     for thread in threads:
         thread.start()
+    opened.wait(timeout=LEAD_S + program_s)
+    opened_after_start_s = (timezone.now() - start).total_seconds()
     for thread in threads:
         thread.join(timeout=program_s + 120)
     stop.set()
 
     with AgentClient(agent, token) as client:
         stored_at = {int(s["seq"]): float(s["t"]) for s in client.iter_samples(f"run-{run_id}")}
-    assert stored_at, "the run recorded nothing"
-    rows = []
+    rows, unseen = [], []
     for name, watcher in (
         ("SSE event", sse),
         ("SSE event + page data read", read),
         (f"polling every {POLL_S:g} s (before)", polled),
     ):
         p50, p95, count = _delays(watcher, stored_at)
-        rows.append(
-            f"| {name} | {p50 * 1000:.0f} ms | {p95 * 1000:.0f} ms | {count} of {len(stored_at)} |"
-        )
+        rows.append(f"| {name} | {ms(p50)} | {ms(p95)} | {count} of {len(stored_at)} |")
+        if count == 0:
+            unseen.append(name)
     once = sum(1 for seq in stored_at if sse.announced.get(seq) == 1)
     twice = sum(1 for seq in stored_at if sse.announced.get(seq, 0) > 1)
     never = sum(1 for seq in stored_at if seq not in sse.announced)
+    if not stored_at or unseen:
+        # Nothing to measure: say what was not seen and what the system said meanwhile.
+        late = (
+            f"the run's stream first answered {opened_after_start_s:.1f} s after the run's start"
+            if opened.is_set() and opened_after_start_s > 0
+            else "the run's stream never answered"
+            if not opened.is_set()
+            else "the run's stream was open before the run's start"
+        )
+        return "\n".join(
+            [
+                "## Live pushes: nothing to measure",
+                "",
+                f"0 samples seen by: {', '.join(unseen) or '—'} "
+                f"({len(stored_at)} samples on the agent; {late}; "
+                f"stream errors {sse.errors}, polling errors {polled.errors}).",
+                "",
+                "| client | p50 | p95 | samples seen |",
+                "| --- | --- | --- | --- |",
+                *rows,
+                "",
+                "The stack's last log lines:",
+                "",
+                "```",
+                stack.output(40),
+                "```",
+            ]
+        )
 
     probe_session = _login(web, "bench", password)
     probe_url = f"{web}/api/v1/resources/"
@@ -324,8 +363,8 @@ def _measure(stack: Stack, *, program_s: float, open_streams: int, probes: int) 
             "station: p50 1.06 s, p95 1.92 s on 2026-11-24.",
             "",
             f"With {open_streams} event streams open, {probes} sequential "
-            f"`GET /api/v1/resources/` took p50 {loaded[0]:.1f} ms / p95 {loaded[1]:.1f} ms "
-            f"({loaded[2]} failed), against p50 {quiet[0]:.1f} ms / p95 {quiet[1]:.1f} ms "
+            f"`GET /api/v1/resources/` took p50 {ms(loaded[0])} / p95 {ms(loaded[1])} "
+            f"({loaded[2]} failed), against p50 {ms(quiet[0])} / p95 {ms(quiet[1])} "
             f"({quiet[2]} failed) with none open: an open stream waits on Redis in the "
             "event loop and holds no thread.",
         ]

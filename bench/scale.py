@@ -17,7 +17,6 @@ booked, all starting at the same instant.
 from __future__ import annotations
 
 import json
-import math
 import os
 import secrets
 import shutil
@@ -36,6 +35,7 @@ import requests
 
 from basestation.client import AgentClient
 from bench.stack import Proc, RedisServer, free_port, wait_until
+from bench.stats import percentile
 
 REPO = Path(__file__).resolve().parent.parent
 HZ = 20.0
@@ -44,11 +44,6 @@ PROGRAM_S = 30.0
 LEAD_S = 10.0  # booking to start: staged by the next sweeps, followed by the collector
 LAG_TARGET_S = 1.0
 CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def _percentile(values: Sequence[float], fraction: float) -> float:
-    ordered = sorted(values)
-    return ordered[max(0, math.ceil(fraction * len(ordered)) - 1)]
 
 
 def _cpu_s(pid: int) -> float:
@@ -237,12 +232,17 @@ def _round(
             exact = exact and set(heard) == set(on_agent)
             lags += [heard[seq] - t for seq, t in on_agent.items() if seq in heard]
             total += len(on_agent)
-        assert lags, "nothing was collected"
+        lag_p50_s, lag_p95_s = percentile(lags, 0.5), percentile(lags, 0.95)
+        if lag_p50_s is None or lag_p95_s is None:
+            raise AssertionError(
+                f"{robots} robot(s): 0 samples heard of {total} on the agents\n"
+                + "\n".join(proc.output(30) for proc in children.values())
+            )
         return Round(
             robots=robots,
             samples=total,
-            lag_p50_s=_percentile(lags, 0.5),
-            lag_p95_s=_percentile(lags, 0.95),
+            lag_p50_s=lag_p50_s,
+            lag_p95_s=lag_p95_s,
             lag_max_s=max(lags),
             collector_cpu=cpu["collector"],
             worker_cpu=cpu["worker"],

@@ -9,6 +9,7 @@ import pytest
 from django.conf import settings as django_settings
 
 from bench.__main__ import BENCHMARKS, ON_DATABASE, SMOKE, WHOLE_SYSTEM
+from bench.stats import ms, percentile
 
 
 def _run(name: str, **extra: object) -> str:
@@ -41,6 +42,8 @@ def test_the_live_benchmark_runs_through_the_whole_system():
     db = django_settings.DATABASES["default"]
     url = f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}"
     report = _run("live", database_url=url)
+    # A bench that saw nothing says so, with the stack's last log lines: shown here.
+    assert "nothing to measure" not in report, report
     assert "| SSE event |" in report
 
 
@@ -54,3 +57,10 @@ def test_the_load_benchmark_runs_through_the_web_server():
     row = next(line for line in report.splitlines() if line.startswith("| 5 | 1 |"))
     assert "| 0 of " in row, report  # no call failed
     assert not row.endswith("| 0 of 0 |"), report  # and there were calls
+
+
+def test_a_percentile_of_nothing_is_reported_as_nothing_not_an_error():
+    assert percentile([], 0.95) is None
+    assert ms(percentile([], 0.5)) == "—"
+    assert percentile([3.0, 1.0, 2.0], 0.5) == 2.0
+    assert ms(percentile([0.010, 0.020], 0.95)) == "20 ms"
