@@ -36,11 +36,15 @@ def pytest_report_header(config: pytest.Config) -> list[str]:
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    from django.conf import settings
+
+    # Users are made and signed in by the thousand: hash their passwords cheaply
+    # (tests/hashers.py says why the real processes still check them as in production).
+    settings.PASSWORD_HASHERS = ["tests.hashers.QuickPBKDF2PasswordHasher"]
+
     # `make test` demands the real servers; a run that fell back to SQLite is a failure,
     # not a quiet pass on a different database.
     if os.environ.get("AMAZING_TEST_REQUIRE_POSTGRES") == "1":
-        from django.conf import settings
-
         engine = settings.DATABASES["default"]["ENGINE"]
         if "postgresql" not in engine:
             raise pytest.UsageError(f"tests must run on PostgreSQL, got {engine}")
