@@ -43,7 +43,6 @@ def _page(browser, stack: Stack, username: str) -> Page:
     return page
 
 
-@pytest.fixture(autouse=True)
 def _days_shown(calendar: Page) -> list[str]:
     """The dates (ISO) of the columns the week view shows."""
     return calendar.locator(".fc-col-header-cell[data-date]").evaluate_all(
@@ -51,6 +50,7 @@ def _days_shown(calendar: Page) -> list[str]:
     )
 
 
+@pytest.fixture(autouse=True)
 def _no_script_errors():
     SCRIPT_ERRORS.clear()
     yield
