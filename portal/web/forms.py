@@ -2,14 +2,20 @@ from __future__ import annotations
 
 from datetime import datetime
 from typing import Any
+from zoneinfo import ZoneInfo
 
 from django import forms
+from django.conf import settings
+from django.core.exceptions import ValidationError
+from django.forms.fields import BaseTemporalField
 from django.utils import timezone
+from django.utils.dateparse import parse_datetime
 
 from bookings.models import Resource
 from bookings.selectors import resources_bookable
 from core.accounts.models import User
 from core.accounts.services import TOKEN_EXPIRY_MAX_DAYS, TOKEN_NAME_MAX_LENGTH
+from core.wall_clock import NonexistentLocalTime, local_instant
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
 
@@ -56,7 +62,11 @@ class ExperimentForm(forms.Form):
 
 
 class LocalDateTimeField(forms.DateTimeField):
-    """A ``datetime-local`` input, read in the testbed's time zone."""
+    """A ``datetime-local`` input, read in the testbed's time zone by ``local_instant``.
+
+    A value with a UTC offset is that instant. A wall-clock time the clocks pass twice is its
+    first occurrence (summer time); one they skip is an error that says so.
+    """
 
     widget = forms.DateTimeInput(
         attrs={"type": "datetime-local", "step": "1"}, format="%Y-%m-%dT%H:%M:%S"
@@ -64,10 +74,25 @@ class LocalDateTimeField(forms.DateTimeField):
     input_formats = ["%Y-%m-%dT%H:%M:%S", "%Y-%m-%dT%H:%M"]
 
     def to_python(self, value: Any) -> datetime | None:
-        result = super().to_python(value)
-        if result is not None and timezone.is_naive(result):
-            result = timezone.make_aware(result)
-        return result
+        if value in self.empty_values:
+            return None
+        result: datetime | None = value if isinstance(value, datetime) else None
+        if result is None:
+            try:
+                result = parse_datetime(str(value).strip())
+            except ValueError:
+                raise ValidationError(self.error_messages["invalid"], code="invalid") from None
+        if result is None:
+            # Not ISO 8601: the input formats. (Not DateTimeField's own to_python: it converts
+            # too, and refuses both the repeated and the skipped hour without saying which.)
+            result = BaseTemporalField.to_python(self, value)
+            assert result is not None
+        if timezone.is_aware(result):
+            return result
+        try:
+            return local_instant(result, ZoneInfo(settings.TIME_ZONE))
+        except NonexistentLocalTime as exc:
+            raise ValidationError(str(exc), code="nonexistent") from None
 
 
 class BookingForm(forms.Form):

@@ -39,6 +39,7 @@ from core.accounts.services import api_token_create, api_token_revoke
 from core.audit.services import client_ip
 from core.errors import DomainError
 from core.health import health
+from core.wall_clock import NonexistentLocalTime, local_instant, wall_with_offset
 from portal.experiments.selectors import experiment_fits, experiments_visible, fits_summary
 from portal.experiments.services import experiment_create, experiment_update
 from portal.runs.downloads import (
@@ -170,7 +171,7 @@ def book(request: HttpRequest) -> HttpResponse:
             except DomainError as exc:
                 _form_error(form, exc)
             else:
-                messages.success(request, f"Booked {reservation}.")
+                messages.success(request, f"Booked {_booked(reservation)}.")
                 run = getattr(reservation, "run", None)
                 return redirect("run", pk=run.pk) if run else redirect("home")
     else:
@@ -183,6 +184,16 @@ def book(request: HttpRequest) -> HttpResponse:
         "web/book.html",
         {"form": form, "quota": quota_summary(user=user, now=timezone.now())},
     )
+
+
+def _booked(reservation: Reservation) -> str:
+    """What and when, in the testbed's zone with the UTC offset: a time typed in the hour the
+    clocks pass twice shows which of the two was booked."""
+    zone = ZoneInfo(settings.TIME_ZONE)
+    names = ", ".join(item.resource.name for item in reservation.items.all())
+    start = wall_with_offset(reservation.start_at, zone)
+    end = wall_with_offset(reservation.end_at, zone)
+    return f"{names} from {start} to {end}"
 
 
 @login_required
@@ -340,10 +351,12 @@ def _range(request: HttpRequest) -> tuple[datetime, datetime]:
         start = end = None
     if start is None or end is None or end <= start or end - start > timedelta(days=62):
         raise BadRequest("Give start and end (ISO 8601), at most 62 days apart.")
-    if timezone.is_naive(start):
-        start = timezone.make_aware(start)
-    if timezone.is_naive(end):
-        end = timezone.make_aware(end)
+    zone = ZoneInfo(settings.TIME_ZONE)
+    try:
+        start = local_instant(start, zone) if timezone.is_naive(start) else start
+        end = local_instant(end, zone) if timezone.is_naive(end) else end
+    except NonexistentLocalTime as exc:
+        raise BadRequest(str(exc)) from None
     return start, end
 
 

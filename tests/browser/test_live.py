@@ -8,9 +8,12 @@ web process goes away a page says "reconnecting", polls, and picks the stream up
 from __future__ import annotations
 
 import signal
-from datetime import timedelta
+from datetime import datetime, time, timedelta
+from time import monotonic
+from zoneinfo import ZoneInfo
 
 import pytest
+from django.conf import settings
 from django.utils import timezone
 from playwright.sync_api import Page, expect
 
@@ -38,6 +41,13 @@ def _page(browser, stack: Stack, username: str) -> Page:
     )
     login(page, stack.web, username, PASSWORD)
     return page
+
+
+def _days_shown(calendar: Page) -> list[str]:
+    """The dates (ISO) of the columns the week view shows."""
+    return calendar.locator(".fc-col-header-cell[data-date]").evaluate_all(
+        "cells => cells.map((cell) => cell.dataset.date)"
+    )
 
 
 @pytest.fixture(autouse=True)
@@ -104,10 +114,17 @@ def test_the_run_page_survives_answers_without_the_run_and_keeps_refreshing(brow
     page.goto(f"{fault_stack.web}/runs/{run_id}/")
     expect(page.locator("#run-progress")).to_contain_text("could not refresh", timeout=15_000)
     expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
+    # The page may know "completed" from its first render (a slow machine opens it after the
+    # run): its retries after each bad answer (1 s, 2 s, 4 s) read the rest, then the run.
+    deadline = monotonic() + 30
+    while len(served) < 4 and monotonic() < deadline:
+        page.wait_for_timeout(100)  # lets Playwright hand the page's requests to the route
     assert len(served) == 4, "every bad answer should have been read"
     assert fault_stack.agent is not None
     on_agent = fault_stack.agent.get_run(f"run-{run_id}")
-    expect(page.locator("#sample-count")).to_have_text(str(on_agent["sample_count"]))
+    expect(page.locator("#sample-count")).to_have_text(
+        str(on_agent["sample_count"]), timeout=30_000
+    )
     page.context.close()
 
 
@@ -128,15 +145,17 @@ def test_the_console_and_the_calendar_show_a_hold_and_new_bookings_without_a_rel
     calendar = _page(browser, fault_stack, "hana")
     calendar.goto(f"{fault_stack.web}/calendar/")
     expect(calendar.locator("#live-status")).to_have_attribute("data-state", "live", timeout=15_000)
-    # Someone else will book tomorrow at ten: show that week (on a Sunday, the next one), and
-    # count what it holds once its bookings are in. (An hour from now could cross midnight,
-    # and the week view draws a booking across midnight as two pieces.)
-    tomorrow = timezone.localtime() + timedelta(days=1)
-    start = tomorrow.replace(hour=10, minute=0, second=0, microsecond=0)
+    # Someone else will book tomorrow at ten: show that week and count what it holds once its
+    # bookings are in. The week is the one the page opened on by its own clock; when tomorrow
+    # is not in it (Sunday, or midnight passed since), the next. (An hour from now could cross
+    # midnight, and the week view draws a booking across midnight as two pieces.)
     shown = calendar.locator("#calendar")
     expect(shown).to_have_attribute("data-loading", "false", timeout=15_000)
-    if timezone.localtime(start).isocalendar()[:2] != timezone.localtime().isocalendar()[:2]:
+    tomorrow = timezone.localdate() + timedelta(days=1)
+    start = datetime.combine(tomorrow, time(10), tzinfo=ZoneInfo(settings.TIME_ZONE))
+    if tomorrow.isoformat() not in _days_shown(calendar):
         calendar.locator(".fc-next-button").click()
+        expect(calendar.locator(f".fc-col-header-cell[data-date='{tomorrow}']")).to_be_attached()
         expect(shown).to_have_attribute("data-loading", "false", timeout=15_000)
     events_before = calendar.locator(".fc-event").count()
 

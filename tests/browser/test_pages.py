@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
-from datetime import timedelta
+from datetime import UTC, timedelta
 from pathlib import Path
 
 import pytest
+from django.conf import settings
 from django.utils import timezone
 from playwright.sync_api import Page, expect
 from playwright.sync_api import TimeoutError as PlaywrightTimeoutError
 
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
+from tests.integration.stack import running_stack
 from tests.runs.driving import completed_run
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
@@ -32,14 +34,26 @@ def _no_horizontal_scroll(page: Page, timeout_ms: float = 15_000) -> bool:
     return True
 
 
-def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
+@pytest.fixture
+def stack_in_utc(tmp_path):
+    """The stack with the testbed's zone UTC. The test books "in six seconds" by typing a
+    wall-clock time, as a researcher does; in Europe/Lisbon, during the second pass of the
+    hour the clocks go back, that time names the first pass, an hour ago."""
+    with running_stack(
+        tmp_path / "var",
+        broker_url=settings.CELERY_BROKER_URL,
+        extra_env={"TESTBED_TIME_ZONE": "UTC"},
+    ) as running:
+        yield running
+
+
+def test_an_experimenter_writes_books_and_watches_a_run(browser, stack_in_utc):
+    stack = stack_in_utc
     MobileResourceFactory(agent_url=stack["agent_url"])
     UserFactory(username="dana")  # password: see factories
     web = stack["web"]
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
-    context = browser.new_context(
-        viewport={"width": 1280, "height": 900}, timezone_id="Europe/Lisbon"
-    )
+    context = browser.new_context(viewport={"width": 1280, "height": 900}, timezone_id="UTC")
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
@@ -69,7 +83,8 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack):
     expect(page.get_by_text("Experiment “browser lap” saved.")).to_be_visible()
 
     page.get_by_role("link", name="book", exact=True).click()
-    start = timezone.localtime(timezone.now() + timedelta(seconds=6)).replace(microsecond=0)
+    expect(page.get_by_text("Times are in UTC.")).to_be_visible()
+    start = (timezone.now() + timedelta(seconds=6)).astimezone(UTC).replace(microsecond=0)
     page.get_by_label("Resource").select_option("mobile-1")
     page.get_by_label("Start").fill(start.strftime("%Y-%m-%dT%H:%M:%S"))
     page.get_by_label("End").fill((start + timedelta(seconds=8)).strftime("%Y-%m-%dT%H:%M:%S"))

@@ -32,13 +32,20 @@ def _tomorrow() -> date:
 
 
 def _open_day(page: Page, web: str, day: date, *, streamed: bool = True) -> None:
+    """Open the timeline and go to ``day``, counting from the day the page opened on (its own
+    clock's today): if midnight passed since the test chose ``day``, that is one click less."""
     page.goto(f"{web}/calendar/timeline/")
     expect(page.locator("#timeline[data-loading=false]")).to_be_attached()
     if streamed:
         # The stream is open: the page's read on connecting is asked, not still to come
         # mid-drag. (Django's test server serves no streams: the page polls instead.)
         expect(page.locator("#live-status")).to_have_attribute("data-state", "live")
-    page.locator(".ec-next").first.click()
+    shown = page.locator(".ec-col-head time[datetime]").first.get_attribute("datetime")
+    assert shown
+    clicks = (day - date.fromisoformat(shown[:10])).days
+    assert clicks in (0, 1), f"the page opened on {shown}, the test wants {day}"
+    for _ in range(clicks):
+        page.locator(".ec-next").first.click()
     expect(page.locator(f".ec-col-head time[datetime='{day.isoformat()}']")).to_be_visible()
     expect(page.locator("#timeline[data-loading=false]")).to_be_attached()
 

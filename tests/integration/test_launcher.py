@@ -118,15 +118,17 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         experiment_id = re.search(r'href="/book/\?experiment=(\d+)"', saved.text).group(1)
 
         token = _csrf(session, f"{web}/book/")
-        start = timezone.localtime(timezone.now() + timedelta(seconds=5)).replace(microsecond=0)
+        # With its UTC offset: a bare wall-clock time in the hour the clocks pass twice names
+        # the first pass, an hour ago during the second.
+        start = (timezone.now() + timedelta(seconds=5)).replace(microsecond=0)
         booked = session.post(
             f"{web}/book/",
             data={
                 "csrfmiddlewaretoken": token,
                 "resource": "mobile-1",
                 "experiment": experiment_id,
-                "start_at": start.strftime("%Y-%m-%dT%H:%M:%S"),
-                "end_at": (start + timedelta(seconds=8)).strftime("%Y-%m-%dT%H:%M:%S"),
+                "start_at": start.isoformat(),
+                "end_at": (start + timedelta(seconds=8)).isoformat(),
             },
             timeout=10,
         )
@@ -155,8 +157,8 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             data={
                 "csrfmiddlewaretoken": token,
                 "resource": "node-01",
-                "start_at": later.strftime("%Y-%m-%dT%H:%M:%S"),
-                "end_at": (later + timedelta(hours=1)).strftime("%Y-%m-%dT%H:%M:%S"),
+                "start_at": later.isoformat(),
+                "end_at": (later + timedelta(hours=1)).isoformat(),
             },
             timeout=20,
         )
@@ -179,15 +181,17 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         launcher.wait_for_line(lambda s: s.startswith("worker") and " ready." in s, 60, since=since)
         # The new worker does the work: a second run completes.
         token = _csrf(session, f"{web}/book/")
-        start = timezone.localtime(timezone.now() + timedelta(seconds=5)).replace(microsecond=0)
+        # With its UTC offset: a bare wall-clock time in the hour the clocks pass twice names
+        # the first pass, an hour ago during the second.
+        start = (timezone.now() + timedelta(seconds=5)).replace(microsecond=0)
         booked = session.post(
             f"{web}/book/",
             data={
                 "csrfmiddlewaretoken": token,
                 "resource": "mobile-1",
                 "experiment": experiment_id,
-                "start_at": start.strftime("%Y-%m-%dT%H:%M:%S"),
-                "end_at": (start + timedelta(seconds=8)).strftime("%Y-%m-%dT%H:%M:%S"),
+                "start_at": start.isoformat(),
+                "end_at": (start + timedelta(seconds=8)).isoformat(),
             },
             timeout=10,
         )
@@ -279,7 +283,8 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
             timeout=10,
         )
         experiment_id = re.search(r'href="/book/\?experiment=(\d+)"', saved.text).group(1)
-        start = timezone.localtime(timezone.now() + timedelta(seconds=6)).replace(microsecond=0)
+        # With its UTC offset, as above.
+        start = (timezone.now() + timedelta(seconds=6)).replace(microsecond=0)
         run_urls = []
         for resource in ("mobile-1", "mobile-2"):
             token = _csrf(session, f"{web}/book/")
@@ -289,8 +294,8 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
                     "csrfmiddlewaretoken": token,
                     "resource": resource,
                     "experiment": experiment_id,
-                    "start_at": start.strftime("%Y-%m-%dT%H:%M:%S"),
-                    "end_at": (start + timedelta(seconds=6)).strftime("%Y-%m-%dT%H:%M:%S"),
+                    "start_at": start.isoformat(),
+                    "end_at": (start + timedelta(seconds=6)).isoformat(),
                 },
                 timeout=10,
             )

@@ -4,14 +4,14 @@ row they show changes, and never show one user's answer to another (``core.api.c
 from __future__ import annotations
 
 import time
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 
 import pytest
+import time_machine
 from django.contrib.auth.models import Group
 from django.utils import timezone
 
 from bookings.models import QuotaPolicy
-from bookings.periods import overlap_s
 from portal.runs.models import Run
 from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
@@ -113,7 +113,11 @@ def test_own_runs_show_new_samples_and_a_filled_gap(api, owner, mobile, experime
     assert count() == 6
 
 
-def test_quota_follows_policies_groups_and_bookings(api, owner, mobile, experiment):
+# Sunday night in Lisbon (winter time, UTC+0): the booking "in an hour", 23:40 to 00:10, is
+# 20 minutes in this week (Monday 1 to Monday 8 November) and the rest in the next.
+@time_machine.travel(datetime(2027, 11, 7, 22, 40, tzinfo=UTC))
+def test_quota_follows_policies_groups_and_bookings(api, owner, mobile, experiment, settings):
+    settings.TIME_ZONE = "Europe/Lisbon"
     assert api.get("/api/v1/quota/", **JSON).json() == {"policies": []}
     staff = Group.objects.create(name="students")
     policy = QuotaPolicy.objects.create(
@@ -127,9 +131,13 @@ def test_quota_follows_policies_groups_and_bookings(api, owner, mobile, experime
     assert use["used_hours"] == 0
     booked = _book(owner, mobile, experiment)
     (use,) = api.get("/api/v1/quota/", **JSON).json()["policies"]
-    # The part of the booking in this week (all of it, unless the week ends within the hour).
+    assert (booked.start_at, booked.end_at) == (
+        datetime(2027, 11, 7, 23, 40, tzinfo=UTC),
+        datetime(2027, 11, 8, 0, 10, tzinfo=UTC),
+    )
     week = (datetime.fromisoformat(use["period_start"]), datetime.fromisoformat(use["period_end"]))
-    assert use["used_hours"] == round(overlap_s(booked.start_at, booked.end_at, *week) / 3600, 3)
+    assert week == (datetime(2027, 11, 1, tzinfo=UTC), datetime(2027, 11, 8, tzinfo=UTC))
+    assert use["used_hours"] == 0.333, "the 20 minutes before midnight"
     staff.name = "masters"
     staff.save()
     (use,) = api.get("/api/v1/quota/", **JSON).json()["policies"]
