@@ -32,9 +32,9 @@ from bookings.inbound import (
     lease_status,
     leases_of_mobiles,
 )
+from bookings.rules import ProgramRefused
 from core.api import request_user
 from core.audit.services import client_ip
-from core.errors import InvalidInput
 from portal.runs.services.booking import booking_cancel, booking_create, booking_reschedule
 
 
@@ -89,9 +89,7 @@ class InboundLeasesApi(InboundApi):
                 ip=client_ip(request),
                 via=Channel.LEASE_API,
             )
-        except InvalidInput as exc:
-            if "experiment" not in exc.fields:
-                raise
+        except ProgramRefused as exc:
             # The lease holds a run whose program the new window (or the robot) no longer
             # takes: the lease conflicts with what was booked on it. Nothing moved.
             raise InboundError(
