@@ -43,6 +43,7 @@ OPERATIONS: dict[str, tuple[str, str]] = {
 CONNECT_TIMEOUT_S = 5.0
 READ_TIMEOUT_S = 30.0
 USER_AGENT = "amazing-cli/1"
+CLIENT_HEADER = "X-Amazing-Client"
 
 
 def _exit_code(status: int) -> int:
@@ -90,6 +91,8 @@ class Api:
         self.session = requests.Session()
         self.session.headers["User-Agent"] = USER_AGENT
         self.session.headers["Accept"] = "application/json"
+        # Which door a change came through, for the audit log (the portal's ``Channel``).
+        self.session.headers[CLIENT_HEADER] = "cli"
         if token:
             self.session.headers["Authorization"] = f"Token {token}"
         # Connection failures are retried (nothing reached the portal), and 429 after the

@@ -1,3 +1,6 @@
+"""The Django admin for bookings' own models. Reservations are in the runs layer's admin
+(``portal/runs/admin.py``): a reservation may hold a run, and its actions change both."""
+
 from django import forms
 from django.contrib import admin
 from django.http import HttpRequest
@@ -5,8 +8,6 @@ from django.http import HttpRequest
 from bookings.models import (
     Blackout,
     QuotaPolicy,
-    Reservation,
-    ReservationItem,
     Resource,
     ResourceGroup,
     SchedulerLease,
@@ -81,24 +82,6 @@ class ResourceAdmin(admin.ModelAdmin):
                 f"{obj.agent_max_velocity_mps:g} m/s. Lower max velocity to match."
             )
         return ""
-
-
-class ReservationItemInline(admin.TabularInline):
-    model = ReservationItem
-    extra = 0
-    readonly_fields = ["resource", "start_at", "end_at", "active"]
-    can_delete = False
-
-
-@admin.register(Reservation)
-class ReservationAdmin(admin.ModelAdmin):
-    """Read-mostly: bookings change through the pages and API, whose services audit them."""
-
-    list_display = ["id", "owner", "start_at", "end_at", "state", "title", "conflict"]
-    list_filter = ["state", "items__resource"]
-    date_hierarchy = "start_at"
-    inlines = [ReservationItemInline]
-    readonly_fields = [f.name for f in Reservation._meta.fields]
 
 
 @admin.register(Blackout)

@@ -38,9 +38,11 @@ class BookedVia(models.TextChoices):
 
 
 class Channel(models.TextChoices):
-    """Through what someone changed a booking, as its owner is told."""
+    """Through what door someone changed a booking: its owner is told, its audit row says."""
 
     WEB = "web", "on the portal's pages"
     API = "api", "through the portal's REST API"
     LEASE_API = "lease_api", "through the testbed scheduler's lease API"
     ADMIN = "admin", "in the portal's admin site"
+    # The REST API as the ``amazing`` command calls it (it says so in a header).
+    CLI = "cli", "with the amazing command"

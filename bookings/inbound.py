@@ -9,6 +9,11 @@ approval: a booking awaiting approval is a ``pending`` lease); a refusal is answ
 broker's envelope ``{"exception": {"code", "reason"}}``. A lease holds the robot without a
 program: it stands still unless a run is booked with it in the portal. Only leases made here
 can be moved or cancelled here; the others are listed, so the scheduler sees the robot busy.
+
+This module holds the vocabulary (parsing, documents, the envelope, the base view) and the
+nodes' view. The leases' view lives in the runs layer (``portal/runs/apis/leases.py``): moving
+or cancelling a lease moves or withdraws the run booked with it, through the one service that
+changes a booking and its run together, which bookings may not import.
 """
 
 from __future__ import annotations
@@ -20,7 +25,6 @@ from datetime import UTC, datetime
 from typing import Any
 
 from django.db.models import QuerySet
-from django.utils import timezone
 from drf_spectacular.utils import extend_schema
 from rest_framework import exceptions
 from rest_framework.permissions import BasePermission
@@ -28,13 +32,11 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from bookings.choices import BookedVia, Channel, ReservationState, ResourceKind
+from bookings.choices import BookedVia, ReservationState, ResourceKind
 from bookings.models import Reservation, Resource
 from bookings.rules import QuotaExceeded
-from bookings.services import reservation_cancel, reservation_create, reservation_reschedule
 from core.accounts.models import User
 from core.accounts.tokens import CachedTokenAuthentication
-from core.api import request_user
 from core.errors import Conflict, DomainError, NotAllowed
 
 DOMAIN = "amazing"
@@ -54,7 +56,7 @@ def _envelope(code: int, reason: str) -> Response:
     return Response({"exception": {"code": code, "reason": reason}}, status=code)
 
 
-def _answer(inner: dict[str, Any]) -> Response:
+def lease_answer(inner: dict[str, Any]) -> Response:
     return Response({"resource_response": {**inner, "about": "/resources/leases"}})
 
 
@@ -95,7 +97,7 @@ def lease_status(reservation: Reservation, now: datetime) -> str:
     return "active" if reservation.start_at <= now else "accepted"
 
 
-def _lease_doc(reservation: Reservation, now: datetime) -> dict[str, Any]:
+def lease_doc(reservation: Reservation, now: datetime) -> dict[str, Any]:
     mobiles = [item.resource for item in reservation.items.all() if item.resource.is_mobile]
     owner = reservation.owner.get_username()
     return {
@@ -115,7 +117,7 @@ def _mobiles() -> QuerySet[Resource]:
     return Resource.objects.filter(kind=ResourceKind.MOBILE).order_by("name")
 
 
-def _leases() -> QuerySet[Reservation]:
+def leases_of_mobiles() -> QuerySet[Reservation]:
     return (
         Reservation.objects.filter(items__resource__kind=ResourceKind.MOBILE)
         .select_related("owner")
@@ -128,20 +130,20 @@ def _leases() -> QuerySet[Reservation]:
 # --- parsing ----------------------------------------------------------------------------
 
 
-def _object(data: Any) -> Mapping[str, Any]:
+def body_object(data: Any) -> Mapping[str, Any]:
     if not isinstance(data, Mapping):
         raise InboundError(400, "The body must be a JSON object.")
     return data
 
 
-def _text(data: Mapping[str, Any], key: str) -> str:
+def body_text(data: Mapping[str, Any], key: str) -> str:
     value = data.get(key)
     if not isinstance(value, str) or not value.strip() or len(value) > 200:
         raise InboundError(400, f"'{key}' must be a non-empty string of at most 200 characters.")
     return value.strip()
 
 
-def _time(data: Mapping[str, Any], key: str) -> datetime:
+def body_time(data: Mapping[str, Any], key: str) -> datetime:
     value = data.get(key)
     if not isinstance(value, str):
         raise InboundError(400, f"'{key}' must be a time such as 2026-12-01T10:00:00Z.")
@@ -154,7 +156,7 @@ def _time(data: Mapping[str, Any], key: str) -> datetime:
     return parsed.astimezone(UTC)
 
 
-def _components(data: Mapping[str, Any]) -> list[Resource]:
+def body_components(data: Mapping[str, Any]) -> list[Resource]:
     raw = data.get("components")
     if not isinstance(raw, list) or not raw:
         raise InboundError(400, "'components' must list the nodes to lease.")
@@ -178,7 +180,7 @@ def _components(data: Mapping[str, Any]) -> list[Resource]:
     return chosen
 
 
-def _account_user(data: Mapping[str, Any]) -> User:
+def body_account(data: Mapping[str, Any]) -> User:
     account = data.get("account_attributes") or data.get("account")
     name = account.get("name") if isinstance(account, Mapping) else None
     if not isinstance(name, str) or not name:
@@ -189,9 +191,9 @@ def _account_user(data: Mapping[str, Any]) -> User:
     return user
 
 
-def _find(data: Mapping[str, Any]) -> Reservation:
+def lease_find(data: Mapping[str, Any]) -> Reservation:
     """The lease a PUT or DELETE names, by uuid or else by name; only leases made here."""
-    leases = _leases()
+    leases = leases_of_mobiles()
     found: Reservation | None = None
     if isinstance(data.get("uuid"), str):
         try:
@@ -266,65 +268,3 @@ class InboundNodesApi(InboundApi):
                 {"resource_response": {"resource": docs[0], "about": "/resources/nodes"}}
             )
         return Response({"resource_response": {"resources": docs, "about": "/resources/nodes"}})
-
-
-class InboundLeasesApi(InboundApi):
-    def get(self, request: Request) -> Response:
-        raw = request.query_params.get("status")
-        wanted = tuple(s.strip() for s in raw.split(",")) if raw else DEFAULT_STATUSES
-        unknown = [s for s in wanted if s not in STATUSES]
-        if unknown:
-            raise InboundError(
-                400, f"Unknown status {', '.join(unknown)}; use {', '.join(STATUSES)}."
-            )
-        now = timezone.now()
-        leases = _leases()
-        if "past" not in wanted and "cancelled" not in wanted:
-            leases = leases.filter(end_at__gt=now)
-        docs = [
-            d for d in (_lease_doc(r, now) for r in leases[:MAX_LEASES]) if d["status"] in wanted
-        ]
-        return _answer({"resources": docs})
-
-    def post(self, request: Request) -> Response:
-        data = _object(request.data)
-        name = _text(data, "name")
-        start_at, end_at = _time(data, "valid_from"), _time(data, "valid_until")
-        self._resources = _components(data)
-        owner = _account_user(data)
-        reservation = reservation_create(
-            owner=owner,
-            by=request_user(request),
-            resources=self._resources,
-            start_at=start_at,
-            end_at=end_at,
-            title=name,
-            program_required=False,
-            booked_via=BookedVia.SCHEDULER,
-        )
-        return _answer({"resource": _lease_doc(reservation, timezone.now())})
-
-    def put(self, request: Request) -> Response:
-        data = _object(request.data)
-        found = _find(data)
-        self._resources = [i.resource for i in found.items.all()]
-        moved = reservation_reschedule(
-            reservation=found,
-            by=request_user(request),
-            start_at=_time(data, "valid_from"),
-            end_at=_time(data, "valid_until"),
-        )
-        return _answer({"resource": _lease_doc(_leases().get(pk=moved.pk), timezone.now())})
-
-    def delete(self, request: Request) -> Response:
-        data = _object(request.data)
-        found = _find(data)
-        now = timezone.now()
-        if lease_status(found, now) not in ("past", "cancelled"):
-            reservation_cancel(
-                reservation=found,
-                by=request_user(request),
-                reason="cancelled by the scheduler",
-                via=Channel.LEASE_API,
-            )
-        return _answer({"resource": _lease_doc(_leases().get(pk=found.pk), timezone.now())})

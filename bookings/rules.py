@@ -64,6 +64,12 @@ class QuotaExceeded(Conflict):
     code = "quota_exceeded"
 
 
+class ProgramRefused(InvalidInput):
+    """The program a mobile node would run does not fit it or the booking (a 400 as any bad
+    input; a door that books around an existing program, the lease API, answers it as a
+    conflict with that program)."""
+
+
 LimitSource = Literal["portal", "agent"]
 
 ProblemCode = Literal[
@@ -111,7 +117,9 @@ class Problem:
         if self.code == "quota":
             return QuotaExceeded(self.message, fields={"quota": list(self.messages)})
         kind: type[DomainError] = InvalidInput
-        if self.code == "permission":
+        if self.code == "program":
+            kind = ProgramRefused
+        elif self.code == "permission":
             kind = NotAllowed
         elif self.code in ("blackout", "booked", "lease", "state"):
             kind = Conflict

@@ -83,6 +83,11 @@ def _release_lease_after_commit(reservation: Reservation) -> None:
         transaction.on_commit(partial(lease_cancel.delay, reservation.lease_uuid))
 
 
+def _door(via: Channel | None) -> str:
+    """The door a change came through, as its audit row records it ("" when not said)."""
+    return via.value if via is not None else ""
+
+
 def _hold_items(reservation: Reservation, items: list[ReservationItem]) -> None:
     """Keep the items just written as the reservation's ``items``, as a prefetch leaves
     them: whoever answers with the new booking reads them (and their resources) without
@@ -261,6 +266,7 @@ def reservation_create(
     program_required: bool = True,
     booked_via: BookedVia = BookedVia.PORTAL,
     program_owner_id: int | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
     """Book ``resources`` for ``[start_at, end_at)``.
 
@@ -364,6 +370,7 @@ def reservation_create(
                 end_at=end_at.isoformat(),
                 state=state,
                 lease=lease.uuid if lease is not None else None,
+                via=_door(via),
             )
             if overridden:
                 audit_record(
@@ -399,6 +406,7 @@ def reservation_reschedule(
     ip: str | None = None,
     now: datetime | None = None,
     run_started: bool = False,
+    via: Channel | None = None,
 ) -> Reservation:
     """Move an upcoming reservation (every check again, itself excluded).
 
@@ -447,6 +455,7 @@ def reservation_reschedule(
                 ip=ip,
                 before=(before[0].isoformat(), before[1].isoformat()),
                 after=(start_at.isoformat(), end_at.isoformat()),
+                via=_door(via),
             )
     except BaseException:
         if moved_lease is not None:
@@ -473,6 +482,7 @@ def reservation_program_attach(
     has_program: bool,
     ip: str | None = None,
     now: datetime | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
     """Let a booking made through the lease API (it holds its robot without a program) run
     ``program``: refused as a new booking with it would be, under the same locks.
@@ -504,7 +514,7 @@ def reservation_program_attach(
             override_reason=locked.override_reason,
             own_lease_uuid=locked.lease_uuid,
         )
-        audit_record(actor=by, action="reservation.attach", target=locked, ip=ip)
+        audit_record(actor=by, action="reservation.attach", target=locked, ip=ip, via=_door(via))
     return locked
 
 
@@ -531,7 +541,14 @@ def reservation_cancel(
         locked.save(update_fields=["state", "cancelled_by", "cancel_reason", "updated_at"])
         locked.items.update(active=False)
         _release_lease_after_commit(locked)
-        audit_record(actor=by, action="reservation.cancel", target=locked, ip=ip, reason=reason)
+        audit_record(
+            actor=by,
+            action="reservation.cancel",
+            target=locked,
+            ip=ip,
+            reason=reason,
+            via=_door(via),
+        )
         if by_admin:
             _notify("cancelled", locked.pk, via=via.value if via is not None else "")
     logger.info("reservation %s cancelled by %s", reservation.pk, by.get_username())
@@ -545,6 +562,7 @@ def reservation_decide(
     approve: bool,
     reason: str = "",
     ip: str | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
     """An admin approves or rejects a requested reservation; the owner is told.
 
@@ -570,6 +588,7 @@ def reservation_decide(
             target=locked,
             ip=ip,
             reason=reason,
+            via=_door(via),
         )
         _notify("approved" if approve else "rejected", locked.pk)
     return locked

@@ -20,7 +20,8 @@ urlpatterns = [
     path("api/v1/", include("core.accounts.urls")),
     # Last of the API: any other path under /api/ answers a JSON 404, not a page.
     re_path(r"^api/(?P<path>.*)$", api_not_found),
-    # The testbed scheduler's own lease vocabulary, for the robot (bookings/inbound.py).
-    path("scheduler/", include("bookings.urls_inbound")),
+    # The testbed scheduler's own lease vocabulary, for the robot (bookings/inbound.py,
+    # portal/runs/apis/leases.py).
+    path("scheduler/", include("portal.runs.urls_inbound")),
     path("", include("portal.web.urls")),
 ]

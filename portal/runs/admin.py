@@ -1,7 +1,11 @@
-"""Runs in the Django admin: read-only state, changed only by named actions with a reason.
+"""Runs and reservations in the Django admin: read-only, changed only by named actions.
 
 Each action calls the same service the rest of the system uses (``run_transition`` through
-``run_give_up``, or ``booking_cancel``), so the transition table and the audit log apply.
+``run_give_up``; ``booking_cancel`` and ``booking_decide``, which change a booking and its run
+together), so the transition table, the booking rules and the audit log apply. Reservations
+are here, not in ``bookings/admin.py``, because their actions change their runs: nothing in
+the admin adds, edits or deletes a reservation row (a deleted one would take its run with it,
+behind its agent's back).
 """
 
 from __future__ import annotations
@@ -13,14 +17,23 @@ from django.db.models import QuerySet
 from django.http import HttpRequest
 
 from bookings.choices import Channel
+from bookings.models import Reservation, ReservationItem
 from core.errors import DomainError
 from portal.runs.models import Run, RunEvent
-from portal.runs.services.booking import booking_cancel
+from portal.runs.services.booking import booking_cancel, booking_decide
 from portal.runs.services.transitions import run_give_up
 
 
 class ReasonActionForm(ActionForm):
     reason = forms.CharField(required=False, label="Reason", max_length=500)
+
+
+def _action_reason(admin_view: admin.ModelAdmin, request: HttpRequest) -> str | None:
+    reason = request.POST.get("reason", "").strip()
+    if not reason:
+        admin_view.message_user(request, "Give a reason for the action.", messages.ERROR)
+        return None
+    return reason
 
 
 class RunEventInline(admin.TabularInline):
@@ -62,11 +75,7 @@ class RunAdmin(admin.ModelAdmin):
         return False  # a run's data and history are kept
 
     def _reason(self, request: HttpRequest) -> str | None:
-        reason = request.POST.get("reason", "").strip()
-        if not reason:
-            self.message_user(request, "Give a reason for the action.", messages.ERROR)
-            return None
-        return reason
+        return _action_reason(self, request)
 
     @admin.action(description="Give up: mark failed (scheduled, or collecting that is stuck)")
     def give_up(self, request: HttpRequest, queryset: QuerySet[Run]) -> None:
@@ -98,3 +107,85 @@ class RunAdmin(admin.ModelAdmin):
                 self.message_user(request, f"Run {run.pk}: {exc.message}", messages.ERROR)
             else:
                 self.message_user(request, f"Run {run.pk}: booking cancelled.", messages.SUCCESS)
+
+
+class ReservationItemInline(admin.TabularInline):
+    model = ReservationItem
+    extra = 0
+    readonly_fields = ["resource", "start_at", "end_at", "active"]
+    can_delete = False
+
+    def has_add_permission(self, request: HttpRequest, obj: object = None) -> bool:
+        return False
+
+
+@admin.register(Reservation)
+class ReservationAdmin(admin.ModelAdmin):
+    """Read-only rows; approve, reject and cancel through the booking service of runs."""
+
+    list_display = ["id", "owner", "start_at", "end_at", "state", "title", "conflict"]
+    list_filter = ["state", "items__resource"]
+    date_hierarchy = "start_at"
+    inlines = [ReservationItemInline]
+    readonly_fields = [f.name for f in Reservation._meta.fields]
+    action_form = ReasonActionForm
+    actions = ["approve", "reject", "cancel"]
+
+    def has_add_permission(self, request: HttpRequest) -> bool:
+        return False  # booked through the pages, the API or the lease API
+
+    def has_delete_permission(self, request: HttpRequest, obj: object = None) -> bool:
+        return False  # cancelled through ``booking_cancel``; the row and its run are kept
+
+    def _decide(
+        self, request: HttpRequest, queryset: QuerySet[Reservation], *, approve: bool
+    ) -> None:
+        reason = request.POST.get("reason", "").strip()
+        for reservation in queryset:
+            try:
+                booking_decide(
+                    reservation=reservation,
+                    by=request.user,  # type: ignore[arg-type]
+                    approve=approve,
+                    reason=reason,
+                    via=Channel.ADMIN,
+                )
+            except DomainError as exc:
+                self.message_user(
+                    request, f"Reservation {reservation.pk}: {exc.message}", messages.ERROR
+                )
+            else:
+                done = "approved" if approve else "rejected"
+                self.message_user(
+                    request, f"Reservation {reservation.pk} {done}.", messages.SUCCESS
+                )
+
+    @admin.action(description="Approve (requested bookings)")
+    def approve(self, request: HttpRequest, queryset: QuerySet[Reservation]) -> None:
+        self._decide(request, queryset, approve=True)
+
+    @admin.action(description="Reject (requested bookings; a reason; the run is withdrawn)")
+    def reject(self, request: HttpRequest, queryset: QuerySet[Reservation]) -> None:
+        self._decide(request, queryset, approve=False)
+
+    @admin.action(description="Cancel (a reason; a staged or running run is withdrawn)")
+    def cancel(self, request: HttpRequest, queryset: QuerySet[Reservation]) -> None:
+        reason = _action_reason(self, request)
+        if reason is None:
+            return
+        for reservation in queryset:
+            try:
+                booking_cancel(
+                    reservation=reservation,
+                    by=request.user,  # type: ignore[arg-type]
+                    reason=reason,
+                    via=Channel.ADMIN,
+                )
+            except DomainError as exc:
+                self.message_user(
+                    request, f"Reservation {reservation.pk}: {exc.message}", messages.ERROR
+                )
+            else:
+                self.message_user(
+                    request, f"Reservation {reservation.pk} cancelled.", messages.SUCCESS
+                )

@@ -26,8 +26,9 @@ MAX_RETRIES = 5
 
 @shared_task(time_limit=30, soft_time_limit=25)
 def runs_sweep() -> None:
-    """Find runs due for staging, withdrawal or collection, and owners still to be told of
-    a run's end, and queue one task each.
+    """Find runs due for staging, withdrawal or collection, runs due whose booking does not
+    hold them (held: ``run_hold``), and owners still to be told of a run's end, and queue one
+    task each.
 
     Queued tasks expire after two sweeps: a backlog never turns into a pile of duplicates,
     and the next sweep queues whatever is still due.
@@ -36,6 +37,8 @@ def runs_sweep() -> None:
     expires_s = 2 * settings.RUN_SWEEP_INTERVAL_S
     for run_id in staging.runs_due_for_staging(now=now).values_list("pk", flat=True):
         run_stage.apply_async((run_id,), expires=expires_s)
+    for run_id in staging.runs_held_from_staging(now=now).values_list("pk", flat=True):
+        run_hold.apply_async((run_id,), expires=expires_s)
     for run_id in staging.runs_due_for_withdrawal().values_list("pk", flat=True):
         run_unstage.apply_async((run_id,), expires=expires_s)
     for run_id in collection.runs_due_for_collection(now=now).values_list("pk", flat=True):
@@ -70,6 +73,12 @@ def run_stage(self: Task, run_id: int) -> None:
         staging.run_stage(run_id=run_id)
     except AgentError as exc:
         _retry_if_transient(self, exc)
+
+
+@shared_task(time_limit=30, soft_time_limit=25)
+def run_hold(run_id: int) -> None:
+    """Keep a run its booking does not hold off its agent (cancelled or failed, with why)."""
+    staging.run_hold(run_id=run_id)
 
 
 @shared_task(bind=True, time_limit=60, soft_time_limit=50)

@@ -9,6 +9,7 @@ from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse
 from django.shortcuts import get_object_or_404, redirect, render
 
+from bookings.choices import Channel
 from core.audit.services import client_ip
 from core.errors import DomainError
 from portal.experiments.selectors import experiments_visible
@@ -28,7 +29,11 @@ def reservation_attach_view(request: HttpRequest, pk: int) -> HttpResponse:
         else:
             try:
                 run = booking_attach(
-                    reservation=reservation, experiment=experiment, by=user, ip=client_ip(request)
+                    reservation=reservation,
+                    experiment=experiment,
+                    by=user,
+                    ip=client_ip(request),
+                    via=Channel.WEB,
                 )
             except DomainError as exc:
                 messages.error(request, exc.message)

@@ -167,7 +167,9 @@ def book(request: HttpRequest) -> HttpResponse:
         form = BookingForm(request.POST, user=user)
         if form.is_valid():
             try:
-                reservation = booking_create(owner=user, ip=client_ip(request), **form.cleaned_data)
+                reservation = booking_create(
+                    owner=user, ip=client_ip(request), via=Channel.WEB, **form.cleaned_data
+                )
             except DomainError as exc:
                 _form_error(form, exc)
             else:
@@ -272,7 +274,7 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
     user = _user(request)
     run = get_object_or_404(runs_visible(user=user).select_related("experiment"), pk=pk)
     try:
-        reservation = booking_repeat(run=run, by=user, ip=client_ip(request))
+        reservation = booking_repeat(run=run, by=user, ip=client_ip(request), via=Channel.WEB)
     except DomainError as exc:
         messages.error(request, f"Not booked again: {exc.message}")
         return redirect("run", pk=pk)
@@ -530,6 +532,7 @@ def approvals(request: HttpRequest) -> HttpResponse:
                 approve=request.POST.get("decision") == "approve",
                 reason=request.POST.get("reason", ""),
                 ip=client_ip(request),
+                via=Channel.WEB,
             )
         except DomainError as exc:
             messages.error(request, exc.message)

@@ -35,6 +35,7 @@ COVERED = {
     "portal.runs.tasks.runs_sweep",
     "portal.runs.tasks.run_stage",
     "portal.runs.tasks.run_unstage",
+    "portal.runs.tasks.run_hold",
     "portal.runs.tasks.run_collect",
     "portal.runs.tasks.run_notify",
     "portal.runs.tasks.robots_health_sweep",
@@ -92,6 +93,16 @@ def test_withdrawing_twice_withdraws_once(agent, run, owner):
     twice(tasks.run_unstage, run.pk)
     assert _events(run) == ["scheduled", "staged", "cancelled"]
     assert agent.client.get_run(run.agent_run_id)["state"] == "cancelled"
+
+
+def test_holding_twice_holds_once(agent, run):
+    # Its booking moved without it (a write around the booking services).
+    Reservation.objects.filter(pk=run.reservation_id).update(
+        start_at=run.start_at + timedelta(hours=3), end_at=run.end_at + timedelta(hours=3)
+    )
+    twice(tasks.run_hold, run.pk)
+    assert _events(run) == ["scheduled", "failed"]
+    assert agent.client.list_runs() == []
 
 
 def test_collecting_twice_stores_every_sample_once(agent, run):

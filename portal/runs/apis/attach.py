@@ -15,7 +15,7 @@ from core.audit.idempotency import idempotent
 from core.audit.services import client_ip
 from core.openapi import errors
 from portal.experiments.selectors import experiments_visible
-from portal.runs.apis.reservations import ReservationOutput
+from portal.runs.apis.reservations import ReservationOutput, request_door
 from portal.runs.selectors import reservations_with_runs_visible
 from portal.runs.services import booking
 
@@ -55,7 +55,11 @@ class ReservationAttachApi(APIView):
         data = valid_input(AttachInput, request.data)
         experiment = get_object_or_404(experiments_visible(user=user), pk=data["experiment"])
         booking.booking_attach(
-            reservation=reservation, experiment=experiment, by=user, ip=client_ip(request)
+            reservation=reservation,
+            experiment=experiment,
+            by=user,
+            ip=client_ip(request),
+            via=request_door(request),
         )
         attached = reservations_with_runs_visible(user=user).get(pk=reservation.pk)
         return Response(ReservationOutput(attached).data, status=status.HTTP_201_CREATED)

@@ -52,6 +52,17 @@ SCHEDULER_REFUSED = (
 )
 
 
+# The header the pages' scripts ("page") and the ``amazing`` command ("cli") send, so that the
+# audit log says through which door a booking changed; anything else is the REST API itself.
+CLIENT_HEADER = "X-Amazing-Client"
+DOORS = {"page": Channel.WEB, "cli": Channel.CLI}
+
+
+def request_door(request: Request) -> Channel:
+    """The door a request to the REST API came through, as the client says (for the audit)."""
+    return DOORS.get(request.headers.get(CLIENT_HEADER, ""), Channel.API)
+
+
 def _experiment(request: Request, experiment_id: int | None) -> Experiment | None:
     if experiment_id is None:
         return None
@@ -198,7 +209,12 @@ class ReservationListApi(APIView):
         experiment = _experiment(request, data.pop("experiment", None))
         # The new booking holds its items and their resources: the answer asks nothing more.
         reservation = booking.booking_create(
-            owner=owner, by=user, experiment=experiment, ip=client_ip(request), **data
+            owner=owner,
+            by=user,
+            experiment=experiment,
+            ip=client_ip(request),
+            via=request_door(request),
+            **data,
         )
         return Response(ReservationOutput(reservation).data, status=status.HTTP_201_CREATED)
 
@@ -242,7 +258,9 @@ class RunAgainApi(APIView):
     def post(self, request: Request, pk: int) -> Response:
         user = request_user(request)
         run = get_object_or_404(runs_visible(user=user).select_related("experiment"), pk=pk)
-        reservation = booking.booking_repeat(run=run, by=user, ip=client_ip(request))
+        reservation = booking.booking_repeat(
+            run=run, by=user, ip=client_ip(request), via=request_door(request)
+        )
         return Response(ReservationOutput(reservation).data, status=status.HTTP_201_CREATED)
 
 
@@ -278,6 +296,7 @@ class ReservationDetailApi(APIView):
             ip=client_ip(request),
             start_at=data.get("start_at", current.start_at),
             end_at=data.get("end_at", current.end_at),
+            via=request_door(request),
         )
         return Response(
             ReservationOutput(
@@ -309,7 +328,7 @@ class ReservationDetailApi(APIView):
             by=request_user(request),
             reason=data["reason"],
             ip=client_ip(request),
-            via=Channel.API,
+            via=request_door(request),
         )
         return Response(ReservationOutput(reservation).data)
 
@@ -335,6 +354,7 @@ class ReservationDecisionApi(APIView):
             reservation=get_object_or_404(Reservation, pk=pk),
             by=request_user(request),
             ip=client_ip(request),
+            via=request_door(request),
             **data,
         )
         return Response(ReservationOutput(reservation).data)

@@ -4,7 +4,12 @@ Each function here opens one transaction and, inside it, calls the booking servi
 ``bookings/services.py`` (which takes the booking locks and asks ``bookings.rules`` whether
 the booking can be made) and then does the run's part. Bookings know nothing of runs: what
 only this layer knows (who wrote the experiment, whether the run has left the schedule) is
-passed in. Pages and the API book through these functions.
+passed in.
+
+This is the one door for a booking that holds or may hold a run: the pages, the REST API (and
+the ``amazing`` command through it), the Django admin's actions and the testbed scheduler's
+lease API all change bookings through these functions, never through ``bookings.services``
+directly. ``via`` names the door; the audit row of each change records it.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from django.conf import settings
 from django.db import transaction
 from django.utils import timezone
 
-from bookings.choices import Channel
+from bookings.choices import BookedVia, Channel
 from bookings.leases import lease_release
 from bookings.models import Reservation, Resource
 from bookings.selectors import resource_first_free
@@ -55,8 +60,13 @@ def booking_create(
     override_reason: str = "",
     ip: str | None = None,
     now: datetime | None = None,
+    booked_via: BookedVia = BookedVia.PORTAL,
+    via: Channel | None = None,
 ) -> Reservation:
-    """Book resources; on a mobile node, also schedule the run of ``experiment`` there."""
+    """Book resources; on a mobile node, also schedule the run of ``experiment`` there.
+
+    A booking made through the lease API (``booked_via``) may hold its robot without an
+    experiment; one is attached later (``booking_attach``)."""
     chosen = list(resources or ([resource] if resource is not None else []))
     mobile = next((r for r in chosen if r.is_mobile), None)
     book = partial(
@@ -72,6 +82,9 @@ def booking_create(
         ip=ip,
         now=now,
         program_owner_id=experiment.owner_id if experiment is not None else None,
+        program_required=booked_via == BookedVia.PORTAL,
+        booked_via=booked_via,
+        via=via,
     )
     if mobile is None or experiment is None:
         return book()  # no run to make with it (or booking refuses it and says why)
@@ -98,7 +111,12 @@ REPEAT_ATTEMPTS = 3
 
 
 def booking_repeat(
-    *, run: Run, by: User, ip: str | None = None, now: datetime | None = None
+    *,
+    run: Run,
+    by: User,
+    ip: str | None = None,
+    now: datetime | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
     """Book ``run``'s program again, with its limits, on its robot, in the first free slot of
     its reservation's length from ``RUN_REPEAT_LEAD_S`` on ("Run again"). The new run links to
@@ -125,7 +143,7 @@ def booking_repeat(
             raise refused  # the same slot again: refused for a reason other than a race
         tried = slot
         try:
-            return _book_repeat(run, owner=owner, by=by, slot=slot, ip=ip, now=now)
+            return _book_repeat(run, owner=owner, by=by, slot=slot, ip=ip, now=now, via=via)
         except Conflict as exc:
             # Someone may have taken the slot between the look and the booking: look again.
             logger.info("run %s: slot at %s refused (%s); looking again", run.pk, slot[0], exc)
@@ -142,6 +160,7 @@ def _book_repeat(
     slot: tuple[datetime, datetime],
     ip: str | None,
     now: datetime,
+    via: Channel | None,
 ) -> Reservation:
     reservation: Reservation | None = None
     try:
@@ -157,6 +176,7 @@ def _book_repeat(
                 ip=ip,
                 now=now,
                 program_owner_id=run.experiment.owner_id,
+                via=via,
             )
             run_create(
                 reservation=reservation,
@@ -179,6 +199,7 @@ def booking_attach(
     by: User,
     ip: str | None = None,
     now: datetime | None = None,
+    via: Channel | None = None,
 ) -> Run:
     """Attach ``experiment`` to a booking made through the lease API, before it starts: its
     robot runs it then. Every booking rule applies, as to a booking made with it."""
@@ -193,6 +214,7 @@ def booking_attach(
             has_program=Run.objects.filter(reservation=locked).exists(),
             ip=ip,
             now=now,
+            via=via,
         )
         mobile = next(r for r in attached.resources.all() if r.is_mobile)
         return run_create(reservation=attached, resource=mobile, experiment=experiment, by=by)
@@ -206,8 +228,10 @@ def booking_reschedule(
     end_at: datetime,
     ip: str | None = None,
     now: datetime | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
-    """Move an upcoming booking and its run; refused once the run is on its base station."""
+    """Move an upcoming booking and its run; refused once the run is on its base station, or
+    when the run's program does not fit the new window (the run is the booking's program)."""
     with transaction.atomic():
         # Reservation first, then run: the order every path that takes both locks uses.
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
@@ -221,6 +245,7 @@ def booking_reschedule(
             ip=ip,
             now=now,
             run_started=run is not None and run.state != RunState.SCHEDULED,
+            via=via,
         )
         if run is not None:
             Run.objects.filter(pk=run.pk).update(start_at=moved.start_at, end_at=moved.end_at)
@@ -270,11 +295,12 @@ def booking_decide(
     approve: bool,
     reason: str = "",
     ip: str | None = None,
+    via: Channel | None = None,
 ) -> Reservation:
     """An admin approves or rejects a requested booking; a rejected one's run is withdrawn."""
     with transaction.atomic():
         decided = reservation_decide(
-            reservation=reservation, by=by, approve=approve, reason=reason, ip=ip
+            reservation=reservation, by=by, approve=approve, reason=reason, ip=ip, via=via
         )
         if not approve:
             _withdraw_run(decided, reason=f"request rejected: {reason}", by=by)

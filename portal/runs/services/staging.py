@@ -14,11 +14,12 @@ from typing import Any
 
 from django.conf import settings
 from django.db import transaction
-from django.db.models import QuerySet
+from django.db.models import F, Q, QuerySet
 from django.utils import timezone
 
 from basestation.client import AgentConflict, AgentError, AgentRejected
 from bookings.choices import ReservationState
+from bookings.models import Reservation
 from bookings.rules import velocity_limit
 from core.audit.counters import event_count
 from portal.runs.agents import agent_client_for
@@ -30,9 +31,95 @@ from portal.runs.states import Cause, RunState
 logger = logging.getLogger(__name__)
 
 
-def runs_due_for_staging(*, now: datetime) -> QuerySet[Run]:
+# A run may go to its agent only when its booking is confirmed and holds the run's window:
+# the booking services move both together, so anything else means the booking changed where
+# its run did not follow (a write around the services), and the robot would run outside it.
+BOOKING_HOLDS_RUN = Q(
+    reservation__state=ReservationState.CONFIRMED,
+    reservation__start_at=F("start_at"),
+    reservation__end_at=F("end_at"),
+)
+# Awaiting an admin's decision, in its own window: it waits (staged once confirmed).
+BOOKING_AWAITS_DECISION = Q(
+    reservation__state=ReservationState.REQUESTED,
+    reservation__start_at=F("start_at"),
+    reservation__end_at=F("end_at"),
+)
+
+
+def _due(now: datetime) -> QuerySet[Run]:
     lead = timedelta(seconds=settings.RUN_STAGE_LEAD_S)
     return Run.objects.filter(state=RunState.SCHEDULED, start_at__lte=now + lead)
+
+
+def runs_due_for_staging(*, now: datetime) -> QuerySet[Run]:
+    """Scheduled runs starting within the lead whose booking is confirmed and is their window."""
+    return _due(now).filter(BOOKING_HOLDS_RUN)
+
+
+def runs_held_from_staging(*, now: datetime) -> QuerySet[Run]:
+    """Scheduled runs due to be staged that their booking does not hold (cancelled, rejected,
+    completed, moved without them, or awaiting a decision past its end): ``run_hold`` each."""
+    return (
+        _due(now)
+        .exclude(BOOKING_HOLDS_RUN)
+        .exclude(BOOKING_AWAITS_DECISION & Q(reservation__end_at__gt=now))
+    )
+
+
+def staging_refusal(run: Run, reservation: Reservation, *, now: datetime) -> str | None:
+    """Why ``run`` may not be handed to its agent now, or None; "" while it waits for an
+    admin's decision (its booking requested, in its window, not yet over)."""
+    if reservation.state in (ReservationState.CANCELLED, ReservationState.REJECTED):
+        return f"its booking was {reservation.get_state_display()}"
+    booked = (reservation.start_at, reservation.end_at)
+    if (run.start_at, run.end_at) != booked:
+        return (
+            f"its booking holds {booked[0].isoformat()} to {booked[1].isoformat()}, not the "
+            f"run's {run.start_at.isoformat()} to {run.end_at.isoformat()} (the booking was "
+            "changed without its run)"
+        )
+    if reservation.state == ReservationState.REQUESTED:
+        return (
+            "" if reservation.end_at > now else "the reservation was not approved before it ended"
+        )
+    if reservation.state != ReservationState.CONFIRMED:
+        return f"its booking is {reservation.get_state_display()}, not confirmed"
+    return None
+
+
+def run_hold(*, run_id: int, now: datetime | None = None) -> bool:
+    """Keep a scheduled run its booking does not hold off its agent, and say why.
+
+    A withdrawn booking's run is cancelled with it; any other mismatch fails the run with the
+    reason (its owner is told, the log and the run's history say what was found): a person
+    books it again, nobody guesses which window was meant. True if the run was held.
+    """
+    now = now or timezone.now()
+    with transaction.atomic():
+        # Reservation first, then run: the order every path that takes both locks uses.
+        run = Run.objects.filter(pk=run_id, state=RunState.SCHEDULED).first()
+        if run is None:
+            return False
+        reservation = Reservation.objects.select_for_update().get(pk=run.reservation_id)
+        run = Run.objects.select_for_update().filter(pk=run_id).first()
+        if run is None:
+            return False
+        why = staging_refusal(run, reservation, now=now)
+        if not why:
+            return False
+        withdrawn = reservation.state in (ReservationState.CANCELLED, ReservationState.REJECTED)
+        held = run_transition(
+            run_id=run.pk,
+            to_state=RunState.CANCELLED if withdrawn else RunState.FAILED,
+            cause=Cause.BOOKING if withdrawn else Cause.DISPATCH,
+            from_states=[RunState.SCHEDULED],
+            reason=why if withdrawn else f"not staged: {why}",
+            by=reservation.cancelled_by if withdrawn else None,
+        )
+    if held:
+        logger.warning("run %s held from staging: %s", run_id, why)
+    return held
 
 
 def runs_due_for_withdrawal() -> QuerySet[Run]:
@@ -103,23 +190,11 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
     run = _load(run_id)
     if run is None or run.state != RunState.SCHEDULED:
         return
-    if run.reservation.state in (ReservationState.CANCELLED, ReservationState.REJECTED):
-        # Cancelled where the runs layer does not see it (the lease API, for a booking made
-        # there and given an experiment later): the run goes with its booking.
-        run_transition(
-            run_id=run.pk,
-            to_state=RunState.CANCELLED,
-            cause=Cause.BOOKING,
-            from_states=[RunState.SCHEDULED],
-            reason=f"its booking was {run.reservation.get_state_display()}",
-            by=run.reservation.cancelled_by,
-        )
-        return
-    confirmed = run.reservation.state == ReservationState.CONFIRMED
-    if not confirmed and run.end_at > now:
+    why = staging_refusal(run, run.reservation, now=now)
+    if why == "":
         return  # awaiting approval: staged once an admin confirms it
-    if not confirmed:
-        _fail(run, "the reservation was not approved before it ended")
+    if why is not None:
+        run_hold(run_id=run.pk, now=now)
         return
     if run.end_at <= now:
         _fail(run, "the base station could not be reached before the reservation ended")
@@ -144,15 +219,26 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
             f"{exc.message}",
         )
         return
-    # Staged and how, together: a run is never staged here without its record.
+    # Staged and how, together: a run is never staged here without its record. The claim
+    # re-reads the booking under its lock: moved or cancelled while the agent was asked, the
+    # run is not staged and is taken off the agent again.
     with transaction.atomic():
-        moved = run_transition(
-            run_id=run.pk,
-            to_state=RunState.STAGED,
-            cause=Cause.DISPATCH,
-            from_states=[RunState.SCHEDULED],
-            reason=f"staged on {run.resource.name}",
-        )
+        reservation = Reservation.objects.select_for_update().get(pk=run.reservation_id)
+        current = Run.objects.select_for_update().get(pk=run.pk)
+        sent = (body["start_at"], body["end_at"])
+        if staging_refusal(current, reservation, now=now) is not None or sent != (
+            current.start_at.isoformat(),
+            current.end_at.isoformat(),
+        ):
+            moved = False
+        else:
+            moved = run_transition(
+                run_id=run.pk,
+                to_state=RunState.STAGED,
+                cause=Cause.DISPATCH,
+                from_states=[RunState.SCHEDULED],
+                reason=f"staged on {run.resource.name}",
+            )
         if moved:
             run_provenance_record(
                 run_id=run.pk,
@@ -160,10 +246,14 @@ def run_stage(*, run_id: int, now: datetime | None = None) -> None:
                 value=provenance_at_staging(agent_run=staged, limits=body["limits"], now=now),
             )
     if not moved:
-        # Cancelled while we were staging it: withdraw it again.
+        # Cancelled, moved or changed while we were staging it: withdraw it again, and hold it
+        # if its booking no longer holds it (a run moved with its booking is staged again by
+        # the next sweep, if its agent takes it).
         run.refresh_from_db(fields=["state"])
-        if run.state == RunState.CANCELLED:
+        if run.state in (RunState.CANCELLED, RunState.SCHEDULED):
             client.delete_run(run.agent_run_id)
+        if run.state == RunState.SCHEDULED:
+            run_hold(run_id=run.pk, now=now)
 
 
 def run_unstage(*, run_id: int) -> None:

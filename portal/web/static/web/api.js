@@ -16,7 +16,8 @@ window.AmazingApi = (function () {
     try {
       response = await fetch(url, {
         method,
-        headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf(), Accept: "application/json" }, extraHeaders || {}),
+        // X-Amazing-Client: the door a booking's change came through, for its audit row.
+        headers: Object.assign({ "Content-Type": "application/json", "X-CSRFToken": csrf(), Accept: "application/json", "X-Amazing-Client": "page" }, extraHeaders || {}),
         body: body === undefined ? undefined : JSON.stringify(body),
         credentials: "same-origin",
       });
