@@ -10,28 +10,16 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from datetime import date
 from typing import Any
-from urllib.parse import quote, urlsplit, urlunsplit
+from urllib.parse import quote
 
 import requests
 
-from basestation.contract import REQUEST_ID_HEADER, STOP_PATH, STOP_PORT_OFFSET, request_id_or_new
+from basestation.contract import REQUEST_ID_HEADER, STOP_PATH, request_id_or_new
 
 API_PREFIX = "/api/v1"
-# A stop's reason is sent cut to this: the agent keeps less (it says so in its answer), and
+# A stop's reason is sent cut to this: the agent keeps less (and says so in its answer), and
 # no reason can make the body too large for the agent to read.
 MAX_STOP_REASON_SENT_CHARS = 1000
-STOP_CONNECT_TIMEOUT_S = 1.0
-
-
-def stop_url_for(base_url: str) -> str | None:
-    """The root of the agent's stop listener: the API's address with the port + 1 (the
-    agent's default ``--stop-port``); ``None`` when the URL names no port."""
-    parts = urlsplit(base_url)
-    if parts.port is None or parts.hostname is None:
-        return None
-    host = f"[{parts.hostname}]" if ":" in parts.hostname else parts.hostname
-    netloc = f"{host}:{parts.port + STOP_PORT_OFFSET}"
-    return urlunsplit(parts._replace(netloc=netloc)).rstrip("/")
 
 
 class AgentError(Exception):
@@ -96,19 +84,14 @@ class AgentClient:
         timeout_s: float = 5.0,
         *,
         request_id: Callable[[], str | None] | None = None,
-        stop_url: str | None = None,
     ) -> None:
         """``base_url`` is the agent's root, e.g. ``http://10.0.0.5:8700`` (no ``/api/v1``).
-
-        ``stop_url`` is the root of the agent's stop listener (default: :func:`stop_url_for`);
-        :meth:`stop` goes there, and to ``base_url`` only when nothing listens there.
 
         ``request_id`` gives the id of the work under way (the portal's request or task),
         sent with every call as ``X-Request-ID`` so that the agent's log line names it; a
         call made outside any (or without ``request_id``) gets an id of its own.
         """
         self.base_url = base_url.rstrip("/")
-        self.stop_url = (stop_url or stop_url_for(self.base_url) or self.base_url).rstrip("/")
         self.timeout_s = timeout_s
         self._request_id = request_id
         self._session = requests.Session()
@@ -180,24 +163,11 @@ class AgentClient:
 
     def stop(self, *, user: str | None = None, reason: str | None = None) -> dict[str, Any]:
         """Latch the emergency stop; returns ``{"estop": {...}, "aborted_run": ...,
-        "truncated": [...], "ignored": [...]}``.
-
-        Sent to the agent's stop listener, where no other request queues; to the API's port
-        when nothing listens there (an agent started with the stop listener elsewhere)."""
+        "truncated": [...], "ignored": [...]}``. The agent serves it ahead of every other
+        request and refuses it only for the token."""
         if reason is not None:
             reason = reason[:MAX_STOP_REASON_SENT_CHARS]
         body = {k: v for k, v in (("user", user), ("reason", reason)) if v is not None}
-        if self.stop_url != self.base_url:
-            try:
-                # A listener on the LAN connects in milliseconds: one that does not within a
-                # second is blocked or gone, and the stop tries the API's port.
-                timeout = (min(STOP_CONNECT_TIMEOUT_S, self.timeout_s), self.timeout_s)
-                return self._request(
-                    "POST", STOP_PATH, json=body, root=self.stop_url, timeout=timeout
-                )
-            except AgentError as exc:
-                if exc.status is not None:  # the agent answered: that is the answer
-                    raise
         return self._request("POST", STOP_PATH, json=body)
 
     def release_stop(self, *, user: str | None = None) -> dict[str, Any]:
@@ -246,15 +216,9 @@ class AgentClient:
         return f"{API_PREFIX}/runs/{quote(run_id, safe='')}"
 
     def _request(
-        self,
-        method: str,
-        path: str,
-        *,
-        timeout: float | tuple[float, float] | None = None,
-        root: str | None = None,
-        **kwargs: Any,
+        self, method: str, path: str, *, timeout: float | None = None, **kwargs: Any
     ) -> dict[str, Any]:
-        url = (root or self.base_url) + path
+        url = self.base_url + path
         current = self._request_id() if self._request_id is not None else None
         headers = {REQUEST_ID_HEADER: request_id_or_new(current)}
         try:

@@ -340,11 +340,9 @@ PORTAL_STATE_FOR_AGENT_END: Final[Mapping[str, str]] = {
 
 # --- The emergency stop ---------------------------------------------------------------------
 
-# The agent serves this path also on a listener of its own (``amazing-agent --stop-port``,
-# by default the API's port + 1) that serves nothing else, so that no load on the API delays
-# a stop; the portal's client sends its stops there.
+# The agent serves this path ahead of every other request (basestation.serve), and never
+# refuses it for its body (basestation.manual.stop_request_from).
 STOP_PATH: Final = "/api/v1/stop"
-STOP_PORT_OFFSET: Final = 1
 
 
 # --- Request ids ----------------------------------------------------------------------------

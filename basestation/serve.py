@@ -9,21 +9,19 @@ import logging
 import os
 import signal
 import sys
-import threading
 import types
-from collections.abc import Callable, Iterable
 from typing import Any
 
 from waitress.channel import HTTPChannel
 from waitress.server import BaseWSGIServer, create_server
-from waitress.task import ErrorTask, Task, WSGITask
+from waitress.task import ErrorTask, Task, ThreadedTaskDispatcher, WSGITask
 from waitress.utilities import Error
 
 from basestation.api.limits import too_large_detail
 from basestation.app import MAX_BODY_BYTES, create_app
 from basestation.backup import AgentRunning, data_dir_lock
 from basestation.config import AgentConfig, ConfigError
-from basestation.contract import STOP_PATH, STOP_PORT_OFFSET
+from basestation.contract import STOP_PATH
 from basestation.logs import LOG_FORMATS, configure_logging
 from basestation.runtime import get_runtime
 
@@ -37,11 +35,9 @@ GIL_SWITCH_INTERVAL_S = 0.001
 # waitress buffers a request body before the app sees it; the app refuses anything over
 # 64 KiB anyway, so there is no point in buffering more than this.
 MAX_REQUEST_BODY_BYTES = 1024 * 1024
-# The stop's own listener: one stop served while a second waits is plenty (a stop latches in
+# The stops' own threads: one stop served while a second waits is plenty (a stop latches in
 # a few milliseconds), and every thread more would compete for the interpreter lock.
 STOP_THREADS = 2
-
-WSGIApp = Callable[[dict[str, Any], Callable[..., Any]], Iterable[bytes]]
 
 
 class _JsonErrorTask(ErrorTask):
@@ -67,7 +63,7 @@ def _error_task(channel: HTTPChannel, request: Any) -> Task:
     buffer still reaches the agent, without its body (a stop is refused only for its token).
 
     ``request`` is waitress's parser (its stubs call it the error)."""
-    if request.error.code == 413 and request.command == "POST" and request.path == STOP_PATH:
+    if request.error.code == 413 and is_stop(request):
         request.error = None
         request.body_rcv = None
         request.headers["CONTENT_LENGTH"] = "0"
@@ -81,23 +77,36 @@ class _JsonErrorChannel(HTTPChannel):
     error_task_class = staticmethod(_error_task)  # type: ignore[assignment]
 
 
-def stop_only(app: WSGIApp) -> WSGIApp:
-    """The application as the stop's listener serves it: ``/api/v1/stop`` and nothing else,
-    so that no other request can queue on it."""
-    refusal = json.dumps(
-        {"error": "not_found", "detail": f"This port serves only POST {STOP_PATH}."}
-    ).encode()
+class StopFirstDispatcher(ThreadedTaskDispatcher):
+    """waitress's task queue with a lane for stops: a connection whose next request is
+    ``POST /api/v1/stop`` is served by threads of its own, never queued behind the API's
+    readers (docs/basestation.md "The emergency stop, ahead of the queue").
 
-    def serve(environ: dict[str, Any], start_response: Callable[..., Any]) -> Iterable[bytes]:
-        if environ.get("PATH_INFO") == STOP_PATH:
-            return app(environ, start_response)
-        start_response(
-            "404 Not Found",
-            [("Content-Type", "application/json"), ("Content-Length", str(len(refusal)))],
+    waitress calls :meth:`add_task` with a channel whose first pending request is the one to
+    serve, holding that channel's request lock."""
+
+    def __init__(self, stop_threads: int = STOP_THREADS) -> None:
+        super().__init__()
+        self.stops = ThreadedTaskDispatcher()
+        self.stops.set_thread_count(stop_threads)
+
+    def add_task(self, task: Any) -> None:
+        requests = getattr(task, "requests", None)
+        if requests and is_stop(requests[0]):
+            self.stops.add_task(task)
+        else:
+            super().add_task(task)
+
+    def shutdown(self, cancel_pending: bool = True, timeout: int = 5) -> bool:
+        stops_stopped = self.stops.shutdown(cancel_pending=cancel_pending, timeout=timeout)
+        return bool(super().shutdown(cancel_pending=cancel_pending, timeout=timeout)) and bool(
+            stops_stopped
         )
-        return [refusal]
 
-    return serve
+
+def is_stop(request: Any) -> bool:
+    """Whether waitress's parsed ``request`` is a stop (its path as the application sees it)."""
+    return bool(request.command == "POST" and request.path == STOP_PATH)
 
 
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -111,11 +120,11 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--threads", type=int, default=8, help="HTTP worker threads")
     parser.add_argument(
-        "--stop-port",
+        "--stop-threads",
         type=int,
-        default=None,
-        help="TCP port of the listener that serves only POST /api/v1/stop, with threads of "
-        f"its own (default: --port + {STOP_PORT_OFFSET}; 0 picks a free one)",
+        default=STOP_THREADS,
+        help="threads that serve only POST /api/v1/stop, ahead of the queue (default 2; "
+        "0 queues stops with every other request, for comparison)",
     )
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ...")
     parser.add_argument(
@@ -177,26 +186,19 @@ def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
     gc.collect()
     gc.freeze()
     runtime = get_runtime(app)
-    if args.stop_port is None:
-        args.stop_port = 0 if args.port == 0 else args.port + STOP_PORT_OFFSET
     try:
-        server = _server(app, args.host, args.port, args.threads)
-        # The stop's own socket, accept queue and threads: a stop never waits behind the
-        # API's readers (docs/basestation.md "The emergency stop's listener").
-        stop_server = _server(stop_only(app), args.host, args.stop_port, STOP_THREADS)
+        server = make_server(
+            app,
+            host=args.host,
+            port=args.port,
+            threads=args.threads,
+            stop_threads=args.stop_threads,
+        )
     except OSError as exc:
-        logger.error("cannot listen on %s: %s", args.host, exc)
+        logger.error("cannot listen on %s:%s: %s", args.host, args.port, exc)
         runtime.close()
         return 1
     port = getattr(server, "effective_port", args.port)
-    stop_port = getattr(stop_server, "effective_port", args.stop_port)
-    threading.Thread(target=stop_server.run, name="stop-listener", daemon=True).start()
-    logger.info(
-        "emergency stop served apart on http://%s:%s (POST %s only)",
-        args.host,
-        stop_port,
-        STOP_PATH,
-    )
     logger.info(
         "agent %s listening on http://%s:%s, control %g Hz, data dir %s",
         config.resource,
@@ -215,7 +217,6 @@ def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
         for sig in previous:
             signal.signal(sig, signal.SIG_IGN)
         logger.info("stopping: robot to zero, closing the run store")
-        stop_server.close()
         server.close()
         runtime.close()
         for sig, handler in previous.items():
@@ -224,9 +225,20 @@ def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
     return 0
 
 
-def _server(app: WSGIApp, host: str, port: int, threads: int) -> BaseWSGIServer:
+def make_server(
+    app: Any, *, host: str, port: int, threads: int, stop_threads: int = STOP_THREADS
+) -> BaseWSGIServer:
+    """waitress serving ``app``: API errors in JSON, and ``stop_threads`` threads that serve
+    stops ahead of the queue (0: stops queue with every other request)."""
+    dispatcher = StopFirstDispatcher(stop_threads) if stop_threads > 0 else ThreadedTaskDispatcher()
+    dispatcher.set_thread_count(threads)
     server = create_server(
-        app, host=host, port=port, threads=threads, max_request_body_size=MAX_REQUEST_BODY_BYTES
+        app,
+        host=host,
+        port=port,
+        threads=threads,
+        max_request_body_size=MAX_REQUEST_BODY_BYTES,
+        _dispatcher=dispatcher,
     )
     # One address, so one server (not waitress's multi-socket one).
     assert isinstance(server, BaseWSGIServer)
