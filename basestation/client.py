@@ -14,9 +14,12 @@ from urllib.parse import quote
 
 import requests
 
-from basestation.contract import REQUEST_ID_HEADER, request_id_or_new
+from basestation.contract import REQUEST_ID_HEADER, STOP_PATH, request_id_or_new
 
 API_PREFIX = "/api/v1"
+# A stop's reason is sent cut to this: the agent keeps less (and says so in its answer), and
+# no reason can make the body too large for the agent to read.
+MAX_STOP_REASON_SENT_CHARS = 1000
 
 
 class AgentError(Exception):
@@ -159,9 +162,13 @@ class AgentClient:
         return self._request("POST", f"{API_PREFIX}/control", json=body)
 
     def stop(self, *, user: str | None = None, reason: str | None = None) -> dict[str, Any]:
-        """Latch the emergency stop; returns ``{"estop": {...}, "aborted_run": ...}``."""
+        """Latch the emergency stop; returns ``{"estop": {...}, "aborted_run": ...,
+        "truncated": [...], "ignored": [...]}``. The agent serves it ahead of every other
+        request and refuses it only for the token."""
+        if reason is not None:
+            reason = reason[:MAX_STOP_REASON_SENT_CHARS]
         body = {k: v for k, v in (("user", user), ("reason", reason)) if v is not None}
-        return self._request("POST", f"{API_PREFIX}/stop", json=body)
+        return self._request("POST", STOP_PATH, json=body)
 
     def release_stop(self, *, user: str | None = None) -> dict[str, Any]:
         """Release the emergency stop; returns ``{"estop": {...}, "released": bool}``."""

@@ -50,6 +50,11 @@ class AgentConfig:
     # base station then holds no usable token, and two digests let a token be rotated
     # without refusing the portal in between.
     token_sha256: tuple[str, ...] = ()
+    # The read-only token (AGENT_READ_TOKEN) and/or its digests (AGENT_READ_TOKEN_SHA256), for
+    # metrics and status: it reads, and may latch the e-stop, nothing else
+    # (basestation.api.auth). Optional.
+    read_token: str = field(default="", repr=False)
+    read_token_sha256: tuple[str, ...] = ()
     data_dir: Path = DEFAULT_DATA_DIR
     control_hz: float = 20.0
     max_velocity_mps: float = 2.0
@@ -87,9 +92,14 @@ class AgentConfig:
         # Checked here too so that configs built in code (tests, benchmarks) obey the same rules.
         if self.token or not self.token_sha256:
             _check_token(self.token, "token")
-        for digest in self.token_sha256:
+        for digest in self.token_sha256 + self.read_token_sha256:
             if not re.fullmatch(r"[0-9a-f]{64}", digest):
                 raise ConfigError("token_sha256: each must be a SHA-256 digest (64 hex digits)")
+        if self.read_token:
+            _check_token(self.read_token, "read_token")
+        if set(self.read_token_digests) & set(self.accepted_token_digests):
+            # One token in both scopes would be a control token that looks read-only.
+            raise ConfigError("the read-only token must differ from the control token")
         _check_range("control_hz", self.control_hz, low=1.0, high=200.0)
         _check_range("max_velocity_mps", self.max_velocity_mps, low=0.01, high=10.0)
         _check_range("max_accel_mps2", self.max_accel_mps2, low=0.01, high=20.0)
@@ -116,6 +126,14 @@ class AgentConfig:
         return tuple(digests)
 
     @property
+    def read_token_digests(self) -> tuple[bytes, ...]:
+        """The SHA-256 digests of the read-only tokens (metrics, status; and the e-stop)."""
+        digests = [bytes.fromhex(d) for d in self.read_token_sha256]
+        if self.read_token:
+            digests.append(hashlib.sha256(self.read_token.encode("utf-8")).digest())
+        return tuple(digests)
+
+    @property
     def control_period_s(self) -> float:
         return 1.0 / self.control_hz
 
@@ -127,6 +145,7 @@ class AgentConfig:
         # Never print the token (logs, tracebacks).
         return (
             f"AgentConfig(token=<hidden>, token_sha256={len(self.token_sha256)} digests, "
+            f"read tokens={len(self.read_token_digests)}, "
             f"data_dir={self.data_dir!r}, "
             f"control_hz={self.control_hz}, max_velocity_mps={self.max_velocity_mps}, "
             f"max_accel_mps2={self.max_accel_mps2}, rail_length_m={self.rail_length_m}, "
@@ -146,6 +165,8 @@ class AgentConfig:
         return cls(
             token=_token_from_env(env, required=not _digests_from_env(env)),
             token_sha256=_digests_from_env(env),
+            read_token=_secret_from_env(env, "READ_TOKEN") or "",
+            read_token_sha256=_digests_from_env(env, "READ_TOKEN_SHA256"),
             data_dir=data_dir_from_env(env),
             control_hz=_float_env(env, "CONTROL_HZ", 20.0, low=1.0, high=200.0),
             max_velocity_mps=_float_env(env, "MAX_VELOCITY_MPS", 2.0, low=0.01, high=10.0),
@@ -184,14 +205,14 @@ def data_dir_from_env(env: Mapping[str, str] | None = None) -> Path:
     return Path(env.get(f"{ENV_PREFIX}DATA_DIR", "").strip() or DEFAULT_DATA_DIR)
 
 
-def _digests_from_env(env: Mapping[str, str]) -> tuple[str, ...]:
+def _digests_from_env(env: Mapping[str, str], name: str = "TOKEN_SHA256") -> tuple[str, ...]:
     """``AGENT_TOKEN_SHA256`` (or its ``_FILE``): hex SHA-256 digests, comma or space apart."""
-    text = _secret_from_env(env, "TOKEN_SHA256") or ""
+    text = _secret_from_env(env, name) or ""
     digests = tuple(d.lower() for d in re.split(r"[\s,]+", text) if d)
     for digest in digests:
         if not re.fullmatch(r"[0-9a-f]{64}", digest):
             raise ConfigError(
-                f"{ENV_PREFIX}TOKEN_SHA256: {digest[:8]}… is not a SHA-256 digest (64 hex digits)"
+                f"{ENV_PREFIX}{name}: {digest[:8]}… is not a SHA-256 digest (64 hex digits)"
             )
     return digests
 

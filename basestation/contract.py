@@ -338,6 +338,13 @@ PORTAL_STATE_FOR_AGENT_END: Final[Mapping[str, str]] = {
 }
 
 
+# --- The emergency stop ---------------------------------------------------------------------
+
+# The agent serves this path ahead of every other request (basestation.serve), and never
+# refuses it for its body (basestation.manual.stop_request_from).
+STOP_PATH: Final = "/api/v1/stop"
+
+
 # --- Request ids ----------------------------------------------------------------------------
 
 # One id follows a piece of work across processes: a portal request or task sets it, the

@@ -6,6 +6,8 @@ Parsed like run bodies: every problem is collected into field errors
 
 from __future__ import annotations
 
+import json
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -18,7 +20,12 @@ from basestation.program import FieldErrors, InvalidRunBody, parse_number
 MAX_MANUAL_TTL_S = 10.0
 DEFAULT_MANUAL_TTL_S = 1.0
 MAX_USER_CHARS = 150
+# What the e-stop latch keeps of a stop's reason (the portal's audit keeps the whole of it).
 MAX_REASON_CHARS = 200
+# A stop reads at most this much of its body (the rest is left unread, never refused).
+MAX_STOP_BODY_BYTES = 64 * 1024
+
+_LONE_SURROGATE = re.compile("[\ud800-\udfff]")
 
 CONTROL_FIELDS = frozenset({"user", "velocity_mps", "direction", "ttl_s", "force"})
 STOP_FIELDS = frozenset({"user", "reason"})
@@ -38,6 +45,10 @@ class ManualCommand:
 class StopRequest:
     user: str | None
     reason: str | None
+    # What a stop did not keep of its body, so that its answer can say so: fields cut to what
+    # the latch stores, and fields (or the whole body, ``"body"``) it did not read.
+    truncated: tuple[str, ...] = ()
+    ignored: tuple[str, ...] = ()
 
 
 def parse_control_body(raw: object, *, max_velocity_mps: float) -> ManualCommand:
@@ -81,8 +92,47 @@ def parse_control_body(raw: object, *, max_velocity_mps: float) -> ManualCommand
     )
 
 
-def parse_stop_body(raw: object, *, allowed: frozenset[str] = STOP_FIELDS) -> StopRequest:
-    """An optional body: ``None`` (no body) is an empty request."""
+def stop_request_from(data: bytes) -> StopRequest:
+    """What a stop keeps of its body, whatever the body is: never an error.
+
+    A stop is refused only for its token (DESIGN §8): a reason too long is cut to
+    :data:`MAX_REASON_CHARS`, one that is not a string is kept as its JSON text, unknown
+    fields and a body that is not a JSON object are ignored — and the answer names each.
+    """
+    if not data.strip():
+        return StopRequest(user=None, reason=None)
+    try:
+        raw = json.loads(data.decode("utf-8", "replace"))
+    except (ValueError, RecursionError):
+        raw = None
+    if not isinstance(raw, Mapping):
+        return StopRequest(user=None, reason=None, ignored=("body",))
+    truncated: list[str] = []
+    kept: dict[str, str | None] = {}
+    for name, max_chars in (("user", MAX_USER_CHARS), ("reason", MAX_REASON_CHARS)):
+        text = _any_text(raw.get(name))
+        if text is not None and len(text) > max_chars:
+            text = text[:max_chars].rstrip()
+            truncated.append(name)
+        kept[name] = text or None
+    ignored = tuple(sorted((str(k) for k in set(raw) - STOP_FIELDS), key=str))
+    return StopRequest(
+        user=kept["user"], reason=kept["reason"], truncated=tuple(truncated), ignored=ignored
+    )
+
+
+def _any_text(value: object) -> str | None:
+    """A field of a stop as text: a string as it is (stripped), anything else as its JSON;
+    characters that cannot be stored as UTF-8 (lone surrogates) become U+FFFD."""
+    if value is None:
+        return None
+    text = value if isinstance(value, str) else json.dumps(value, ensure_ascii=False)
+    return _LONE_SURROGATE.sub("\ufffd", text).strip()
+
+
+def parse_stop_body(raw: object, *, allowed: frozenset[str] = RELEASE_FIELDS) -> StopRequest:
+    """The release's optional body, checked strictly (a release is not a stop): ``None``
+    (no body) is an empty request."""
     if raw is None:
         return StopRequest(user=None, reason=None)
     errors: FieldErrors = {}

@@ -10,16 +10,18 @@ import os
 import signal
 import sys
 import types
+from typing import Any
 
 from waitress.channel import HTTPChannel
 from waitress.server import BaseWSGIServer, create_server
-from waitress.task import ErrorTask
+from waitress.task import ErrorTask, Task, ThreadedTaskDispatcher, WSGITask
 from waitress.utilities import Error
 
 from basestation.api.limits import too_large_detail
 from basestation.app import MAX_BODY_BYTES, create_app
 from basestation.backup import AgentRunning, data_dir_lock
 from basestation.config import AgentConfig, ConfigError
+from basestation.contract import STOP_PATH
 from basestation.logs import LOG_FORMATS, configure_logging
 from basestation.runtime import get_runtime
 
@@ -33,6 +35,9 @@ GIL_SWITCH_INTERVAL_S = 0.001
 # waitress buffers a request body before the app sees it; the app refuses anything over
 # 64 KiB anyway, so there is no point in buffering more than this.
 MAX_REQUEST_BODY_BYTES = 1024 * 1024
+# The stops' own threads: one stop served while a second waits is plenty (a stop latches in
+# a few milliseconds), and every thread more would compete for the interpreter lock.
+STOP_THREADS = 2
 
 
 class _JsonErrorTask(ErrorTask):
@@ -53,8 +58,55 @@ class _JsonErrorTask(ErrorTask):
         self.write(body)
 
 
+def _error_task(channel: HTTPChannel, request: Any) -> Task:
+    """waitress's refusal of a request, except a stop: a stop whose body is over the server's
+    buffer still reaches the agent, without its body (a stop is refused only for its token).
+
+    ``request`` is waitress's parser (its stubs call it the error)."""
+    if request.error.code == 413 and is_stop(request):
+        request.error = None
+        request.body_rcv = None
+        request.headers["CONTENT_LENGTH"] = "0"
+        task = WSGITask(channel, request)
+        task.close_on_finish = True  # the rest of the body is still on its way: hang up
+        return task
+    return _JsonErrorTask(channel, request)
+
+
 class _JsonErrorChannel(HTTPChannel):
-    error_task_class = _JsonErrorTask
+    error_task_class = staticmethod(_error_task)  # type: ignore[assignment]
+
+
+class StopFirstDispatcher(ThreadedTaskDispatcher):
+    """waitress's task queue with a lane for stops: a connection whose next request is
+    ``POST /api/v1/stop`` is served by threads of its own, never queued behind the API's
+    readers (docs/basestation.md "The emergency stop, ahead of the queue").
+
+    waitress calls :meth:`add_task` with a channel whose first pending request is the one to
+    serve, holding that channel's request lock."""
+
+    def __init__(self, stop_threads: int = STOP_THREADS) -> None:
+        super().__init__()
+        self.stops = ThreadedTaskDispatcher()
+        self.stops.set_thread_count(stop_threads)
+
+    def add_task(self, task: Any) -> None:
+        requests = getattr(task, "requests", None)
+        if requests and is_stop(requests[0]):
+            self.stops.add_task(task)
+        else:
+            super().add_task(task)
+
+    def shutdown(self, cancel_pending: bool = True, timeout: int = 5) -> bool:
+        stops_stopped = self.stops.shutdown(cancel_pending=cancel_pending, timeout=timeout)
+        return bool(super().shutdown(cancel_pending=cancel_pending, timeout=timeout)) and bool(
+            stops_stopped
+        )
+
+
+def is_stop(request: Any) -> bool:
+    """Whether waitress's parsed ``request`` is a stop (its path as the application sees it)."""
+    return bool(request.command == "POST" and request.path == STOP_PATH)
 
 
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -67,6 +119,13 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--port", type=int, default=8700, help="TCP port (0 picks a free one; see the log)"
     )
     parser.add_argument("--threads", type=int, default=8, help="HTTP worker threads")
+    parser.add_argument(
+        "--stop-threads",
+        type=int,
+        default=STOP_THREADS,
+        help="threads that serve only POST /api/v1/stop, ahead of the queue (default 2; "
+        "0 queues stops with every other request, for comparison)",
+    )
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ...")
     parser.add_argument(
         "--log-format",
@@ -128,16 +187,13 @@ def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
     gc.freeze()
     runtime = get_runtime(app)
     try:
-        server = create_server(
+        server = make_server(
             app,
             host=args.host,
             port=args.port,
             threads=args.threads,
-            max_request_body_size=MAX_REQUEST_BODY_BYTES,
+            stop_threads=args.stop_threads,
         )
-        # One address, so one server (not waitress's multi-socket one).
-        assert isinstance(server, BaseWSGIServer)
-        server.channel_class = _JsonErrorChannel
     except OSError as exc:
         logger.error("cannot listen on %s:%s: %s", args.host, args.port, exc)
         runtime.close()
@@ -167,3 +223,24 @@ def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
             signal.signal(sig, handler)
     logger.info("agent stopped")
     return 0
+
+
+def make_server(
+    app: Any, *, host: str, port: int, threads: int, stop_threads: int = STOP_THREADS
+) -> BaseWSGIServer:
+    """waitress serving ``app``: API errors in JSON, and ``stop_threads`` threads that serve
+    stops ahead of the queue (0: stops queue with every other request)."""
+    dispatcher = StopFirstDispatcher(stop_threads) if stop_threads > 0 else ThreadedTaskDispatcher()
+    dispatcher.set_thread_count(threads)
+    server = create_server(
+        app,
+        host=host,
+        port=port,
+        threads=threads,
+        max_request_body_size=MAX_REQUEST_BODY_BYTES,
+        _dispatcher=dispatcher,
+    )
+    # One address, so one server (not waitress's multi-socket one).
+    assert isinstance(server, BaseWSGIServer)
+    server.channel_class = _JsonErrorChannel
+    return server

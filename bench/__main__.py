@@ -88,7 +88,17 @@ def write_section(key: str, body: str) -> None:
 
 
 # Every benchmark, in the order ``python -m bench`` runs them.
-BENCHMARKS = ("telemetry", "bookings", "scheduler", "agent", "timing", "live", "scale", "load")
+BENCHMARKS = (
+    "telemetry",
+    "bookings",
+    "scheduler",
+    "agent",
+    "stop",
+    "timing",
+    "live",
+    "scale",
+    "load",
+)
 # Those that measure the portal on a scratch database of their own.
 ON_DATABASE = ("telemetry", "bookings", "scheduler", "live", "scale", "load")
 # Those that start the whole system on it: they are handed its address.
@@ -102,6 +112,7 @@ SMOKE: dict[str, dict[str, Any]] = {
     "bookings": {"existing": 24 * 16, "calls": 3},
     "scheduler": {"calls": 2},
     "agent": {"duration_s": 1.0, "idle_s": 1.0, "clients": 2},
+    "stop": {"stops": 2, "clients": 2},
     "timing": {"starts": 1, "stops": 2},
     "live": {"program_s": 3.0, "open_streams": 3, "probes": 3},
     "scale": {"robots": [1], "program_s": 3.0},

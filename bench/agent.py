@@ -81,7 +81,14 @@ def _iso(epoch_s: float) -> str:
 
 class AgentProcess:
     def __init__(
-        self, data_dir: Path, token: str, hz: float, threads: int, **extra_env: str
+        self,
+        data_dir: Path,
+        token: str,
+        hz: float,
+        threads: int,
+        *,
+        extra_args: Sequence[str] = (),
+        **extra_env: str,
     ) -> None:
         self.log_path = data_dir / "agent.log"
         env = {k: v for k, v in os.environ.items() if not k.startswith("AGENT_")}
@@ -105,6 +112,7 @@ class AgentProcess:
                     str(threads),
                     "--log-level",
                     "INFO",
+                    *extra_args,
                 ],
                 cwd=REPO,
                 env=env,

@@ -1,7 +1,8 @@
 """Admin operations: ``POST /control`` (manual drive), ``POST /stop`` and ``/stop/release``.
 
-The agent has one token; that only admins reach these is the portal's business (it calls
-them only for admins and passes the admin's name as ``user``, for the usage log).
+Only the control token reaches ``/control`` and ``/stop/release`` (the read-only token may
+stop: :mod:`basestation.api.auth`); that only admins reach them is the portal's business (it
+calls them only for admins and passes the admin's name as ``user``, for the usage log).
 """
 
 from __future__ import annotations
@@ -9,12 +10,18 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from flask import Blueprint, jsonify
+from flask import Blueprint, jsonify, request
 from flask.typing import ResponseReturnValue
 
 from basestation.api.bodies import json_body
 from basestation.manager import EstopLatch
-from basestation.manual import RELEASE_FIELDS, parse_control_body, parse_stop_body
+from basestation.manual import (
+    MAX_STOP_BODY_BYTES,
+    RELEASE_FIELDS,
+    parse_control_body,
+    parse_stop_body,
+    stop_request_from,
+)
 from basestation.runtime import get_runtime
 from basestation.services import estop_latch, estop_release, manual_drive
 
@@ -41,12 +48,30 @@ def control() -> ResponseReturnValue:
     )
 
 
+def stop_body() -> bytes:
+    """At most :data:`MAX_STOP_BODY_BYTES` of the body, whatever its type or declared length:
+    a stop never waits for, nor is refused for, the rest (:func:`refuse_oversized_body`
+    lets it through)."""
+    length = request.content_length
+    wanted = MAX_STOP_BODY_BYTES if length is None else min(length, MAX_STOP_BODY_BYTES)
+    data = request.environ["wsgi.input"].read(wanted) if wanted > 0 else b""
+    return data if isinstance(data, bytes) else b""
+
+
 @bp.post("/stop")
 def stop() -> ResponseReturnValue:
+    """Refused for nothing but its token: see :func:`stop_request_from`."""
     runtime = get_runtime()
-    request_ = parse_stop_body(json_body(optional=True))
+    request_ = stop_request_from(stop_body())
     latch, aborted = estop_latch(manager=runtime.control, request=request_, now_s=time.time())
-    return jsonify({"estop": estop_json(latch), "aborted_run": aborted})
+    return jsonify(
+        {
+            "estop": estop_json(latch),
+            "aborted_run": aborted,
+            "truncated": list(request_.truncated),
+            "ignored": list(request_.ignored),
+        }
+    )
 
 
 @bp.post("/stop/release")

@@ -7,6 +7,7 @@ from django.http import HttpRequest
 
 from core.accounts.models import User
 from core.audit.models import AuditEvent
+from core.audit.text import storable_text
 
 
 def client_ip(request: HttpRequest | Any | None) -> str | None:
@@ -33,6 +34,6 @@ def audit_record(
         target_type=target._meta.label_lower if target is not None else "",
         target_id=str(target.pk) if target is not None else "",
         ip=ip,
-        reason=reason,
+        reason=storable_text(reason),
         data=data,
     )

@@ -46,7 +46,15 @@ COMPOSE = "/usr/bin/docker-compose"
 LONG_RUNNING = ("agent", "web", "streams", "worker", "mail", "collector", "beat")
 # Images whose command is not ours: the machine's servers stand in (see the docstring).
 STAND_INS = ("postgres", "proxy")
-SECRETS = ("django_secret_key", "postgres_password", "agent_token", "metrics_token")
+SECRETS = (
+    "django_secret_key",
+    "postgres_password",
+    "agent_token",
+    "agent_read_token",
+    "metrics_token",
+)
+# Started only on demand (``--profile monitoring``): not part of this deployment.
+ON_DEMAND = ("prometheus",)
 SEGMENT_S = 3.0
 
 
@@ -204,7 +212,7 @@ def scratch_database() -> Iterator[str]:
 @pytest.fixture
 def deployment(tmp_path: Path, scratch_database: str) -> Iterator[Deployment]:
     compose = _resolved_compose({"DJANGO_ALLOWED_HOSTS": "127.0.0.1"})
-    assert set(compose["services"]) == {"redis", "migrate", *LONG_RUNNING, *STAND_INS}
+    assert set(compose["services"]) == {"redis", "migrate", *LONG_RUNNING, *STAND_INS, *ON_DEMAND}
     assert set(compose["secrets"]) == set(SECRETS)
     deployed = Deployment(compose, tmp_path, scratch_database)
     deployed.secrets.mkdir()

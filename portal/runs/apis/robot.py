@@ -6,14 +6,19 @@ here; their inner fields are the agent's and are described there.
 
 from __future__ import annotations
 
+import json
 import re
+from collections.abc import Mapping
 from datetime import date
 
+from django.core.exceptions import RequestDataTooBig
 from django.shortcuts import get_object_or_404
 from drf_spectacular.utils import OpenApiParameter, extend_schema
 from rest_framework import serializers
+from rest_framework.exceptions import ParseError, UnsupportedMediaType
 from rest_framework.request import Request
 from rest_framework.response import Response
+from rest_framework.throttling import BaseThrottle
 from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS
@@ -26,6 +31,7 @@ from portal.runs.services import robot
 
 AGENT_OBJECT = "As the base station reports it (docs/agent-api.md)."
 NOT_MOBILE = "The resource is not a mobile node (field `resource`), or the input is invalid."
+NOT_MOBILE_RESOURCE = "The resource is not a mobile node (field `resource`)."
 
 
 class RobotDriveInput(serializers.Serializer):
@@ -55,7 +61,36 @@ class RobotDriveInput(serializers.Serializer):
 
 
 class StopInput(serializers.Serializer):
-    reason = serializers.CharField(allow_blank=True, default="", help_text="Audited.")
+    """What the schema shows; a stop reads its body with :func:`stop_input` and is never
+    refused for it."""
+
+    reason = serializers.CharField(
+        allow_blank=True,
+        default="",
+        help_text="Audited whole. Any text of any length, or none: a stop is refused only "
+        "for who asks, never for its body (any other field, or a body that is not JSON, is "
+        "accepted too). The base station keeps the first 200 characters.",
+    )
+
+
+def stop_input(request: Request) -> tuple[str, list[str]]:
+    """The reason of a stop, and the fields it ignored, from whatever body came: the
+    ``reason`` of a JSON (or form) object as text, else the body's own text. Never an error
+    (DESIGN §8: a stop is refused only for authentication)."""
+    try:
+        raw = request.body
+    except RequestDataTooBig:
+        return "", ["body"]
+    try:
+        data = request.data
+    except (ParseError, UnsupportedMediaType):
+        data = None
+    if isinstance(data, Mapping):
+        value = data.get("reason", "")
+        reason = value if isinstance(value, str) else json.dumps(value, ensure_ascii=False)
+        return reason, sorted(str(name) for name in data if name != "reason")
+    text = raw.decode("utf-8", "replace")
+    return text, ["body"] if text.strip() else []
 
 
 class ReleaseInput(serializers.Serializer):
@@ -137,19 +172,23 @@ class RobotDriveApi(APIView):
 
 class RobotStopApi(APIView):
     permission_classes = [StaffMfaRequired]
+    # Never throttled: a stop is refused only for who asks (the throttle counts calls
+    # per user; a stop pressed again and again is a person in a hurry, not abuse).
+    throttle_classes: list[type[BaseThrottle]] = []
 
     @extend_schema(
         request=StopInput,
-        responses={200: RobotStopOutput, **errors(400, 409, 503, e400=NOT_MOBILE)},
+        responses={200: RobotStopOutput, **errors(400, 503, e400=NOT_MOBILE_RESOURCE)},
     )
     def post(self, request: Request, name: str) -> Response:
-        data = valid_input(StopInput, request.data)
+        reason, ignored = stop_input(request)
         return Response(
             robot.robot_stop(
                 resource=_mobile_named(name),
                 by=request_user(request),
                 ip=client_ip(request),
-                **data,
+                reason=reason,
+                ignored=ignored,
             )
         )
 

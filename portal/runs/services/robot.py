@@ -17,6 +17,7 @@ from bookings.models import Resource
 from bookings.rules import velocity_problem
 from core.accounts.models import User
 from core.audit.services import audit_record
+from core.audit.text import storable_text
 from core.cache import database_namespace
 from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 from portal.runs.agents import agent_client_for
@@ -157,19 +158,29 @@ def robot_drive(
 
 
 def robot_stop(
-    *, resource: Resource, by: User, reason: str, ip: str | None = None
+    *,
+    resource: Resource,
+    by: User,
+    reason: str,
+    ip: str | None = None,
+    ignored: list[str] | None = None,
 ) -> dict[str, Any]:
-    """Latch the emergency stop. Anyone admin may; a reason is asked for but never blocks it."""
+    """Latch the emergency stop. Any admin may; the reason (any text, any length, or none)
+    never blocks it: the audit keeps it whole, the base station its first characters.
+
+    ``ignored`` names what the caller sent besides a reason (audited, never refused)."""
     _admin(by)
     _mobile(resource)
     client = agent_client_for(resource)
+    extra: dict[str, Any] = {"ignored": [storable_text(n) for n in ignored]} if ignored else {}
     return _call(
         "robot.stop",
         resource,
         by,
         ip,
         reason,
-        lambda: client.stop(user=by.get_username(), reason=reason or "emergency stop"),
+        lambda: client.stop(user=by.get_username(), reason=reason.strip() or "emergency stop"),
+        **extra,
     )
 
 

@@ -1,0 +1,3 @@
+"""Fixtures of the door attacks: the real agent behind the portal (tests/runs)."""
+
+from tests.runs.conftest import agent  # noqa: F401
