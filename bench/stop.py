@@ -30,9 +30,9 @@ from bench.agent import (
     AgentProcess,
     ClientStats,
     RobotProcess,
-    _percentile,
-    free_udp_port,
 )
+from bench.stack import free_port
+from bench.stats import percentile
 
 TARGET_P95_MS = 50.0
 
@@ -100,7 +100,7 @@ def _timed_stops(url: str, token: str, count: int, gap_s: float) -> list[float]:
 def _measure(
     scratch: Path, token: str, *, stop_threads: int, stops: int, clients: int, hz: float
 ) -> dict[str, Any]:
-    base_port, robot_port = free_udp_port(), free_udp_port()
+    base_port, robot_port = free_port(), free_port()
     robot = RobotProcess(robot_port, base_port)
     try:
         agent = AgentProcess(
@@ -144,7 +144,7 @@ def _measure(
 
 def _row(name: str, times: list[float]) -> str:
     def ms(fraction: float) -> str:
-        value = _percentile(times, fraction)
+        value = percentile(times, fraction)
         return "—" if value is None else f"{value * 1000:.1f}"
 
     worst = max(times) * 1000 if times else float("nan")
@@ -160,7 +160,7 @@ def run(*, stops: int = 200, clients: int = 50, hz: float = 50.0) -> str:
                 Path(scratch), token, stop_threads=stop_threads, stops=stops, clients=clients, hz=hz
             )
     lane, queued = results[2], results[0]
-    p95_ms = (_percentile(lane["loaded"], 0.95) or 0.0) * 1000
+    p95_ms = (percentile(lane["loaded"], 0.95) or 0.0) * 1000
     verdict = "met" if p95_ms <= TARGET_P95_MS else "**not met**"
     return "\n".join(
         [
