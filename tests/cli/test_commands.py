@@ -25,6 +25,8 @@ from amazing_cli.errors import CliError
 from amazing_cli.main import app
 from bookings.models import Reservation, Resource
 from core.accounts.models import ApiToken
+from core.audit.models import AuditEvent
+from portal.runs.models import Run
 from portal.runs.services.booking import booking_create
 from tests.cli.schema_paths import undocumented
 from tests.factories import (
@@ -320,8 +322,16 @@ def test_another_users_run_is_not_found(portal):
         end_at=start + timedelta(minutes=10),
         experiment=ExperimentFactory(owner=other),
     )
+    run_before = Run.objects.filter(pk=theirs.run.pk).values().get()
+    booking_before = Reservation.objects.filter(pk=theirs.pk).values().get()
+    audit_before = list(AuditEvent.objects.order_by("pk").values())
     _one_line_error(amazing("watch", str(theirs.run.pk)), 4)
     _one_line_error(amazing("cancel", str(theirs.run.pk)), 4)
+    _one_line_error(amazing("cancel", "--reservation", str(theirs.pk)), 4)
+    # Refused, and nothing of theirs touched: the run, the booking, the history.
+    assert Run.objects.filter(pk=theirs.run.pk).values().get() == run_before
+    assert Reservation.objects.filter(pk=theirs.pk).values().get() == booking_before
+    assert list(AuditEvent.objects.order_by("pk").values()) == audit_before
 
 
 def test_a_script_retrying_with_its_key_books_once_and_sees_the_portals_status(portal):

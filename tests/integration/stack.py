@@ -14,12 +14,23 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import redis
 from django.conf import settings
 
 from bench import stack as processes
 from bench.stack import METRICS_TOKEN, RedisServer, Stack
 
-__all__ = ["FAULT_ENV", "METRICS_TOKEN", "RedisServer", "Stack", "running_stack"]
+__all__ = [
+    "FAULT_ENV",
+    "METRICS_TOKEN",
+    "PRIVATE_REDIS_STACKS",
+    "RedisServer",
+    "Stack",
+    "running_stack",
+]
+
+# The stacks that outlive a test (one a module) on a Redis server of their own.
+PRIVATE_REDIS_STACKS = ("fault_stack", "live_stack")
 
 
 def _test_database_url() -> str:
@@ -99,3 +110,21 @@ def fault_stack(tmp_path_factory, django_db_setup):
             yield running
     finally:
         server.stop()
+
+
+@pytest.fixture(autouse=True)
+def _fresh_private_cache(request: pytest.FixtureRequest) -> None:
+    """Each test on a stack that outlives it starts with that stack's cache empty, as every
+    other test starts with its own (``tests/conftest.py``): tokens, calendars and robots
+    cached there would otherwise outlive the rows the previous test's end deleted.
+
+    Only ``REDIS_URL``'s database (the cache, and the live bus's marks of what it announced)
+    is flushed. The broker's stays: a worker holds the unacknowledged tasks it is running
+    there, and beat's next ones wait in it; flushing them under the worker would lose them,
+    and what they act on is gone from the tables anyway."""
+    for name in PRIVATE_REDIS_STACKS:
+        if name not in request.fixturenames:
+            continue
+        running: Stack = request.getfixturevalue(name)
+        if running.redis is not None and running.redis.alive:
+            redis.Redis.from_url(running.env["REDIS_URL"]).flushdb()

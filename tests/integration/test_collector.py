@@ -70,6 +70,16 @@ class Listener:
             if message is not None and message["type"] == "message":
                 self.events.append((time.time(), json.loads(message["data"])))
 
+    def drain(self, stack: Stack, last_seq: int) -> None:
+        """Wait until the announcement of ``last_seq`` has been read off the socket: a run
+        counts as completed before its last announcements reach this listener."""
+        wait_for(
+            f"sample {last_seq} announced",
+            stack,
+            lambda: max(self.announced(), default=0) >= last_seq,
+            30,
+        )
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
@@ -95,12 +105,13 @@ def test_samples_reach_the_live_bus_promptly_each_stored_and_announced_once(live
     listener = Listener(live_stack, run_id)
     try:
         run = wait_state(live_stack, run_id, "completed", "interrupted", "failed")
+        assert run.state == "completed", run.reason
+        assert live_stack.agent is not None
+        seqs = assert_same_samples(run_id, live_stack.agent)
+        assert seqs == list(range(1, len(seqs) + 1))
+        listener.drain(live_stack, seqs[-1])
     finally:
         listener.close()
-    assert run.state == "completed", run.reason
-    assert live_stack.agent is not None
-    seqs = assert_same_samples(run_id, live_stack.agent)
-    assert seqs == list(range(1, len(seqs) + 1))
     assert listener.announced() == Counter(seqs)  # every sample announced, once
     # The collector announces what the agent commits as it commits it: many small batches.
     # The sweep (every 4 s here) would bring a 5 s program in two or three; how soon each
@@ -128,10 +139,11 @@ def test_a_collector_killed_mid_run_loses_and_duplicates_nothing(live_stack, rob
         live_stack.start("collector")
         live_stack.wait_ready("collector")
         run = wait_state(live_stack, run_id, "completed", "interrupted", "failed")
+        assert run.state == "completed", run.reason
+        seqs = assert_same_samples(run_id, agent)
+        assert seqs == list(range(1, len(seqs) + 1))
+        assert run.agent_sample_count == len(seqs)
+        listener.drain(live_stack, seqs[-1])
     finally:
         listener.close()
-    assert run.state == "completed", run.reason
-    seqs = assert_same_samples(run_id, agent)
-    assert seqs == list(range(1, len(seqs) + 1))
-    assert run.agent_sample_count == len(seqs)
     assert listener.announced() == Counter(seqs)

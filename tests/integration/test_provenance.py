@@ -125,13 +125,21 @@ def test_the_stored_provenance_is_what_the_robot_and_the_agent_were_started_with
         assert staged["limits"]["max_velocity_mps"] <= 1.5
         assert staged["limits"]["max_accel_mps2"] <= 0.8
         assert collected["started_at"] is not None
-        assert collected["clock_at_start"]["synchronized"] in (True, False, None)
+        # The base station's clock as its loop wrote it when the run started and ended, and
+        # in the state the agent reports now (this machine's clock does not change mid-test).
+        assert stack.agent is not None
+        on_agent = stack.agent.get_run(f"run-{first['id']}")["provenance"]
+        assert collected["clock_at_start"] == on_agent["started"]["clock"]
+        assert collected["clock_at_end"] == on_agent["ended"]["clock"]
         assert set(collected["clock_at_end"]) == {
             "synchronized",
             "offset_s",
             "max_error_s",
             "estimated_error_s",
         }
+        clock_now = stack.agent.status()["clock_sync"]
+        assert collected["clock_at_start"]["synchronized"] == clock_now["synchronized"]
+        assert collected["clock_at_end"]["synchronized"] == clock_now["synchronized"]
         link = collected["link"]
         # One exchange a tick while the run held the robot: every sample, and any lost.
         assert link["answered"] == first["sample_count"] > 40

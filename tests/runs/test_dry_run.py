@@ -15,6 +15,7 @@ from django.db import IntegrityError, transaction
 from django.utils import timezone
 
 from core.errors import InvalidInput
+from portal.runs import tasks
 from portal.runs.models import DryRun
 from portal.runs.selectors import dry_run_report
 from portal.runs.services import dry_run as service
@@ -190,19 +191,28 @@ def test_a_simulator_that_fails_fails_the_dry_run_with_its_reason(kim, monkeypat
     assert dry_run.reason == "The simulator failed: OSError: disk full"
 
 
-def test_the_pages_start_show_and_refuse_as_they_should(kim, client, settings):
-    settings.CELERY_TASK_ALWAYS_EAGER = False
+def test_the_pages_start_show_and_refuse_as_they_should(
+    kim, client, monkeypatch, django_capture_on_commit_callbacks
+):
+    # The page is seen while the dry run waits in line: what starting it queues after the
+    # commit is recorded here, not run.
+    queued: list[tuple[int, ...]] = []
+    monkeypatch.setattr(tasks.dry_run_execute, "delay", lambda *args: queued.append(args))
     MobileResourceFactory(max_velocity_mps=0.4)
     client.force_login(kim)
     too_fast = ExperimentFactory(owner=kim, segments=PROGRAM)
-    answer = client.post(f"/experiments/{too_fast.pk}/dry-run/", follow=True)
+    with django_capture_on_commit_callbacks(execute=True):
+        answer = client.post(f"/experiments/{too_fast.pk}/dry-run/", follow=True)
     assert answer.redirect_chain == [(f"/experiments/{too_fast.pk}/", 302)]
     assert "Not tried: Segment 1 is faster than the robots allow" in answer.content.decode()
     assert not DryRun.objects.exists()
+    assert queued == []
 
     slow = ExperimentFactory(owner=kim, segments=[dict(PROGRAM[1])])
-    answer = client.post(f"/experiments/{slow.pk}/dry-run/")
+    with django_capture_on_commit_callbacks(execute=True):
+        answer = client.post(f"/experiments/{slow.pk}/dry-run/")
     dry_run = DryRun.objects.get()
+    assert queued == [(dry_run.pk,)]
     assert answer.headers["Location"] == f"/dry-runs/{dry_run.pk}/"
     page = client.get(f"/dry-runs/{dry_run.pk}/").content.decode()
     assert "simulated" in page

@@ -272,23 +272,38 @@ def test_the_sweep_waits_for_a_bookings_mirror_of_the_leases_to_commit(linked, s
         account_attributes={"name": "someone"},
     )
     mirrored, release, swept = threading.Event(), threading.Event(), threading.Event()
+    sweep_connected = threading.Event()
+    # Each thread's database backend: the server is shared with other tests' databases, whose
+    # own advisory locks must not count as this sweep waiting.
+    backend_pid: dict[str, int] = {}
+
+    def own_backend_pid() -> int:
+        with connection.cursor() as cursor:
+            cursor.execute("SELECT pg_backend_pid()")
+            return int(cursor.fetchone()[0])
 
     def booking() -> None:
         with transaction.atomic():
+            backend_pid["booking"] = own_backend_pid()
             leases.leases_refresh(start_at=slot[0], end_at=slot[1])
             mirrored.set()
             release.wait(30)
         connection.close()
 
     def sweep() -> None:
+        backend_pid["sweep"] = own_backend_pid()
+        sweep_connected.set()
         leases.scheduler_sweep()
         swept.set()
         connection.close()
 
     def sweep_waiting() -> bool:
+        """The sweep's backend waits for an advisory lock the booking's backend holds."""
         with connection.cursor() as cursor:
             cursor.execute(
                 "SELECT count(*) FROM pg_locks WHERE locktype = 'advisory' AND NOT granted"
+                " AND pid = %s AND %s = ANY(pg_blocking_pids(pid))",
+                [backend_pid["sweep"], backend_pid["booking"]],
             )
             return bool(cursor.fetchone()[0])
 
@@ -297,6 +312,7 @@ def test_the_sweep_waits_for_a_bookings_mirror_of_the_leases_to_commit(linked, s
     try:
         assert mirrored.wait(30)
         threads[1].start()
+        assert sweep_connected.wait(30)
         deadline = time.monotonic() + 30
         while not sweep_waiting():
             assert not swept.is_set(), "the sweep mirrored while the booking's mirror stood"
