@@ -41,6 +41,7 @@ from rest_framework.views import exception_handler as drf_exception_handler
 from core.accounts.models import User
 from core.cache import Generation, cached_answer
 from core.errors import DomainError
+from core.http import client_address
 
 INVALID_DETAIL = "The request has invalid fields."
 NUL_MESSAGE = "Null characters are not allowed."
@@ -434,6 +435,11 @@ class _WindowCounter:
 
     def wait(self) -> float | None:
         return max(1.0, self._wait_s)
+
+    def get_ident(self, request: Request) -> str:
+        # The client as the proxies of ours saw it, never DRF's reading of a header the
+        # client wrote (core.http.client_address).
+        return client_address(request) or ""
 
 
 class AnonymousThrottle(_WindowCounter, AnonRateThrottle):

@@ -221,6 +221,16 @@ ACCOUNT_ADAPTER = "core.accounts.adapter.AccountAdapter"
 ACCOUNT_RATE_LIMITS: dict[str, str] | bool = (
     False if DEBUG else {"login_failed": "10/m/ip,5/5m/key", "reset_password": "20/m/ip,5/m/key"}
 )
+# How many proxies of ours stand in front of the web server, each appending the address it
+# saw to X-Forwarded-For (docker-compose.yml: 1, its nginx). 0: the peer's own address
+# (REMOTE_ADDR) is the client's, and X-Forwarded-For is ignored. The client's address is the
+# entry that many places from the right (core/http.py client_address); the entries left of
+# it are the client's own word. The sign-in limits, the API throttles and the audit rows all
+# take it from there.
+TRUSTED_PROXY_COUNT = env.int("TRUSTED_PROXY_COUNT", default=0)
+if TRUSTED_PROXY_COUNT < 0:
+    raise ImproperlyConfigured(f"TRUSTED_PROXY_COUNT={TRUSTED_PROXY_COUNT}: give 0 or more")
+ALLAUTH_TRUSTED_PROXY_COUNT = TRUSTED_PROXY_COUNT
 # A session lasts this long from its sign-in, then the person signs in again.
 SESSION_COOKIE_AGE = env.int("SESSION_AGE_S", default=12 * 3600)
 # TOTP and its recovery codes. Staff must have one before any robot control, approval or
@@ -408,6 +418,7 @@ REST_FRAMEWORK = {
     ],
     "DEFAULT_PERMISSION_CLASSES": ["rest_framework.permissions.IsAuthenticated"],
     "DEFAULT_THROTTLE_CLASSES": ["core.api.AnonymousThrottle", "core.api.UserThrottle"],
+    "NUM_PROXIES": TRUSTED_PROXY_COUNT,
     "DEFAULT_PARSER_CLASSES": ["rest_framework.parsers.JSONParser"],
     "DEFAULT_RENDERER_CLASSES": [
         "rest_framework.renderers.JSONRenderer",
