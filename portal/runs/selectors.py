@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import csv
 import io
 import json
 from collections.abc import Iterator
@@ -13,7 +12,7 @@ from django.core.cache import cache
 from django.db import connection
 from django.db.models import FloatField, Func, Max, QuerySet
 
-from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS
+from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS, CsvWriter
 from bookings.models import PeriodQuerySet, Reservation
 from bookings.rules import velocity_limit
 from bookings.selectors import mobiles_bookable, reservations_visible
@@ -92,6 +91,20 @@ _PG_TIME = (
     "rpad(replace(({0} AT TIME ZONE 'UTC')::text, ' ', 'T') "
     "|| CASE WHEN {0} = date_trunc('second', {0}) THEN '.' ELSE '' END, 26, '0') || 'Z'"
 )
+# A text column of the CSV that COPY writes, escaped as basestation.contract.csv_cell does
+# (an apostrophe before a formula's first character): the agent's values are checked at
+# ingest, but a spreadsheet must not run one that got through.
+_PG_CSV_TEXT = (
+    "CASE WHEN left({0}, 1) IN ('=', '+', '-', '@', chr(9), chr(13)) THEN '''' || {0} ELSE {0} END"
+)
+_PG_CSV_COLUMNS = ", ".join(
+    _PG_TIME.format(column.name)
+    if column.name == "t"
+    else _PG_CSV_TEXT.format(column.name)
+    if column.kind == "text"
+    else column.name
+    for column in SAMPLE_COLUMNS
+)
 
 
 def _pg_json_values() -> tuple[str, list[bytes]]:
@@ -168,15 +181,14 @@ def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[bytes]:
     """
     yield (",".join(SAMPLE_FIELDS) + "\r\n").encode()
     if connection.vendor == "postgresql":
-        columns = ", ".join(_PG_TIME.format(f) if f == "t" else f for f in SAMPLE_FIELDS)
-        yield from _copy_out(_samples_copy_query(run, columns, "WITH (FORMAT csv)"))
+        yield from _copy_out(_samples_copy_query(run, _PG_CSV_COLUMNS, "WITH (FORMAT csv)"))
         return
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=SAMPLE_FIELDS)
+    writer = CsvWriter(buffer)
     qs = Sample.objects.filter(run=run).order_by("seq").values(*SAMPLE_FIELDS)
     for i, row in enumerate(qs.iterator(chunk_size=chunk_rows), start=1):
         row["t"] = row["t"].astimezone(UTC).strftime(CSV_TIME_FORMAT)
-        writer.writerow(row)
+        writer.writerow(row[f] for f in SAMPLE_FIELDS)
         if i % chunk_rows == 0:
             yield buffer.getvalue().encode()
             buffer.seek(0)

@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable
 from datetime import date, datetime, time, timedelta
 from functools import wraps
@@ -19,6 +18,7 @@ from django.utils import timezone
 from django.utils.dateparse import parse_datetime
 from django.views.decorators.cache import never_cache
 
+from basestation.contract import CsvWriter
 from bookings.calendar import (
     calendar_entries,
     calendar_feed_for,
@@ -556,7 +556,7 @@ def usage_report(request: HttpRequest) -> HttpResponse:
     if request.GET.get("format") == "csv":
         response = HttpResponse(content_type="text/csv; charset=utf-8")
         response["Content-Disposition"] = f'attachment; filename="usage-{by}-{first}-{last}.csv"'
-        writer = csv.writer(response)
+        writer = CsvWriter(response)
         writer.writerow([by, "hours", "reservations"])
         writer.writerows(rows)
         return response
