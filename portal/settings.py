@@ -408,6 +408,11 @@ def _throttle_rate(name: str, default: str) -> str | None:
 # API throttles (core/api.py): anonymous clients per address, authenticated ones per user.
 API_THROTTLE_ANON = _throttle_rate("API_THROTTLE_ANON", "60/minute")
 API_THROTTLE_USER = _throttle_rate("API_THROTTLE_USER", "50/second")
+# A run's downloads (CSV, JSON, zip) each hold a database cursor and a server thread to the
+# last byte: at most this many in flight per user (per address without one), then 429.
+DOWNLOADS_IN_FLIGHT_MAX = env.int("DOWNLOADS_IN_FLIGHT_MAX", default=3)
+# A slot a killed process never gave back frees itself after this long.
+DOWNLOAD_SLOT_S = env.int("DOWNLOAD_SLOT_S", default=900)
 
 REST_FRAMEWORK = {
     # The token first: a request without credentials is told how to authenticate (401 with

@@ -19,11 +19,14 @@ from bookings.selectors import mobiles_bookable, reservations_visible
 from core.accounts.models import User
 from core.cache import database_namespace
 from portal.runs.analysis import (
+    RailTrack,
     RunAnalysis,
     SampleColumns,
     SampleRow,
     analyse_columns,
     chart_series,
+    passes_at,
+    rail_track,
 )
 from portal.runs.models import DryRun, Run, Sample
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
@@ -210,6 +213,8 @@ class RunReport:
     analysis: RunAnalysis
     series: dict[str, dict[str, list[float]]]
     first_at: datetime | None
+    # Passes at any position are found from it (report_with_passes), not by a new report.
+    track: RailTrack | None = None
 
 
 class EpochSeconds(Func):
@@ -336,11 +341,26 @@ def run_report(
     """Everything the run page shows, from one ordered read of the samples.
 
     Served from the cache while nothing it depends on changed; ``cached=False`` computes it
-    afresh (and stores nothing). Raises ``ValueError`` (with a message for the user) for a
-    position off the rail.
+    afresh (and stores nothing). The passes at ``pass_at_m`` are not part of what is cached:
+    they are found from the cached report's track, so a viewer trying positions costs no
+    new report and adds nothing to the cache. Raises ``ValueError`` (with a message for the
+    user) for a position off the rail.
     """
     if not cached:
         return _run_report_computed(run, pass_at_m, max_points)
+    report = _run_report_cached(run, max_points)
+    return report if pass_at_m is None else report_with_passes(report, pass_at_m)
+
+
+def report_with_passes(report: RunReport, pass_at_m: float) -> RunReport:
+    """``report`` with its passes at ``pass_at_m`` (``ValueError`` for a position off the
+    rail, or a run without the rail length)."""
+    passes = passes_at(report.track, pass_at_m, rail_length_m=report.analysis.rail_length_m)
+    analysis = replace(report.analysis, pass_at_m=pass_at_m, passes=passes)
+    return replace(report, analysis=analysis)
+
+
+def _run_report_cached(run: Run, max_points: int) -> RunReport:
     final = run.state not in RUN_ACTIVE_STATES and run.state != RunState.SCHEDULED
     # created_at tells this run from one with the same id in the same database (a restore).
     identity: tuple[object, ...] = (
@@ -354,11 +374,11 @@ def run_report(
         # While samples arrive (a gap may be filled below last_seq), their count says whether
         # anything changed: every viewer's poll then costs one count, not a recomputation.
         identity += (Sample.objects.filter(run=run).count(),)
-    key = f"run-report:{database_namespace()}:{identity}:{pass_at_m}:{max_points}".replace(" ", "")
+    key = f"run-report:v2:{database_namespace()}:{identity}:{max_points}".replace(" ", "")
     hit = cache.get(key)
     if isinstance(hit, RunReport):
         return hit
-    report = _run_report_computed(run, pass_at_m, max_points)
+    report = _run_report_computed(run, None, max_points)
     cache.set(key, report, REPORT_CACHE_S if final else LIVE_REPORT_CACHE_S)
     return report
 
@@ -371,7 +391,7 @@ def _run_report_computed(run: Run, pass_at_m: float | None, max_points: int) -> 
     series = chart_series(
         columns, segments=run.segments, rail_length_m=run.rail_length_m, max_points=max_points
     )
-    return RunReport(analysis, series, first_at)
+    return RunReport(analysis, series, first_at, rail_track(columns, run.rail_length_m))
 
 
 def dry_run_report(

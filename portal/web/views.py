@@ -36,6 +36,7 @@ from core.accounts.mfa import mfa_enabled, mfa_setup_redirect, needs_mfa_setup
 from core.accounts.models import User
 from core.accounts.selectors import api_tokens_of
 from core.accounts.services import api_token_create, api_token_revoke
+from core.api import page_throttled
 from core.audit.services import client_ip
 from core.errors import DomainError
 from core.health import health
@@ -241,6 +242,7 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     }
 
 
+@page_throttled
 @login_required
 def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
@@ -275,12 +277,14 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
     return redirect("run", pk=again.pk)
 
 
+@page_throttled
 @login_required
 def run_package(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
     return run_package_response(request, run)
 
 
+@page_throttled
 @login_required
 def run_data(request: HttpRequest, pk: int) -> JsonResponse:
     """What the run page's charts, status and tables need, polled while the run is live."""
@@ -302,12 +306,14 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
     )
 
 
+@page_throttled
 @login_required
 def run_json(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
     return samples_json_response(request, run)
 
 
+@page_throttled
 @login_required
 def run_csv(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
