@@ -359,6 +359,8 @@ SCHEDULER_ORPHAN_GRACE_S = env.float("SCHEDULER_ORPHAN_GRACE_S", default=120.0)
 DRY_RUN_SLOTS = env.int("DRY_RUN_SLOTS", default=2)
 DRY_RUN_MAX_WAITING = env.int("DRY_RUN_MAX_WAITING", default=3)
 DRY_RUN_STALE_S = env.float("DRY_RUN_STALE_S", default=300.0)
+# A finished dry run and its samples are deleted this long after it ended (hourly task).
+DRY_RUN_KEEP_S = env.float("DRY_RUN_KEEP_S", default=30 * 24 * 3600.0)
 # A run not on its base station by this long after its start fails (its owner is told).
 RUN_START_GRACE_S = env.float("RUN_START_GRACE_S", default=60.0)
 # How long after a run's end its base station may stay unreachable, or keep samples back,
@@ -386,6 +388,10 @@ CELERY_BEAT_SCHEDULE = {
         "schedule": HEALTH_POLL_INTERVAL_S,
     },
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
+    "dry-runs-delete-expired": {
+        "task": "portal.runs.tasks.dry_runs_delete_expired",
+        "schedule": 3600.0,
+    },
     "idempotency-keys-delete-expired": {
         "task": "core.audit.tasks.idempotency_keys_delete_expired",
         "schedule": 3600.0,
