@@ -44,6 +44,23 @@ def client_address(request: HttpRequest | Any) -> str | None:
         return None
 
 
+# URL arguments that are secrets (a calendar feed's token, its only key): the access line
+# writes them as REDACTED. deploy/nginx.conf's log format does the same for the proxy's log.
+SECRET_URL_ARGUMENTS = frozenset({"token"})
+REDACTED = "[redacted]"
+
+
+def loggable_path(request: HttpRequest) -> str:
+    """The request's path with any secret URL argument replaced by ``REDACTED``."""
+    path = request.path
+    match = request.resolver_match
+    if match is not None:
+        for name, value in match.kwargs.items():
+            if name in SECRET_URL_ARGUMENTS and isinstance(value, str) and value:
+                path = path.replace(value, REDACTED)
+    return path
+
+
 class RequestIdMiddleware:
     """Runs each request under a request id: the caller's ``X-Request-ID`` (a proxy's) when it
     is a plain token, else a new one. Every log line of the request names it, the agent
@@ -61,14 +78,15 @@ class RequestIdMiddleware:
             response[REQUEST_ID_HEADER] = request_id
             if self.access_log:
                 match = request.resolver_match
+                path = loggable_path(request)
                 access_log.info(
                     "%s %s %s",
                     request.method,
-                    request.path,
+                    path,
                     response.status_code,
                     extra={
                         "method": request.method,
-                        "path": request.path,
+                        "path": path,
                         "status": response.status_code,
                         "view": match.view_name if match is not None else None,
                         "duration_ms": round((time.perf_counter() - started_s) * 1000, 1),
