@@ -11,13 +11,14 @@ downloads.
 
 from __future__ import annotations
 
+import csv
 import math
 import operator
 import re
 import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Final, Literal
+from typing import Any, Final, Literal, Protocol
 
 # --- Programs -------------------------------------------------------------------------------
 
@@ -364,3 +365,44 @@ def request_id_or_new(value: str | None) -> str:
     if value is not None and _REQUEST_ID.fullmatch(value):
         return value
     return new_request_id()
+
+
+# --- CSV ------------------------------------------------------------------------------------
+
+# A spreadsheet runs a cell that starts with one of these as a formula (=HYPERLINK(…) opens
+# a link, DDE calls run commands): a text cell so written gets a leading apostrophe, which
+# the spreadsheet shows as text. Numbers are written as numbers (a negative velocity stays
+# a number), so only ``str`` cells are looked at.
+CSV_FORMULA_PREFIXES: Final = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value: object) -> object:
+    """One cell as every CSV of the portal and the agent writes it: None empty, a text that
+    a spreadsheet would take for a formula escaped, anything else as it is."""
+    if value is None:
+        return ""
+    if isinstance(value, str) and value.startswith(CSV_FORMULA_PREFIXES):
+        return "'" + value
+    return value
+
+
+class _Writable(Protocol):
+    def write(self, text: str, /) -> Any: ...
+
+
+class CsvWriter:
+    """The one CSV writer of the portal and the agent (``csv.writer`` with ``csv_cell`` on
+    every cell). The one CSV it does not write, the samples that PostgreSQL's ``COPY … CSV``
+    writes, escapes its text columns the same way in SQL (``portal/runs/selectors.py``)."""
+
+    def __init__(self, stream: _Writable) -> None:
+        # RFC 4180's CRLF: a cell holding a CR or an LF is quoted (with LF alone as the line
+        # end, a CR in a title went out bare and began a new row in a spreadsheet).
+        self._writer = csv.writer(stream, lineterminator="\r\n")
+
+    def writerow(self, row: Iterable[object]) -> None:
+        self._writer.writerow([csv_cell(value) for value in row])
+
+    def writerows(self, rows: Iterable[Iterable[object]]) -> None:
+        for row in rows:
+            self.writerow(row)

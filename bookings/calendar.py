@@ -6,6 +6,7 @@ busy. Maintenance windows are shown to all.
 
 from __future__ import annotations
 
+import hashlib
 import secrets
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -124,19 +125,36 @@ def _lease_entries(start_at: datetime, end_at: datetime, resource: Resource | No
     return entries
 
 
-def calendar_feed_for(user: User) -> CalendarFeed:
-    feed, _ = CalendarFeed.objects.get_or_create(
-        user=user, defaults={"token": secrets.token_urlsafe(32)}
+def feed_token_digest(token: str) -> str:
+    """What is kept of a feed's secret. Plain SHA-256: the secret is 256 random bits, so
+    nothing is gained by a slow or salted hash, and a lookup stays one indexed query."""
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def calendar_feed_of(user: User) -> CalendarFeed | None:
+    return CalendarFeed.objects.filter(user=user).first()
+
+
+def calendar_feed_renew(*, user: User) -> str:
+    """A new secret, returned once (only its digest is kept): every URL with the old one
+    stops working at once."""
+    token = secrets.token_urlsafe(32)
+    CalendarFeed.objects.update_or_create(
+        user=user, defaults={"token_digest": feed_token_digest(token)}
     )
-    return feed
+    return token
 
 
-def calendar_feed_renew(*, user: User) -> CalendarFeed:
-    """A new secret: every URL with the old one stops working at once."""
-    feed = calendar_feed_for(user)
-    feed.token = secrets.token_urlsafe(32)
-    feed.save(update_fields=["token", "created_at"])
-    return feed
+def calendar_feed_user(token: str) -> User | None:
+    """The active user whose feed ``token`` opens, if any."""
+    feed = (
+        CalendarFeed.objects.filter(token_digest=feed_token_digest(token))
+        .select_related("user")
+        .first()
+    )
+    if feed is None or not feed.user.is_active:
+        return None
+    return feed.user
 
 
 def ical_document(entries: list[Entry], *, name: str, stamp: datetime) -> bytes:

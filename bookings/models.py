@@ -399,12 +399,16 @@ class QuotaPolicy(models.Model):
 
 
 class CalendarFeed(models.Model):
-    """The secret in a user's iCalendar feed URLs. Renewing it revokes the old URLs."""
+    """The secret in a user's iCalendar feed URLs. Renewing it revokes the old URLs.
+
+    Only the secret's SHA-256 is kept (``bookings.calendar.feed_token_digest``): the
+    addresses are shown once, when made, and a copy of the database opens no feed.
+    """
 
     user = models.OneToOneField(
         settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="calendar_feed"
     )
-    token = models.CharField(max_length=64, unique=True)
+    token_digest = models.CharField(max_length=64, unique=True)
     created_at = models.DateTimeField(auto_now=True)
 
     def __str__(self) -> str:

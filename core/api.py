@@ -14,10 +14,12 @@ must be spelled as the schema's type (``1.0`` is not an integer).
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from collections.abc import Callable, Mapping
 from datetime import datetime
+from functools import wraps
 from typing import Any
 
 from django.conf import settings
@@ -27,6 +29,7 @@ from django.core.exceptions import PermissionDenied as DjangoPermissionDenied
 from django.core.exceptions import RequestDataTooBig
 from django.core.exceptions import ValidationError as DjangoValidationError
 from django.http import Http404, HttpRequest, HttpResponse, JsonResponse, QueryDict
+from django.http.response import HttpResponseBase
 from django.views.decorators.csrf import csrf_exempt
 from rest_framework import exceptions, serializers
 from rest_framework.pagination import LimitOffsetPagination
@@ -40,7 +43,8 @@ from rest_framework.views import exception_handler as drf_exception_handler
 
 from core.accounts.models import User
 from core.cache import Generation, cached_answer
-from core.errors import DomainError
+from core.errors import Busy, DomainError
+from core.http import client_address
 
 INVALID_DETAIL = "The request has invalid fields."
 NUL_MESSAGE = "Null characters are not allowed."
@@ -119,7 +123,10 @@ def body_too_large_detail() -> str:
 
 def exception_handler(exc: Exception, context: dict[str, Any]) -> Response | None:
     if isinstance(exc, DomainError):
-        return Response(error_body(exc.code, exc.message, exc.fields), status=exc.http_status)
+        answer = Response(error_body(exc.code, exc.message, exc.fields), status=exc.http_status)
+        if isinstance(exc, Busy):
+            answer["Retry-After"] = str(exc.retry_after_s)
+        return answer
     if isinstance(exc, RequestDataTooBig):
         # Django would answer its HTML 400 page; the limit is DATA_UPLOAD_MAX_MEMORY_SIZE,
         # checked against the declared length before the body is read.
@@ -435,6 +442,11 @@ class _WindowCounter:
     def wait(self) -> float | None:
         return max(1.0, self._wait_s)
 
+    def get_ident(self, request: Request) -> str:
+        # The client as the proxies of ours saw it, never DRF's reading of a header the
+        # client wrote (core.http.client_address).
+        return client_address(request) or ""
+
 
 class AnonymousThrottle(_WindowCounter, AnonRateThrottle):
     """Requests without valid credentials, per client address (``API_THROTTLE_ANON``).
@@ -452,6 +464,31 @@ class UserThrottle(_WindowCounter, UserRateThrottle):
 
     def get_rate(self) -> str | None:
         return settings.API_THROTTLE_USER
+
+
+def _too_many(wait_s: float, detail: str) -> JsonResponse:
+    answer = JsonResponse(error_body("throttled", detail), status=429)
+    answer["Retry-After"] = str(max(1, math.ceil(wait_s)))
+    return answer
+
+
+def page_throttled(view: Callable[..., HttpResponseBase]) -> Callable[..., HttpResponseBase]:
+    """A page route or download counted as the API's requests are: the same throttles and
+    rates (``API_THROTTLE_ANON`` per client address, ``API_THROTTLE_USER`` per user), the
+    same buckets, so a page is no way around the API's limits. Over the limit, or with too
+    many downloads in flight (``Busy``), the answer is 429 with ``Retry-After``."""
+
+    @wraps(view)
+    def wrapper(request: HttpRequest, *args: Any, **kwargs: Any) -> HttpResponseBase:
+        for throttle in (AnonymousThrottle(), UserThrottle()):
+            if not throttle.allow_request(request, None):  # type: ignore[arg-type]
+                return _too_many(throttle.wait() or 1.0, "Request was throttled.")
+        try:
+            return view(request, *args, **kwargs)
+        except Busy as exc:
+            return _too_many(exc.retry_after_s, exc.message)
+
+    return wrapper
 
 
 # --- Pagination -----------------------------------------------------------------------------

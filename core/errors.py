@@ -32,3 +32,15 @@ class Conflict(DomainError):
 class NotAllowed(DomainError):
     http_status = 403
     code = "forbidden"
+
+
+class Busy(DomainError):
+    """Too much at once from one client (downloads in flight): 429, try again after
+    ``retry_after_s`` (the ``Retry-After`` header)."""
+
+    http_status = 429
+    code = "throttled"
+
+    def __init__(self, message: str, *, retry_after_s: int) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s

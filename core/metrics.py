@@ -43,6 +43,15 @@ LATENCY = Histogram(
 )
 
 
+# The method label's values: a client may send any token as its method, and each new label
+# value is a new series kept for good, so the rest count as "other".
+HTTP_METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"})
+
+
+def method_label(method: str | None) -> str:
+    return method if method in HTTP_METHODS else "other"
+
+
 class RequestMetricsMiddleware:
     """Counts and times every answer by the view that gave it (its URL name: bounded, unlike
     paths with ids in them); unmatched paths count as one ``unmatched`` view."""
@@ -56,7 +65,8 @@ class RequestMetricsMiddleware:
         match = request.resolver_match
         view = (match.view_name or "unnamed") if match is not None else "unmatched"
         LATENCY.labels(view).observe(time.perf_counter() - started_s)
-        REQUESTS.labels(view, request.method or "", f"{response.status_code // 100}xx").inc()
+        status = f"{response.status_code // 100}xx"
+        REQUESTS.labels(view, method_label(request.method), status).inc()
         return response
 
 

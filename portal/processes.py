@@ -83,6 +83,8 @@ def streams_process(
     (``LIVE_STREAM_PORT``) or through a proxy on their own origin."""
     argv = [python, "-m", "uvicorn", "portal.asgi:application", "--host", host]
     argv += ["--port", str(port), "--timeout-graceful-shutdown", str(STREAMS_GRACEFUL_SHUTDOWN_S)]
+    # The client's address is the portal's to read (TRUSTED_PROXY_COUNT), not the server's.
+    argv.append("--no-proxy-headers")
     if not access_log:
         argv.append("--no-access-log")
     return ProcessSpec("streams", tuple(argv))

@@ -221,6 +221,16 @@ ACCOUNT_ADAPTER = "core.accounts.adapter.AccountAdapter"
 ACCOUNT_RATE_LIMITS: dict[str, str] | bool = (
     False if DEBUG else {"login_failed": "10/m/ip,5/5m/key", "reset_password": "20/m/ip,5/m/key"}
 )
+# How many proxies of ours stand in front of the web server, each appending the address it
+# saw to X-Forwarded-For (docker-compose.yml: 1, its nginx). 0: the peer's own address
+# (REMOTE_ADDR) is the client's, and X-Forwarded-For is ignored. The client's address is the
+# entry that many places from the right (core/http.py client_address); the entries left of
+# it are the client's own word. The sign-in limits, the API throttles and the audit rows all
+# take it from there.
+TRUSTED_PROXY_COUNT = env.int("TRUSTED_PROXY_COUNT", default=0)
+if TRUSTED_PROXY_COUNT < 0:
+    raise ImproperlyConfigured(f"TRUSTED_PROXY_COUNT={TRUSTED_PROXY_COUNT}: give 0 or more")
+ALLAUTH_TRUSTED_PROXY_COUNT = TRUSTED_PROXY_COUNT
 # A session lasts this long from its sign-in, then the person signs in again.
 SESSION_COOKIE_AGE = env.int("SESSION_AGE_S", default=12 * 3600)
 # TOTP and its recovery codes. Staff must have one before any robot control, approval or
@@ -349,6 +359,8 @@ SCHEDULER_ORPHAN_GRACE_S = env.float("SCHEDULER_ORPHAN_GRACE_S", default=120.0)
 DRY_RUN_SLOTS = env.int("DRY_RUN_SLOTS", default=2)
 DRY_RUN_MAX_WAITING = env.int("DRY_RUN_MAX_WAITING", default=3)
 DRY_RUN_STALE_S = env.float("DRY_RUN_STALE_S", default=300.0)
+# A finished dry run and its samples are deleted this long after it ended (hourly task).
+DRY_RUN_KEEP_S = env.float("DRY_RUN_KEEP_S", default=30 * 24 * 3600.0)
 # A run not on its base station by this long after its start fails (its owner is told).
 RUN_START_GRACE_S = env.float("RUN_START_GRACE_S", default=60.0)
 # How long after a run's end its base station may stay unreachable, or keep samples back,
@@ -376,6 +388,10 @@ CELERY_BEAT_SCHEDULE = {
         "schedule": HEALTH_POLL_INTERVAL_S,
     },
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
+    "dry-runs-delete-expired": {
+        "task": "portal.runs.tasks.dry_runs_delete_expired",
+        "schedule": 3600.0,
+    },
     "idempotency-keys-delete-expired": {
         "task": "core.audit.tasks.idempotency_keys_delete_expired",
         "schedule": 3600.0,
@@ -398,6 +414,11 @@ def _throttle_rate(name: str, default: str) -> str | None:
 # API throttles (core/api.py): anonymous clients per address, authenticated ones per user.
 API_THROTTLE_ANON = _throttle_rate("API_THROTTLE_ANON", "60/minute")
 API_THROTTLE_USER = _throttle_rate("API_THROTTLE_USER", "50/second")
+# A run's downloads (CSV, JSON, zip) each hold a database cursor and a server thread to the
+# last byte: at most this many in flight per user (per address without one), then 429.
+DOWNLOADS_IN_FLIGHT_MAX = env.int("DOWNLOADS_IN_FLIGHT_MAX", default=3)
+# A slot a killed process never gave back frees itself after this long.
+DOWNLOAD_SLOT_S = env.int("DOWNLOAD_SLOT_S", default=900)
 
 REST_FRAMEWORK = {
     # The token first: a request without credentials is told how to authenticate (401 with
@@ -408,6 +429,7 @@ REST_FRAMEWORK = {
     ],
     "DEFAULT_PERMISSION_CLASSES": ["rest_framework.permissions.IsAuthenticated"],
     "DEFAULT_THROTTLE_CLASSES": ["core.api.AnonymousThrottle", "core.api.UserThrottle"],
+    "NUM_PROXIES": TRUSTED_PROXY_COUNT,
     "DEFAULT_PARSER_CLASSES": ["rest_framework.parsers.JSONParser"],
     "DEFAULT_RENDERER_CLASSES": [
         "rest_framework.renderers.JSONRenderer",

@@ -8,7 +8,6 @@ system: anything but a valid ``YYYY-MM-DD`` is refused before a query is built.
 
 from __future__ import annotations
 
-import csv
 import io
 import re
 from datetime import UTC, date, datetime, timedelta
@@ -17,6 +16,7 @@ from flask import Blueprint, Response, jsonify, request
 from flask.typing import ResponseReturnValue
 
 from basestation.api.errors import invalid_response
+from basestation.contract import CsvWriter
 from basestation.runtime import get_runtime
 
 bp = Blueprint("logs", __name__)
@@ -44,10 +44,10 @@ def day_log(day: str) -> ResponseReturnValue:
     wants = request.accept_mimetypes.best_match(["application/json", "text/csv"])
     if wants == "text/csv":
         buffer = io.StringIO()
-        writer = csv.writer(buffer, lineterminator="\n")
+        writer = CsvWriter(buffer)
         writer.writerow(LOG_CSV_COLUMNS)
         for row in rows:
-            writer.writerow(["" if row[c] is None else row[c] for c in LOG_CSV_COLUMNS])
+            writer.writerow([row[c] for c in LOG_CSV_COLUMNS])
         response = Response(buffer.getvalue(), mimetype="text/csv")
     else:
         response = jsonify({"date": parsed.isoformat(), "timezone": "UTC", "entries": rows})

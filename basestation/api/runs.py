@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import io
 import re
 import time
@@ -13,7 +12,7 @@ from flask.typing import ResponseReturnValue
 
 from basestation.api.bodies import json_body
 from basestation.api.errors import invalid_response
-from basestation.contract import SAMPLE_FIELDS
+from basestation.contract import SAMPLE_FIELDS, CsvWriter
 from basestation.errors import RunNotFound
 from basestation.program import FieldErrors
 from basestation.runtime import get_runtime
@@ -124,7 +123,7 @@ def get_samples(run_id: str) -> ResponseReturnValue:
     wants = request.accept_mimetypes.best_match(["application/json", "text/csv"])
     if wants == "text/csv":
         buffer = io.StringIO()
-        writer = csv.writer(buffer, lineterminator="\n")
+        writer = CsvWriter(buffer)
         writer.writerow(SAMPLE_CSV_COLUMNS)
         for sample in samples:
             writer.writerow(sample.values())

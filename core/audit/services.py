@@ -8,14 +8,15 @@ from django.http import HttpRequest
 from core.accounts.models import User
 from core.audit.models import AuditEvent
 from core.audit.text import storable_text
+from core.http import client_address
 
 
 def client_ip(request: HttpRequest | Any | None) -> str | None:
-    """The client's address as the web server saw it (the proxy sets REMOTE_ADDR)."""
+    """The client's address for an audit row: ``core.http.client_address``, the same as the
+    sign-in limits and the throttles count by."""
     if request is None:
         return None
-    meta = getattr(request, "META", {})
-    return meta.get("REMOTE_ADDR") or None
+    return client_address(request)
 
 
 def audit_record(

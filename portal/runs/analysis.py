@@ -478,11 +478,47 @@ def _laps_and_passes(
         end_s = float(t[i - 1] + fraction * (t[i] - t[i - 1]))
         start_s = result.laps[-1].end_s if result.laps else first_t_s
         result.laps.append(Lap(len(result.laps) + 1, start_s, end_s, length_m))
-    if pass_at_m is None:
-        return moved
+    if pass_at_m is not None:
+        rail = RailTrack(t, unwrapped, columns.velocity_mps, length_m)
+        result.passes = passes_at(rail, pass_at_m, rail_length_m=length_m)
+    return moved
+
+
+@dataclass(frozen=True)
+class RailTrack:
+    """What passes at a position are found from: the sample times, the unwrapped along-track
+    positions and the speeds. Kept with a run's cached report, so that passes at any
+    position cost one pass over three arrays, not a new report."""
+
+    t_s: np.ndarray
+    unwrapped_m: np.ndarray
+    velocity_mps: np.ndarray
+    length_m: float
+
+
+def rail_track(columns: SampleColumns, rail_length_m: float | None) -> RailTrack | None:
+    """The run's track for :func:`passes_at`; None without samples or the rail length."""
+    if rail_length_m is None or len(columns) == 0:
+        return None
+    _check_rail(rail_length_m, None)
+    track = columns.track_m % rail_length_m
+    steps = _wrap(np.diff(track), rail_length_m)
+    unwrapped = np.cumsum(np.concatenate(([track[0]], steps)))
+    return RailTrack(columns.t_s, unwrapped, columns.velocity_mps, rail_length_m)
+
+
+def passes_at(
+    track: RailTrack | None, pass_at_m: float, *, rail_length_m: float | None
+) -> list[Pass]:
+    """Each crossing of ``pass_at_m``, interpolated between the samples either side
+    (``ValueError`` for a position off the rail, or without the rail length)."""
+    _check_rail(rail_length_m, pass_at_m)
+    if track is None:
+        return []
+    t, unwrapped, speed, length_m = track.t_s, track.unwrapped_m, track.velocity_mps, track.length_m
     at_m = pass_at_m % length_m
     cells = np.floor((unwrapped - at_m) / length_m)
-    speed = columns.velocity_mps
+    passes: list[Pass] = []
     for i in np.flatnonzero(cells[1:] != cells[:-1]) + 1:
         before_m, after_m = float(unwrapped[i - 1]), float(unwrapped[i])
         if after_m == before_m:
@@ -492,15 +528,15 @@ def _laps_and_passes(
         fraction = (crossing_m - before_m) / (after_m - before_m)
         dt_s = float(t[i] - t[i - 1])
         speed_mps = float(speed[i - 1]) + fraction * (float(speed[i]) - float(speed[i - 1]))
-        result.passes.append(
+        passes.append(
             Pass(
-                index=len(result.passes) + 1,
+                index=len(passes) + 1,
                 t_s=float(t[i - 1]) + fraction * dt_s,
                 direction="cw" if clockwise else "ccw",
                 velocity_mps=abs(speed_mps),
             )
         )
-    return moved
+    return passes
 
 
 def _segment_stats(

@@ -2,24 +2,36 @@
 
 Gzipped when the client accepts it: telemetry text shrinks several times, so a download
 over a slow link finishes sooner than the database takes to produce it.
+
+A download holds a database cursor and a server thread until its last byte: a user (or an
+anonymous client address) has at most ``DOWNLOADS_IN_FLIGHT_MAX`` in flight, the next one
+is refused with 429 and ``Retry-After`` (``core.errors.Busy``).
 """
 
 from __future__ import annotations
 
+import functools
 import zlib
-from collections.abc import AsyncIterator, Iterable, Iterator, Sequence
+from collections.abc import AsyncIterator, Callable, Iterable, Iterator, Sequence
 from typing import Any
 
 from asgiref.sync import sync_to_async
+from django.conf import settings
+from django.core.cache import cache
 from django.core.handlers.asgi import ASGIRequest
 from django.http import HttpRequest, StreamingHttpResponse
 from django.urls import reverse
 from django.utils.cache import patch_vary_headers
 from rest_framework.request import Request
 
+from core.errors import Busy
+from core.http import client_address
 from portal.runs.models import Run
 from portal.runs.package import run_package_zip, runs_package_zip
 from portal.runs.selectors import run_samples_csv, run_samples_json
+
+# A refused download is told to try again after this long.
+DOWNLOAD_RETRY_AFTER_S = 5
 
 # zlib's fastest level: it keeps up with the database (level 6 takes several times as long
 # for a few per cent less).
@@ -107,9 +119,11 @@ def _download(
     """Under ASGI the chunks come through an async iterator that reads the database (and
     compresses) in the request's sync thread, so the server is never blocked and Django
     does not buffer it."""
+    release = _download_slot(request)
     compress = gzip and accepts_gzip(request.META.get("HTTP_ACCEPT_ENCODING", ""))
     if compress:
         chunks = gzipped(chunks)
+    chunks = _Held(chunks, release)
     content: Iterator[bytes] | AsyncIterator[bytes] = (
         _async_chunks(chunks) if _is_asgi(request) else chunks
     )
@@ -123,17 +137,71 @@ def _download(
     return response
 
 
+def _download_slot(request: HttpRequest | Request) -> Callable[[], object]:
+    """One of the client's ``DOWNLOADS_IN_FLIGHT_MAX`` slots, taken atomically (``add`` is
+    SET NX on Redis); the function that gives it back. A slot a killed process never gave
+    back frees itself after ``DOWNLOAD_SLOT_S``."""
+    user = getattr(request, "user", None)
+    who = f"user-{user.pk}" if user is not None and user.is_authenticated else None
+    who = who or f"address-{client_address(request)}"
+    for index in range(settings.DOWNLOADS_IN_FLIGHT_MAX):
+        key = f"downloads-in-flight:{who}:{index}"
+        if cache.add(key, 1, settings.DOWNLOAD_SLOT_S):
+            return functools.partial(cache.delete, key)
+    raise Busy(
+        f"At most {settings.DOWNLOADS_IN_FLIGHT_MAX} downloads at a time: "
+        "let one finish, then try again.",
+        retry_after_s=DOWNLOAD_RETRY_AFTER_S,
+    )
+
+
+class _Held:
+    """The chunks of a download holding a slot, given back when the response is closed
+    (the server closes it after the last byte, or when the client goes away) or the chunks
+    run out, whichever comes first; once."""
+
+    def __init__(self, chunks: Iterator[bytes], release: Callable[[], object]) -> None:
+        self._chunks = chunks
+        self._release: Callable[[], object] | None = release
+
+    def __iter__(self) -> Iterator[bytes]:
+        return self
+
+    def __next__(self) -> bytes:
+        try:
+            return next(self._chunks)
+        except StopIteration:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        release, self._release = self._release, None
+        if release is None:
+            return
+        try:
+            close = getattr(self._chunks, "close", None)
+            if close is not None:
+                close()
+        finally:
+            release()
+
+
 def _next_or_none(chunks: Iterator[bytes]) -> bytes | None:
     return next(chunks, None)
 
 
 async def _async_chunks(chunks: Iterator[bytes]) -> AsyncIterator[bytes]:
     next_chunk = sync_to_async(_next_or_none, thread_sensitive=True)
-    while True:
-        chunk = await next_chunk(chunks)
-        if chunk is None:
-            return
-        yield chunk
+    try:
+        while True:
+            chunk = await next_chunk(chunks)
+            if chunk is None:
+                return
+            yield chunk
+    finally:
+        close = getattr(chunks, "close", None)
+        if close is not None:
+            await sync_to_async(close, thread_sensitive=True)()
 
 
 def _is_asgi(request: Any) -> bool:

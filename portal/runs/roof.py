@@ -8,6 +8,7 @@ costs the agent one call in that time, not one each.
 
 from __future__ import annotations
 
+import logging
 from typing import Any, Final
 
 from django.core.cache import cache
@@ -18,6 +19,8 @@ from core.cache import database_namespace
 from core.errors import InvalidInput
 from portal.runs.agents import AgentNotConfigured, agent_client_for
 from portal.runs.services.robot import AgentUnavailable
+
+logger = logging.getLogger(__name__)
 
 RAIL_CACHE_S: Final = 300
 
@@ -36,12 +39,12 @@ def rail_drawing(*, resource: Resource) -> dict[str, Any]:
         return hit
     try:
         drawing = agent_client_for(resource).rail()
-    except AgentNotConfigured as exc:
-        raise AgentUnavailable(f"The portal cannot ask: {resource.name} {exc.why}.") from exc
-    except AgentError as exc:
-        detail = exc.body.get("detail") or exc.message
+    except (AgentNotConfigured, AgentError) as exc:
+        # Every signed-in user reads this: the agent's address and its answer go to the log
+        # (for the admins), the user learns only that the rail is not to be had now.
+        logger.warning("rail of %s unavailable: %s", resource.name, exc)
         raise AgentUnavailable(
-            f"The base station of {resource.name} did not give its rail: {detail}"
+            f"The base station of {resource.name} did not give its rail; try again later."
         ) from exc
     cache.set(key, drawing, RAIL_CACHE_S)
     return drawing

@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import csv
 import io
 import json
 from collections.abc import Iterator
@@ -13,18 +12,21 @@ from django.core.cache import cache
 from django.db import connection
 from django.db.models import FloatField, Func, Max, QuerySet
 
-from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS
+from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS, CsvWriter
 from bookings.models import PeriodQuerySet, Reservation
 from bookings.rules import velocity_limit
 from bookings.selectors import mobiles_bookable, reservations_visible
 from core.accounts.models import User
 from core.cache import database_namespace
 from portal.runs.analysis import (
+    RailTrack,
     RunAnalysis,
     SampleColumns,
     SampleRow,
     analyse_columns,
     chart_series,
+    passes_at,
+    rail_track,
 )
 from portal.runs.models import DryRun, Run, Sample
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
@@ -91,6 +93,20 @@ CSV_TIME_FORMAT = "%Y-%m-%dT%H:%M:%S.%fZ"
 _PG_TIME = (
     "rpad(replace(({0} AT TIME ZONE 'UTC')::text, ' ', 'T') "
     "|| CASE WHEN {0} = date_trunc('second', {0}) THEN '.' ELSE '' END, 26, '0') || 'Z'"
+)
+# A text column of the CSV that COPY writes, escaped as basestation.contract.csv_cell does
+# (an apostrophe before a formula's first character): the agent's values are checked at
+# ingest, but a spreadsheet must not run one that got through.
+_PG_CSV_TEXT = (
+    "CASE WHEN left({0}, 1) IN ('=', '+', '-', '@', chr(9), chr(13)) THEN '''' || {0} ELSE {0} END"
+)
+_PG_CSV_COLUMNS = ", ".join(
+    _PG_TIME.format(column.name)
+    if column.name == "t"
+    else _PG_CSV_TEXT.format(column.name)
+    if column.kind == "text"
+    else column.name
+    for column in SAMPLE_COLUMNS
 )
 
 
@@ -168,15 +184,14 @@ def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[bytes]:
     """
     yield (",".join(SAMPLE_FIELDS) + "\r\n").encode()
     if connection.vendor == "postgresql":
-        columns = ", ".join(_PG_TIME.format(f) if f == "t" else f for f in SAMPLE_FIELDS)
-        yield from _copy_out(_samples_copy_query(run, columns, "WITH (FORMAT csv)"))
+        yield from _copy_out(_samples_copy_query(run, _PG_CSV_COLUMNS, "WITH (FORMAT csv)"))
         return
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=SAMPLE_FIELDS)
+    writer = CsvWriter(buffer)
     qs = Sample.objects.filter(run=run).order_by("seq").values(*SAMPLE_FIELDS)
     for i, row in enumerate(qs.iterator(chunk_size=chunk_rows), start=1):
         row["t"] = row["t"].astimezone(UTC).strftime(CSV_TIME_FORMAT)
-        writer.writerow(row)
+        writer.writerow(row[f] for f in SAMPLE_FIELDS)
         if i % chunk_rows == 0:
             yield buffer.getvalue().encode()
             buffer.seek(0)
@@ -198,6 +213,8 @@ class RunReport:
     analysis: RunAnalysis
     series: dict[str, dict[str, list[float]]]
     first_at: datetime | None
+    # Passes at any position are found from it (report_with_passes), not by a new report.
+    track: RailTrack | None = None
 
 
 class EpochSeconds(Func):
@@ -324,11 +341,26 @@ def run_report(
     """Everything the run page shows, from one ordered read of the samples.
 
     Served from the cache while nothing it depends on changed; ``cached=False`` computes it
-    afresh (and stores nothing). Raises ``ValueError`` (with a message for the user) for a
-    position off the rail.
+    afresh (and stores nothing). The passes at ``pass_at_m`` are not part of what is cached:
+    they are found from the cached report's track, so a viewer trying positions costs no
+    new report and adds nothing to the cache. Raises ``ValueError`` (with a message for the
+    user) for a position off the rail.
     """
     if not cached:
         return _run_report_computed(run, pass_at_m, max_points)
+    report = _run_report_cached(run, max_points)
+    return report if pass_at_m is None else report_with_passes(report, pass_at_m)
+
+
+def report_with_passes(report: RunReport, pass_at_m: float) -> RunReport:
+    """``report`` with its passes at ``pass_at_m`` (``ValueError`` for a position off the
+    rail, or a run without the rail length)."""
+    passes = passes_at(report.track, pass_at_m, rail_length_m=report.analysis.rail_length_m)
+    analysis = replace(report.analysis, pass_at_m=pass_at_m, passes=passes)
+    return replace(report, analysis=analysis)
+
+
+def _run_report_cached(run: Run, max_points: int) -> RunReport:
     final = run.state not in RUN_ACTIVE_STATES and run.state != RunState.SCHEDULED
     # created_at tells this run from one with the same id in the same database (a restore).
     identity: tuple[object, ...] = (
@@ -342,11 +374,11 @@ def run_report(
         # While samples arrive (a gap may be filled below last_seq), their count says whether
         # anything changed: every viewer's poll then costs one count, not a recomputation.
         identity += (Sample.objects.filter(run=run).count(),)
-    key = f"run-report:{database_namespace()}:{identity}:{pass_at_m}:{max_points}".replace(" ", "")
+    key = f"run-report:v2:{database_namespace()}:{identity}:{max_points}".replace(" ", "")
     hit = cache.get(key)
     if isinstance(hit, RunReport):
         return hit
-    report = _run_report_computed(run, pass_at_m, max_points)
+    report = _run_report_computed(run, None, max_points)
     cache.set(key, report, REPORT_CACHE_S if final else LIVE_REPORT_CACHE_S)
     return report
 
@@ -359,7 +391,7 @@ def _run_report_computed(run: Run, pass_at_m: float | None, max_points: int) -> 
     series = chart_series(
         columns, segments=run.segments, rail_length_m=run.rail_length_m, max_points=max_points
     )
-    return RunReport(analysis, series, first_at)
+    return RunReport(analysis, series, first_at, rail_track(columns, run.rail_length_m))
 
 
 def dry_run_report(

@@ -115,6 +115,12 @@ def robots_health_sweep() -> None:
         robot_hold_notify.apply_async((resource_id,), expires=expires_s)
 
 
+@shared_task(time_limit=300, soft_time_limit=280)
+def dry_runs_delete_expired() -> int:
+    """Hourly: dry runs and their samples past ``DRY_RUN_KEEP_S`` are deleted."""
+    return dry_run.dry_runs_delete_expired()
+
+
 @shared_task(time_limit=30, soft_time_limit=25)
 def robot_health_check(resource_id: int) -> None:
     health.robot_health_check(resource_id=resource_id)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import re
 from datetime import date
 from typing import Final
@@ -11,6 +10,7 @@ from django.core.exceptions import BadRequest
 from django.http import HttpRequest, HttpResponse
 from django.shortcuts import get_object_or_404
 
+from basestation.contract import CsvWriter
 from bookings.models import Resource
 from portal.runs.services.robot import robot_day_log
 from portal.web.views import admin_required
@@ -34,8 +34,8 @@ def robot_log_csv(request: HttpRequest, name: str) -> HttpResponse:
     log = robot_day_log(resource=resource, by=request.user, day=day)  # type: ignore[arg-type]
     response = HttpResponse(content_type="text/csv; charset=utf-8")
     response["Content-Disposition"] = f'attachment; filename="{resource.name}-log-{day}.csv"'
-    writer = csv.writer(response)
+    writer = CsvWriter(response)
     writer.writerow(DAY_LOG_COLUMNS)
     for entry in log["entries"]:
-        writer.writerow(["" if entry.get(c) is None else entry.get(c) for c in DAY_LOG_COLUMNS])
+        writer.writerow([entry.get(c) for c in DAY_LOG_COLUMNS])
     return response

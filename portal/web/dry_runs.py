@@ -13,6 +13,7 @@ from django.shortcuts import get_object_or_404, redirect, render
 from django.template.loader import render_to_string
 
 from core.accounts.models import User
+from core.api import page_throttled
 from core.errors import DomainError
 from portal.experiments.selectors import experiments_visible
 from portal.runs.models import DryRun
@@ -64,6 +65,7 @@ def dry_run_page(request: HttpRequest, pk: int) -> HttpResponse:
     return render(request, "web/dry_run.html", _context(request, _visible(request, pk)))
 
 
+@page_throttled
 @login_required
 def dry_run_data(request: HttpRequest, pk: int) -> JsonResponse:
     """The dry run's state while it waits, then what the run page's script draws."""

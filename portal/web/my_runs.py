@@ -15,6 +15,7 @@ from django.urls import reverse
 
 from bookings.models import Resource
 from core.accounts.models import User
+from core.api import page_throttled
 from core.errors import InvalidInput
 from portal.experiments.selectors import experiments_visible
 from portal.runs.downloads import runs_package_response
@@ -128,6 +129,7 @@ def my_runs(request: HttpRequest) -> HttpResponse:
     )
 
 
+@page_throttled
 @login_required
 def runs_package(request: HttpRequest) -> HttpResponse | StreamingHttpResponse:
     """The chosen runs as one zip: a folder per run (its package) and ``manifest.json``."""

@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable
 from datetime import date, datetime, time, timedelta
 from functools import wraps
@@ -11,7 +10,7 @@ from django.conf import settings
 from django.contrib import messages
 from django.contrib.auth.decorators import login_required
 from django.core.exceptions import BadRequest, PermissionDenied
-from django.http import Http404, HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
+from django.http import HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
 from django.shortcuts import get_object_or_404, redirect, render
 from django.template.loader import render_to_string
 from django.urls import reverse
@@ -19,23 +18,25 @@ from django.utils import timezone
 from django.utils.dateparse import parse_datetime
 from django.views.decorators.cache import never_cache
 
+from basestation.contract import CsvWriter
 from bookings.calendar import (
     calendar_entries,
-    calendar_feed_for,
+    calendar_feed_of,
     calendar_feed_renew,
+    calendar_feed_user,
     ical_document,
 )
 from bookings.choices import Channel, ReservationState
 from bookings.leases import scheduler_link_status, scheduler_overview
-from bookings.models import CalendarFeed, Reservation, Resource
+from bookings.models import Reservation, Resource
 from bookings.quotas import quota_summary
 from bookings.reports import GROUPINGS, usage_hours
 from bookings.rules import velocity_limit
 from bookings.selectors import resources_bookable
 from core.accounts.mfa import mfa_enabled, mfa_setup_redirect, needs_mfa_setup
-from core.accounts.models import User
 from core.accounts.selectors import api_tokens_of
 from core.accounts.services import api_token_create, api_token_revoke
+from core.api import page_throttled
 from core.audit.services import client_ip
 from core.errors import DomainError
 from core.health import health
@@ -76,8 +77,14 @@ def healthz(request: HttpRequest) -> JsonResponse:
     ok, body = health()
     if body["database"] == "ok":
         # Reported, not judged: the portal works (without fixed nodes) while it is down.
-        body["testbed_scheduler"] = scheduler_link_status()
+        # Whether it works and how late, not why not: the error's text names the scheduler's
+        # address and answers, which the admins' page shows (scheduler_overview).
+        link = scheduler_link_status()
+        body["testbed_scheduler"] = {k: v for k, v in link.items() if k in HEALTH_LINK_FIELDS}
     return JsonResponse(body, status=200 if ok else 503)
+
+
+HEALTH_LINK_FIELDS = frozenset({"configured", "ok", "last_sync_age_s"})
 
 
 NEW_TOKEN_SESSION_KEY = "api-token-created"  # noqa: S105 (a session key, not a secret)
@@ -254,6 +261,7 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     }
 
 
+@page_throttled
 @login_required
 def run_page(request: HttpRequest, pk: int) -> HttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
@@ -288,12 +296,14 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
     return redirect("run", pk=again.pk)
 
 
+@page_throttled
 @login_required
 def run_package(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
     return run_package_response(request, run)
 
 
+@page_throttled
 @login_required
 def run_data(request: HttpRequest, pk: int) -> JsonResponse:
     """What the run page's charts, status and tables need, polled while the run is live."""
@@ -315,12 +325,14 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
     )
 
 
+@page_throttled
 @login_required
 def run_json(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
     return samples_json_response(request, run)
 
 
+@page_throttled
 @login_required
 def run_csv(request: HttpRequest, pk: int) -> StreamingHttpResponse:
     run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
@@ -448,31 +460,39 @@ def api_tokens_page(request: HttpRequest) -> HttpResponse:
 
 @login_required
 def calendar_feeds(request: HttpRequest) -> HttpResponse:
+    """The feed addresses, shown only when made (only the secret's digest is kept): on the
+    first visit, and after "make new addresses"."""
     user = _user(request)
-    if request.method == "POST":
-        calendar_feed_renew(user=user)
-        messages.success(request, "New feed addresses made; the old ones no longer work.")
-        return redirect("calendar-feeds")
-    feed = calendar_feed_for(user)
+    feed = calendar_feed_of(user)
+    token: str | None = None
+    if request.method == "POST" or feed is None:
+        token = calendar_feed_renew(user=user)
+        if feed is not None:
+            messages.success(request, "New feed addresses made; the old ones no longer work.")
     base = request.build_absolute_uri("/")[:-1]
-    return render(
-        request,
-        "web/feeds.html",
-        {
-            "personal": base + reverse("ical-personal", args=[feed.token]),
-            "per_resource": [
-                (r.name, base + reverse("ical-resource", args=[feed.token, r.name]))
-                for r in resources_bookable()
-            ],
-        },
+    context: dict[str, Any] = {"made_at": feed.created_at if feed is not None else None}
+    if token is not None:
+        context["personal"] = base + reverse("ical-personal", args=[token])
+        context["per_resource"] = [
+            (r.name, base + reverse("ical-resource", args=[token, r.name]))
+            for r in resources_bookable()
+        ]
+    response = render(request, "web/feeds.html", context)
+    # The page holds the secret: no cache keeps it.
+    response["Cache-Control"] = "no-store"
+    return response
+
+
+def _feed_not_found() -> HttpResponse:
+    response = HttpResponse(
+        "No such feed (it may have been renewed, or the resource has another name).\n",
+        status=404,
+        content_type="text/plain",
     )
-
-
-def _feed_user(token: str) -> User:
-    feed = CalendarFeed.objects.filter(token=token).select_related("user").first()
-    if feed is None or not feed.user.is_active:
-        raise Http404("No such feed (it may have been renewed).")
-    return feed.user
+    # Django logs every 4xx with its path, and this path holds a secret (a revoked one, or
+    # someone's guess): the access line (core/http.py) writes the path redacted instead.
+    response._has_been_logged = True  # type: ignore[attr-defined]
+    return response
 
 
 def _ical_response(entries: list[Any], name: str) -> HttpResponse:
@@ -487,7 +507,9 @@ FEED_FUTURE = timedelta(days=366)
 
 
 def ical_personal(request: HttpRequest, token: str) -> HttpResponse:
-    user = _feed_user(token)
+    user = calendar_feed_user(token)
+    if user is None:
+        return _feed_not_found()
     now = timezone.now()
     entries = calendar_entries(
         viewer=user, start_at=now - FEED_PAST, end_at=now + FEED_FUTURE, now=now, only_own=True
@@ -496,8 +518,10 @@ def ical_personal(request: HttpRequest, token: str) -> HttpResponse:
 
 
 def ical_resource(request: HttpRequest, token: str, name: str) -> HttpResponse:
-    user = _feed_user(token)
-    resource = get_object_or_404(Resource, name=name)
+    user = calendar_feed_user(token)
+    resource = Resource.objects.filter(name=name).first()
+    if user is None or resource is None:
+        return _feed_not_found()
     now = timezone.now()
     entries = calendar_entries(
         viewer=user, start_at=now - FEED_PAST, end_at=now + FEED_FUTURE, resource=resource, now=now
@@ -572,7 +596,7 @@ def usage_report(request: HttpRequest) -> HttpResponse:
     if request.GET.get("format") == "csv":
         response = HttpResponse(content_type="text/csv; charset=utf-8")
         response["Content-Disposition"] = f'attachment; filename="usage-{by}-{first}-{last}.csv"'
-        writer = csv.writer(response)
+        writer = CsvWriter(response)
         writer.writerow([by, "hours", "reservations"])
         writer.writerows(rows)
         return response

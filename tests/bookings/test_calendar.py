@@ -11,7 +11,7 @@ from django.contrib.auth.models import Group
 from django.utils import timezone
 from icalendar import Calendar
 
-from bookings.calendar import calendar_feed_for
+from bookings.calendar import calendar_feed_renew
 from bookings.services import blackout_create, reservation_create
 from tests.factories import FixedResourceFactory
 
@@ -83,8 +83,8 @@ def test_the_calendar_filters_by_resource_and_rejects_bad_ranges(client, owner, 
 
 
 def test_the_personal_feed_holds_exactly_my_bookings(client, owner, week):
-    feed = calendar_feed_for(owner)
-    response = client.get(f"/calendar/feed/{feed.token}.ics")  # no login: the token is the key
+    token = calendar_feed_renew(user=owner)
+    response = client.get(f"/calendar/feed/{token}.ics")  # no login: the token is the key
     assert response.status_code == 200
     assert response["Content-Type"].startswith("text/calendar")
     calendar = Calendar.from_ical(response.content)
@@ -96,8 +96,8 @@ def test_the_personal_feed_holds_exactly_my_bookings(client, owner, week):
 
 
 def test_the_resource_feed_shows_others_as_busy_and_maintenance(client, owner, week):
-    feed = calendar_feed_for(owner)
-    response = client.get(f"/calendar/feed/{feed.token}/node-11.ics")
+    token = calendar_feed_renew(user=owner)
+    response = client.get(f"/calendar/feed/{token}/node-11.ics")
     events = Calendar.from_ical(response.content).walk("VEVENT")
     assert sorted(str(e["summary"]) for e in events) == [
         "Busy [node-11]",
@@ -107,16 +107,14 @@ def test_the_resource_feed_shows_others_as_busy_and_maintenance(client, owner, w
 
 
 def test_renewing_the_feed_revokes_the_old_address(client, owner, week):
-    old = calendar_feed_for(owner).token
     client.force_login(owner)
-    page = client.get("/calendar/feeds/")
-    assert old in page.content.decode()
-    client.post("/calendar/feeds/")
+    first = client.get("/calendar/feeds/").context["personal"]
+    assert client.get("/calendar/feeds/").context.get("personal") is None  # shown once
+    renewed = client.post("/calendar/feeds/").context["personal"]
+    assert renewed != first
     client.logout()
-    assert client.get(f"/calendar/feed/{old}.ics").status_code == 404
-    new = calendar_feed_for(owner).token
-    assert new != old
-    assert client.get(f"/calendar/feed/{new}.ics").status_code == 200
+    assert client.get(first).status_code == 404
+    assert client.get(renewed).status_code == 200
 
 
 def test_the_approvals_queue_is_for_admins(client, owner, admin_user):

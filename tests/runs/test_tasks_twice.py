@@ -42,6 +42,7 @@ COVERED = {
     "portal.runs.tasks.robot_health_check",
     "portal.runs.tasks.robot_hold_notify",
     "portal.runs.tasks.dry_run_execute",
+    "portal.runs.tasks.dry_runs_delete_expired",
     "bookings.tasks.reservation_notify",
     "bookings.tasks.reservations_remind",
     "core.audit.tasks.idempotency_keys_delete_expired",
@@ -235,6 +236,17 @@ def test_deleting_expired_keys_twice_deletes_them_once(owner, settings):
     )
     twice(idempotency_keys_delete_expired)
     assert list(IdempotencyKey.objects.values_list("pk", flat=True)) == [kept.pk]
+
+
+def test_deleting_expired_dry_runs_twice_deletes_them_once(owner, settings):
+    settings.DRY_RUN_KEEP_S = 60.0
+    body = {"title": "t", "segments": [], "limits": {}, "rail_length_m": 1.0}
+    DryRun.objects.create(owner=owner, state=DryRun.State.COMPLETED, **body,
+                          ended_at=timezone.now() - timedelta(seconds=61))  # fmt: skip
+    kept = DryRun.objects.create(owner=owner, state=DryRun.State.COMPLETED, **body,
+                                 ended_at=timezone.now())  # fmt: skip
+    twice(tasks.dry_runs_delete_expired)
+    assert list(DryRun.objects.values_list("pk", flat=True)) == [kept.pk]
 
 
 def test_every_task_the_workers_know_is_run_twice_here():

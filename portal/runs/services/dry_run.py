@@ -22,6 +22,7 @@ from typing import Any, Final
 
 from django.conf import settings
 from django.db import IntegrityError, transaction
+from django.db.models import Q
 from django.utils import timezone
 
 from basestation.contract import MAX_SEGMENTS
@@ -190,3 +191,22 @@ def dry_runs_next() -> list[int]:
     free = max(settings.DRY_RUN_SLOTS - running, 0)
     queued = DryRun.objects.filter(state=DryRun.State.QUEUED).order_by("pk")
     return list(queued.values_list("pk", flat=True)[:free])
+
+
+# Rows per DELETE: a backlog is cleared in short transactions, not one long lock.
+DELETE_BATCH = 500
+
+
+def dry_runs_delete_expired(*, now: Any = None) -> int:
+    """Delete the dry runs (their samples are in the row) that ended more than
+    ``DRY_RUN_KEEP_S`` ago, or finished without an end recorded and were made that long ago;
+    queued and running ones stay. Returns how many went. Safe twice (a second call finds
+    none)."""
+    cutoff = (now or timezone.now()) - timedelta(seconds=settings.DRY_RUN_KEEP_S)
+    finished = DryRun.objects.filter(
+        state__in=[DryRun.State.COMPLETED, DryRun.State.FAILED]
+    ).filter(Q(ended_at__lt=cutoff) | Q(ended_at__isnull=True, created_at__lt=cutoff))
+    deleted = 0
+    while ids := list(finished.values_list("pk", flat=True)[:DELETE_BATCH]):
+        deleted += DryRun.objects.filter(pk__in=ids).delete()[0]
+    return deleted
