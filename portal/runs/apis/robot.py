@@ -18,7 +18,7 @@ from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
-from core.accounts.permissions import StaffMfaRequired
+from core.accounts.permissions import StaffVerified
 from core.api import GreaterThan, request_user, valid_input
 from core.audit.services import client_ip
 from core.openapi import errors
@@ -99,7 +99,7 @@ def _mobile_named(name: str) -> Resource:
 
 
 class RobotStatusApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(responses={200: RobotStatusOutput, **errors(400, 503, e400=NOT_MOBILE)})
     def get(self, request: Request, name: str) -> Response:
@@ -107,7 +107,7 @@ class RobotStatusApi(APIView):
 
 
 class RobotDriveApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         request=RobotDriveInput,
@@ -136,7 +136,7 @@ class RobotDriveApi(APIView):
 
 
 class RobotStopApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         request=StopInput,
@@ -155,7 +155,7 @@ class RobotStopApi(APIView):
 
 
 class RobotReleaseApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         request=ReleaseInput,
@@ -174,7 +174,7 @@ class RobotReleaseApi(APIView):
 
 
 class RobotLogApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         parameters=[OpenApiParameter("day", date, OpenApiParameter.PATH, description="UTC day.")],
