@@ -88,7 +88,7 @@ class StaffSessionMiddleware:
         async def marked_auser() -> Any:
             return await sync_to_async(_marked)(request, await auser())
 
-        request.auser = marked_auser  # type: ignore[method-assign]
+        request.auser = marked_auser
         return self.get_response(request)
 
 
