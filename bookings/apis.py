@@ -8,7 +8,6 @@ from django.shortcuts import get_object_or_404
 from django.utils import timezone
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers, status
-from rest_framework.permissions import IsAdminUser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
@@ -19,6 +18,7 @@ from bookings.models import CALENDAR, Blackout, QuotaPolicy, Resource, ResourceG
 from bookings.quotas import period_bounds, quota_summary
 from bookings.selectors import busy_slots, resource_free_intervals
 from core.accounts.models import User
+from core.accounts.permissions import StaffVerified
 from core.api import (
     DateTimeInput,
     GreaterThan,
@@ -260,7 +260,7 @@ class QuotaPolicySerializer(serializers.ModelSerializer):
 
 
 class QuotaPolicyListApi(APIView):
-    permission_classes = [IsAdminUser]
+    permission_classes = [StaffVerified]
     pagination_class = Pagination
 
     @extend_schema(responses=QuotaPolicySerializer(many=True))
@@ -280,7 +280,7 @@ class QuotaPolicyListApi(APIView):
 
 
 class QuotaPolicyDetailApi(APIView):
-    permission_classes = [IsAdminUser]
+    permission_classes = [StaffVerified]
 
     @extend_schema(request=QuotaPolicySerializer, responses=QuotaPolicySerializer)
     def patch(self, request: Request, pk: int) -> Response:
@@ -301,7 +301,7 @@ class ServiceInput(serializers.Serializer):
 
 
 class ResourceServiceApi(APIView):
-    permission_classes = [IsAdminUser]
+    permission_classes = [StaffVerified]
 
     @extend_schema(request=ServiceInput, responses=ResourceOutput)
     def post(self, request: Request, name: str) -> Response:

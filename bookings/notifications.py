@@ -44,7 +44,7 @@ def _canceller(reservation: Reservation) -> str:
     if user is None:
         return "someone no longer registered"
     name = user.get_full_name() or user.get_username()
-    if user.is_testbed_admin:
+    if user.has_staff_role:
         return f"{name} (an admin)"
     if user.has_perm("bookings.lease_inbound"):
         return f"{name} (the testbed scheduler's account)"

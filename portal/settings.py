@@ -113,7 +113,8 @@ except ValueError as exc:
     raise ImproperlyConfigured(str(exc)) from exc
 
 INSTALLED_APPS = [
-    "django.contrib.admin",
+    # Django's admin behind allauth's sign-in, for staff whose session passed MFA.
+    "core.accounts.admin_apps.StaffAdminConfig",
     "django.contrib.auth",
     "django.contrib.contenttypes",
     "django.contrib.sessions",
@@ -150,8 +151,8 @@ MIDDLEWARE = [
     "django.contrib.messages.middleware.MessageMiddleware",
     "django.middleware.clickjacking.XFrameOptionsMiddleware",
     "allauth.account.middleware.AccountMiddleware",
-    # The admin site only for staff with MFA (core/accounts/mfa.py).
-    "core.accounts.mfa.AdminMfaMiddleware",
+    # Staff powers only for a session that passed its second factor (core/accounts/staff.py).
+    "core.accounts.staff.StaffSessionMiddleware",
 ]
 
 ROOT_URLCONF = "portal.urls"
@@ -240,7 +241,19 @@ MFA_TOTP_ISSUER = env.str("MFA_TOTP_ISSUER", default="AMazING testbed")
 # A code of the previous or next 30 s step is accepted too: a phone's clock drifts, and a
 # code typed as its step ends still works.
 MFA_TOTP_TOLERANCE = 1
-# API tokens (core/accounts/models.py ApiToken): no expiry unless the user gives one.
+# TOTP secrets and recovery seeds encrypted at rest; codes checked under a row lock.
+MFA_ADAPTER = "core.accounts.adapter.MfaAdapter"
+MFA_FORMS = {
+    "authenticate": "core.accounts.mfa.LockedAuthenticateForm",
+    "reauthenticate": "core.accounts.mfa.LockedReauthenticateForm",
+    # A staff account's first factor only once another admin allowed it.
+    "activate_totp": "core.accounts.mfa.StaffGatedActivateTOTPForm",
+}
+# A staff account's API token (made only from a session that passed MFA) expires after at
+# most this many days, and by default after exactly this many.
+STAFF_API_TOKEN_DAYS = env.int("STAFF_API_TOKEN_DAYS", default=30)
+# API tokens (core/accounts/models.py ApiToken): an experimenter's has no expiry unless the
+# user gives one; a staff account's always has (STAFF_API_TOKEN_DAYS).
 KNOX_TOKEN_MODEL = "accounts.ApiToken"  # noqa: S105 (a model name, not a secret)
 REST_KNOX = {"TOKEN_TTL": None, "TOKEN_PREFIX": "amz_"}
 # Knox's own table is never made: its migrations ignore that our model replaces it.

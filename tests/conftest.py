@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import os
+import time
 
 import pytest
+from allauth.account.authentication import AUTHENTICATION_METHODS_SESSION_KEY
 from django.core.cache import cache
 from hypothesis import settings as hypothesis_settings
 from rest_framework.test import APIClient
 
+from core.accounts.staff import has_staff_role
 from portal.celery import app as celery_app
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 
@@ -86,7 +89,36 @@ def other():
 
 @pytest.fixture
 def admin_user():
-    return UserFactory(username="charlie", is_staff=True, is_superuser=True)
+    """An admin with MFA, as a door that checked the second factor hands it to a service."""
+    return staff_verified(UserFactory(username="charlie", is_staff=True, is_superuser=True))
+
+
+def staff_verified(user):
+    """``user`` marked as the door marks staff whose session passed the second factor
+    (``core.accounts.staff``): for a service called directly."""
+    user.staff_verified = True
+    return user
+
+
+def sign_in_with_second_factor(client, user):
+    """``client`` signed in as ``user`` in a session whose records show the password and the
+    second factor, as allauth's sign-in leaves them: staff powers through the real door."""
+    client.force_login(user)
+    session = client.session
+    now = time.time()
+    session[AUTHENTICATION_METHODS_SESSION_KEY] = [
+        {"method": "password", "at": now, "username": user.get_username()},
+        {"method": "mfa", "at": now, "type": "totp"},
+    ]
+    session["account_authentication_methods_user"] = str(user.pk)
+    session.save()
+    return client
+
+
+@pytest.fixture
+def staff_verified_client(admin_user) -> APIClient:
+    """The admin, signed in with its second factor (pages and API)."""
+    return sign_in_with_second_factor(APIClient(), admin_user)
 
 
 @pytest.fixture
@@ -100,7 +132,11 @@ def experiment(owner):
 
 
 def _client(user) -> APIClient:
+    """An API client as ``user``; staff sign in with their second factor (the guard of staff
+    actions reads the session's records, never a forced user)."""
     client = APIClient()
+    if user is not None and has_staff_role(user):
+        return sign_in_with_second_factor(client, user)
     if user is not None:
         client.force_authenticate(user=user)
     return client

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import time
+from datetime import timedelta
 from typing import Any
 
 import factory
@@ -14,6 +15,7 @@ from allauth.mfa.totp.internal.auth import (
     hotp_value,
 )
 from allauth.mfa.utils import decrypt
+from django.conf import settings
 
 from bookings.choices import ResourceKind
 from bookings.models import Resource
@@ -40,7 +42,7 @@ class UserFactory(factory.django.DjangoModelFactory):
     def mfa(self, create: bool, extracted: Any, **kwargs: Any) -> None:
         """Staff have TOTP on, as they must to reach the robot and approvals; ``mfa=False``
         makes one without."""
-        wanted = self.is_testbed_admin if extracted is None else bool(extracted)
+        wanted = self.has_staff_role if extracted is None else bool(extracted)
         if create and wanted:
             mfa_on(self)
 
@@ -103,7 +105,15 @@ def totp_secret_of(username: str) -> str | None:
 
 
 def api_token(user: User, *, name: str = "test") -> str:
-    """A new API token of ``user``; a staff user gets MFA first (its tokens need it)."""
-    if user.is_testbed_admin and not Authenticator.objects.filter(user=user).exists():
+    """A new API token of ``user``; a staff user's is one minted with its second factor (MFA
+    on first), expiring as a staff token does."""
+    if not user.has_staff_role:
+        return ApiToken.objects.create(user=user, name=name)[1]
+    if not Authenticator.objects.filter(user=user).exists():
         mfa_on(user)
-    return ApiToken.objects.create(user=user, name=name)[1]
+    return ApiToken.objects.create(
+        user=user,
+        name=name,
+        mfa_verified=True,
+        expiry=timedelta(days=settings.STAFF_API_TOKEN_DAYS),
+    )[1]

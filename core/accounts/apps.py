@@ -1,3 +1,5 @@
+from importlib import import_module
+
 from django.apps import AppConfig
 from django.db.models.signals import post_delete, post_save
 
@@ -16,6 +18,8 @@ class AccountsConfig(AppConfig):
             token_deleted, sender="accounts.ApiToken", dispatch_uid="tokens:deleted"
         )
         post_save.connect(user_saved, sender="accounts.User", dispatch_uid="tokens:user-saved")
+        # MFA on ends other sessions, MFA off revokes staff tokens (core/accounts/receivers.py).
+        import_module("core.accounts.receivers").connect()
         for signal in (post_save, post_delete):
             signal.connect(
                 authenticator_changed, sender="mfa.Authenticator", dispatch_uid="tokens:mfa"

@@ -1,36 +1,33 @@
 """Multi-factor authentication (allauth's TOTP and recovery codes), required of staff.
 
-A testbed admin moves a real robot and decides who may use it: before any robot control,
-approval or admin page, and the API actions behind them, an admin must have MFA turned on.
-Without it the pages send them to set it up and the API answers 403. A staff account's API
-tokens work only while it has MFA (``core.accounts.tokens``), so a request with a token
-needs no second check here.
+A staff account's powers need a session that passed its second factor
+(``core.accounts.staff``); one without MFA is sent to set it up first. Its secrets are
+stored encrypted (``core.accounts.adapter.MfaAdapter``), and a code is checked under a row
+lock on the account's authenticators, so that one recovery code cannot pass twice.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
+from allauth.mfa.base.forms import AuthenticateForm, ReauthenticateForm
+from allauth.mfa.models import Authenticator
+from allauth.mfa.totp.forms import ActivateTOTPForm
 from allauth.mfa.utils import is_mfa_enabled
+from django import forms
 from django.contrib import messages
+from django.db import transaction
 from django.http import HttpRequest, HttpResponse, HttpResponseRedirect
 from django.urls import reverse
 from django.utils.http import urlencode
 
 MFA_SETUP_URL_NAME = "mfa_activate_totp"
+CODE_KINDS = (Authenticator.Type.TOTP, Authenticator.Type.RECOVERY_CODES)
 
 
 def mfa_enabled(user: Any) -> bool:
     """The user has an authenticator (TOTP; recovery codes come with it)."""
     return bool(is_mfa_enabled(user))
-
-
-def needs_mfa_setup(user: Any) -> bool:
-    """A signed-in testbed admin who has not turned MFA on yet."""
-    return bool(
-        user.is_authenticated and (user.is_staff or user.is_superuser) and not mfa_enabled(user)
-    )
 
 
 def mfa_setup_redirect(request: HttpRequest) -> HttpResponse:
@@ -40,21 +37,55 @@ def mfa_setup_redirect(request: HttpRequest) -> HttpResponse:
     return HttpResponseRedirect(f"{reverse(MFA_SETUP_URL_NAME)}?{query}")
 
 
-class AdminMfaMiddleware:
-    """The admin site is for staff with MFA: others are sent to set it up first."""
+def authenticators_locked(user: Any) -> list[Authenticator]:
+    """The user's code authenticators, locked until the transaction ends: a second check of
+    the same code waits, then reads the recovery code as used."""
+    return list(
+        Authenticator.objects.select_for_update().filter(user_id=user.pk, type__in=CODE_KINDS)
+    )
 
-    def __init__(self, get_response: Callable[[HttpRequest], HttpResponse]) -> None:
-        self.get_response = get_response
 
-    def __call__(self, request: HttpRequest) -> HttpResponse:
-        return self.get_response(request)
+def mfa_code_check(user: Any, code: str) -> Authenticator | None:
+    """The authenticator that accepts ``code`` (a TOTP code, each once, or an unused recovery
+    code, then marked used), checked under the row lock."""
+    with transaction.atomic():
+        for authenticator in authenticators_locked(user):
+            if authenticator.wrap().validate_code(code):
+                authenticator.record_usage()
+                return authenticator
+    return None
 
-    def process_view(
-        self, request: HttpRequest, view: Callable[..., Any], args: Any, kwargs: Any
-    ) -> HttpResponse | None:
-        match = request.resolver_match
-        if match is None or "admin" not in match.namespaces:
-            return None
-        if needs_mfa_setup(request.user):
-            return mfa_setup_redirect(request)
-        return None
+
+class LockedAuthenticateForm(AuthenticateForm):
+    """allauth's code form at sign-in, with its check under the row lock."""
+
+    def clean_code(self) -> str:
+        with transaction.atomic():
+            authenticators_locked(self.user)
+            return super().clean_code()
+
+
+class LockedReauthenticateForm(ReauthenticateForm):
+    """allauth's code form to reauthenticate, with its check under the row lock."""
+
+    def clean_code(self) -> str:
+        with transaction.atomic():
+            authenticators_locked(self.user)
+            return super().clean_code()
+
+
+STAFF_ENROLMENT_REFUSED = (
+    "A staff account sets up its first second factor only once another admin allowed it "
+    "(the admin site, or manage.py mfa_enrolment_allow): ask one."
+)
+
+
+class StaffGatedActivateTOTPForm(ActivateTOTPForm):
+    """allauth's TOTP set-up, refused to a staff account no other admin allowed: whoever has
+    only its password must not choose its second factor."""
+
+    def clean_code(self) -> str:
+        user = self.user
+        if getattr(user, "has_staff_role", False) and not user.mfa_enrolment_allowed:
+            raise forms.ValidationError(STAFF_ENROLMENT_REFUSED)
+        return super().clean_code()

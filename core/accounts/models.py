@@ -16,9 +16,29 @@ class User(AbstractUser):  # type: ignore[django-manager-missing]
     affiliation, quota policy) can be added without a painful swap later.
     """
 
+    # Another admin (the admin site, or ``manage.py mfa_enrolment_allow``) lets this staff
+    # account set up its first factor: a password alone must not choose the second factor.
+    # Cleared once it has.
+    mfa_enrolment_allowed: models.BooleanField[bool, bool] = models.BooleanField(
+        default=False,
+        help_text="A staff account may set up its first second factor (cleared once it has).",
+    )
+
+    # Set by the door a request came through (``core.accounts.staff``): its session passed
+    # the second factor, or its API token was minted from such a session. Never stored; a
+    # user read outside a request (a task, a command) has no staff powers through it.
+    staff_verified: bool = False
+
+    @property
+    def has_staff_role(self) -> bool:
+        """The account is an admin's: what it may do depends on how it signed in."""
+        return self.is_staff or self.is_superuser
+
     @property
     def is_testbed_admin(self) -> bool:
-        return self.is_staff or self.is_superuser
+        """An admin with its powers now: the staff role, through a door that checked the
+        second factor (``core.accounts.staff.staff_verified``)."""
+        return self.has_staff_role and self.staff_verified
 
 
 class ApiToken(AbstractAuthToken):
@@ -40,6 +60,10 @@ class ApiToken(AbstractAuthToken):
     last_used_at: models.DateTimeField[datetime | None, datetime | None] = models.DateTimeField(
         null=True, blank=True
     )
+
+    # Minted from a session that passed its second factor (or with its code): only such a
+    # token of a staff account carries the staff powers, and it always expires.
+    mfa_verified: models.BooleanField[bool, bool] = models.BooleanField(default=False)
 
     class Meta:
         ordering = ["-created"]

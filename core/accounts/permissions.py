@@ -4,20 +4,26 @@ from __future__ import annotations
 
 from typing import Any
 
-from rest_framework.permissions import IsAdminUser
+from rest_framework.permissions import BasePermission
 from rest_framework.request import Request
 
-from core.accounts.mfa import mfa_enabled
-from core.accounts.models import ApiToken
+from core.accounts.staff import (
+    ADMINS_ONLY,
+    SIGN_IN_WITH_SECOND_FACTOR,
+    has_staff_role,
+    staff_verified,
+)
 
 
-class StaffMfaRequired(IsAdminUser):
-    """An admin-only API action: a staff user with MFA turned on."""
+class StaffVerified(BasePermission):
+    """A staff-only API action: staff whose session passed its second factor, or a staff
+    token minted from such a session (``core.accounts.staff.staff_verified``)."""
 
-    message = "Staff accounts need two-factor authentication turned on for this."
+    message = ADMINS_ONLY
 
     def has_permission(self, request: Request, view: Any) -> bool:
-        if not super().has_permission(request, view):
-            return False
-        # A token of a staff account authenticates only while the account has MFA.
-        return isinstance(request.auth, ApiToken) or mfa_enabled(request.user)
+        if staff_verified(request):
+            return True
+        if has_staff_role(request.user):
+            self.message = SIGN_IN_WITH_SECOND_FACTOR
+        return False

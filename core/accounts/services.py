@@ -1,4 +1,4 @@
-"""Writes on accounts: API tokens (created, revoked) and the audit of sign-ins."""
+"""Writes on accounts: API tokens (created, revoked), sessions ended, the audit of sign-ins."""
 
 from __future__ import annotations
 
@@ -7,11 +7,14 @@ from datetime import timedelta
 from allauth.core import ratelimit
 from allauth.mfa import signals as mfa_signals
 from allauth.mfa.models import Authenticator
-from django.contrib.auth import authenticate
+from django.conf import settings
+from django.contrib.auth import SESSION_KEY, authenticate
+from django.contrib.sessions.models import Session
 from django.db import transaction
 from django.http import HttpRequest
+from django.utils import timezone
 
-from core.accounts.mfa import mfa_enabled
+from core.accounts.mfa import mfa_code_check, mfa_enabled
 from core.accounts.models import ApiToken, User
 from core.audit.services import audit_record, client_ip
 from core.errors import DomainError, InvalidInput, NotAllowed
@@ -26,9 +29,14 @@ def api_token_create(
     user: User,
     name: str,
     expires_in_days: int | None = None,
+    mfa_verified: bool = False,
     ip: str | None = None,
 ) -> tuple[ApiToken, str]:
-    """A new token for ``user``: the row, and the token itself (shown once, never stored)."""
+    """A new token for ``user``: the row, and the token itself (shown once, never stored).
+
+    ``mfa_verified``: the door's answer (``core.accounts.staff.staff_verified``, or the code
+    given with the password): a staff account gets a token only so, and it expires within
+    ``STAFF_API_TOKEN_DAYS``."""
     name = name.strip()
     if not name:
         raise InvalidInput.on_field("name", "Give the token a name.")
@@ -40,11 +48,25 @@ def api_token_create(
         raise InvalidInput.on_field(
             "expires_in_days", f"A token expires in 1 to {TOKEN_EXPIRY_MAX_DAYS} days."
         )
-    if user.is_testbed_admin and not mfa_enabled(user):
-        raise NotAllowed("A staff account gets API tokens only with two-factor authentication on.")
+    if user.has_staff_role:
+        if not (mfa_verified and mfa_enabled(user)):
+            raise NotAllowed(
+                "A staff account gets API tokens only in a session signed in with its second "
+                "factor: sign in with it."
+            )
+        staff_days = settings.STAFF_API_TOKEN_DAYS
+        if expires_in_days is None:
+            expires_in_days = staff_days
+        elif expires_in_days > staff_days:
+            raise InvalidInput.on_field(
+                "expires_in_days", f"A staff account's token expires within {staff_days} days."
+            )
+    mfa_verified = mfa_verified and user.has_staff_role
     expiry = timedelta(days=expires_in_days) if expires_in_days is not None else None
     with transaction.atomic():
-        token, secret = ApiToken.objects.create(user=user, expiry=expiry, name=name)
+        token, secret = ApiToken.objects.create(
+            user=user, expiry=expiry, name=name, mfa_verified=mfa_verified
+        )
         audit_record(
             actor=user,
             action="api_token.create",
@@ -111,7 +133,8 @@ def api_token_sign_in(
     if not isinstance(user, User):
         ratelimit.consume(request, action="login_failed", key=key)
         raise SignInFailed("The username or the password is wrong.")
-    if mfa_enabled(user):
+    verified = mfa_enabled(user)
+    if verified:
         if not code.strip():
             raise MfaCodeRequired(
                 "This account has two-factor authentication: give the code from its app."
@@ -121,7 +144,11 @@ def api_token_sign_in(
             raise SignInFailed("The two-factor code is wrong or was used already.")
     ratelimit.clear(request, action="login_failed", key=key)
     token, secret = api_token_create(
-        user=user, name=name, expires_in_days=expires_in_days, ip=client_ip(request)
+        user=user,
+        name=name,
+        expires_in_days=expires_in_days,
+        mfa_verified=verified,
+        ip=client_ip(request),
     )
     audit_record(actor=user, action="account.sign_in", ip=client_ip(request), via="api")
     return token, secret
@@ -129,12 +156,8 @@ def api_token_sign_in(
 
 def _mfa_code_valid(request: HttpRequest, user: User, code: str) -> bool:
     """A TOTP code (each accepted once) or an unused recovery code, as the pages take them."""
-    kinds = (Authenticator.Type.TOTP, Authenticator.Type.RECOVERY_CODES)
-    with transaction.atomic():  # a recovery code is marked used under a row lock
-        for authenticator in Authenticator.objects.filter(user=user, type__in=kinds):
-            if authenticator.wrap().validate_code(code):
-                authenticator.record_usage()
-                return True
+    if mfa_code_check(user, code) is not None:
+        return True
     mfa_signals.authentication_failed.send(
         sender=Authenticator, request=request, user=user, authenticator=None
     )
@@ -144,3 +167,33 @@ def _mfa_code_valid(request: HttpRequest, user: User, code: str) -> bool:
 def api_token_sign_out(*, user: User, token: ApiToken, ip: str | None = None) -> None:
     """Revoke the token a request came with (``amazing logout``)."""
     api_token_revoke(user=user, digest=token.digest, ip=ip)
+
+
+def staff_tokens_revoke(*, user_id: int, why: str) -> int:
+    """Revoke every token minted with the second factor of an account whose MFA is off:
+    a staff token is only as good as the factor it was minted with."""
+    with transaction.atomic():
+        tokens = list(ApiToken.objects.filter(user_id=user_id, mfa_verified=True))
+        for token in tokens:
+            audit_record(
+                actor=None,
+                action="api_token.revoke",
+                name=token.name,
+                token_key=token.token_key,
+                owner_id=user_id,
+                why=why,
+            )
+            token.delete()
+    return len(tokens)
+
+
+def user_sessions_end(*, user_id: int, keep_session_key: str | None = None) -> int:
+    """End every session of the account but ``keep_session_key`` (the one that asked)."""
+    ended = []
+    for session in Session.objects.filter(expire_date__gt=timezone.now()).iterator():
+        if session.session_key == keep_session_key:
+            continue
+        if str(session.get_decoded().get(SESSION_KEY)) == str(user_id):
+            ended.append(session.session_key)
+    Session.objects.filter(session_key__in=ended).delete()
+    return len(ended)

@@ -26,6 +26,7 @@ from rest_framework.authentication import TokenAuthentication
 
 from core.accounts.mfa import mfa_enabled
 from core.accounts.models import ApiToken, User
+from core.accounts.staff import has_staff_role
 from core.accounts.token_cache import TOKEN_USER_CACHE_S, cache_key
 
 
@@ -42,21 +43,24 @@ class CachedTokenAuthentication(TokenAuthentication):
         entry = cache_key(digest)
         now = timezone.now()
         cached = cache.get(entry)
-        if isinstance(cached, tuple) and len(cached) == 2 and isinstance(cached[0], User):
-            user, expiry = cached
+        if isinstance(cached, tuple) and len(cached) == 3 and isinstance(cached[0], User):
+            user, expiry, mfa_verified = cached
         else:
-            user, expiry = _token_user(digest, now)
+            user, expiry, mfa_verified = _token_user(digest, now)
             ttl_s = TOKEN_USER_CACHE_S
             if expiry is not None:
                 ttl_s = min(ttl_s, max(1, int((expiry - now).total_seconds())))
-            cache.set(entry, (user, expiry), ttl_s)
+            cache.set(entry, (user, expiry, mfa_verified), ttl_s)
         if expiry is not None and expiry <= now:
             raise exceptions.AuthenticationFailed("Token expired.")
+        # The door's answer for the services (core/accounts/staff.py): a staff account's
+        # powers come only with a token minted from a session that passed its second factor.
+        user.staff_verified = mfa_verified and has_staff_role(user)
         # The token as DRF hands it on (``request.auth``), without a second read.
-        return user, ApiToken(digest=digest, user=user, expiry=expiry)
+        return user, ApiToken(digest=digest, user=user, expiry=expiry, mfa_verified=mfa_verified)
 
 
-def _token_user(digest: str, now: datetime) -> tuple[User, datetime | None]:
+def _token_user(digest: str, now: datetime) -> tuple[User, datetime | None, bool]:
     """The token's user from the database, refused unless it may use the API now."""
     try:
         token = ApiToken.objects.select_related("user").defer("user__password").get(digest=digest)
@@ -67,9 +71,9 @@ def _token_user(digest: str, now: datetime) -> tuple[User, datetime | None]:
     user = token.user
     if not user.is_active:
         raise exceptions.AuthenticationFailed("User inactive or deleted.")
-    if user.is_testbed_admin and not mfa_enabled(user):
+    if user.has_staff_role and not mfa_enabled(user):
         raise exceptions.AuthenticationFailed("A staff account's token needs MFA turned on.")
     ApiToken.objects.filter(digest=digest).exclude(
         last_used_at__gt=now - timedelta(seconds=TOKEN_USER_CACHE_S)
     ).update(last_used_at=now)
-    return user, token.expiry
+    return user, token.expiry, token.mfa_verified

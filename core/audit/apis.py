@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from drf_spectacular.utils import extend_schema
 from rest_framework import serializers
-from rest_framework.permissions import IsAdminUser
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
+from core.accounts.permissions import StaffVerified
 from core.api import DateTimeInput, Pagination, paginated_response, valid_query
 from core.audit.models import AuditEvent
 
@@ -44,7 +44,7 @@ class AuditFilter(serializers.Serializer):
 class AuditEventListApi(APIView):
     """Newest first."""
 
-    permission_classes = [IsAdminUser]
+    permission_classes = [StaffVerified]
     pagination_class = Pagination
 
     @extend_schema(parameters=[AuditFilter], responses=AuditEventOutput(many=True))

@@ -12,15 +12,15 @@ from django.shortcuts import get_object_or_404
 
 from basestation.contract import CsvWriter
 from bookings.models import Resource
+from core.accounts.staff import staff_required
 from portal.runs.services.robot import robot_day_log
-from portal.web.views import admin_required
 
 # The agent's own CSV columns (basestation/api/logs.py; tests/web/test_console.py holds the
 # two to the same list).
 DAY_LOG_COLUMNS: Final = ("user", "title", "start", "end", "kind", "run_id", "state")
 
 
-@admin_required
+@staff_required
 def robot_log_csv(request: HttpRequest, name: str) -> HttpResponse:
     """``?day=YYYY-MM-DD`` (a UTC day, as the base station keeps its log) as a CSV file."""
     resource = get_object_or_404(Resource, name=name, kind="mobile")

@@ -16,7 +16,7 @@ def testbed(request: HttpRequest) -> dict[str, Any]:
         "LIVE_STREAM_PORT": settings.LIVE_STREAM_PORT,
     }
     user = getattr(request, "user", None)
-    if user is not None and user.is_authenticated and user.is_staff:
+    if user is not None and user.is_authenticated and user.is_testbed_admin:
         # Admins get a console link per robot.
         context["MOBILE_NODES"] = list(
             Resource.objects.filter(kind=ResourceKind.MOBILE).values_list("name", flat=True)

@@ -2,14 +2,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from datetime import date, datetime, time, timedelta
-from functools import wraps
 from typing import Any
 from zoneinfo import ZoneInfo
 
 from django.conf import settings
 from django.contrib import messages
 from django.contrib.auth.decorators import login_required
-from django.core.exceptions import BadRequest, PermissionDenied
+from django.core.exceptions import BadRequest
 from django.http import HttpRequest, HttpResponse, JsonResponse, StreamingHttpResponse
 from django.shortcuts import get_object_or_404, redirect, render
 from django.template.loader import render_to_string
@@ -33,9 +32,10 @@ from bookings.quotas import quota_summary
 from bookings.reports import GROUPINGS, usage_hours
 from bookings.rules import velocity_limit
 from bookings.selectors import resources_bookable
-from core.accounts.mfa import mfa_enabled, mfa_setup_redirect, needs_mfa_setup
+from core.accounts.mfa import mfa_enabled
 from core.accounts.selectors import api_tokens_of
 from core.accounts.services import api_token_create, api_token_revoke
+from core.accounts.staff import staff_required, staff_verified
 from core.api import page_throttled
 from core.audit.services import client_ip
 from core.errors import DomainError
@@ -87,27 +87,8 @@ def healthz(request: HttpRequest) -> JsonResponse:
 HEALTH_LINK_FIELDS = frozenset({"configured", "ok", "last_sync_age_s"})
 
 
-NEW_TOKEN_SESSION_KEY = "api-token-created"  # noqa: S105 (a session key, not a secret)
-
-
 def _user(request: HttpRequest) -> Any:
     return request.user
-
-
-def admin_required(view: Callable[..., HttpResponse]) -> Callable[..., HttpResponse]:
-    """Anonymous visitors go to the login page; logged-in non-admins get 403; admins without
-    MFA are sent to set it up first (robot control and approvals need it)."""
-
-    @wraps(view)
-    @login_required
-    def wrapper(request: HttpRequest, *args: Any, **kwargs: Any) -> HttpResponse:
-        if not _user(request).is_testbed_admin:
-            raise PermissionDenied("This page is for the testbed's admins.")
-        if needs_mfa_setup(request.user):
-            return mfa_setup_redirect(request)
-        return view(request, *args, **kwargs)
-
-    return wrapper
 
 
 def _form_error(form: Any, exc: DomainError) -> None:
@@ -422,6 +403,7 @@ def api_tokens_page(request: HttpRequest) -> HttpResponse:
     """The user's API tokens: make one (shown once), see when each was last used, revoke."""
     user = _user(request)
     form = ApiTokenForm()
+    created = None
     if request.method == "POST" and "revoke" in request.POST:
         try:
             api_token_revoke(user=user, digest=request.POST["revoke"], ip=client_ip(request))
@@ -438,24 +420,28 @@ def api_tokens_page(request: HttpRequest) -> HttpResponse:
                     user=user,
                     name=form.cleaned_data["name"],
                     expires_in_days=form.cleaned_data["expires_in_days"],
+                    mfa_verified=staff_verified(request),
                     ip=client_ip(request),
                 )
             except DomainError as exc:
                 _form_error(form, exc)
             else:
-                # Shown by the next page only (a reload makes no second token).
-                request.session[NEW_TOKEN_SESSION_KEY] = created
-                return redirect("api-tokens")
-    return render(
+                form = ApiTokenForm()
+    response = render(
         request,
         "web/tokens.html",
         {
             "form": form,
-            "created": request.session.pop(NEW_TOKEN_SESSION_KEY, None),
+            # Shown by this answer only, never kept (not in the session, not in a cache).
+            "created": created,
             "tokens": api_tokens_of(user),
-            "needs_mfa": user.is_testbed_admin and not mfa_enabled(user),
+            "needs_mfa": user.has_staff_role and not mfa_enabled(user),
+            "needs_second_factor": user.has_staff_role and not staff_verified(request),
         },
     )
+    if created is not None:
+        response["Cache-Control"] = "no-store"
+    return response
 
 
 @login_required
@@ -529,7 +515,7 @@ def ical_resource(request: HttpRequest, token: str, name: str) -> HttpResponse:
     return _ical_response(entries, f"AMazING: {resource.name}")
 
 
-@admin_required
+@staff_required
 def robot_console(request: HttpRequest, name: str) -> HttpResponse:
     resource = get_object_or_404(Resource, name=name, kind="mobile")
     # Manual drive obeys the same limit as programs: the stricter of the portal's and the agent's.
@@ -545,7 +531,7 @@ def robot_console(request: HttpRequest, name: str) -> HttpResponse:
     )
 
 
-@admin_required
+@staff_required
 def approvals(request: HttpRequest) -> HttpResponse:
     if request.method == "POST":
         reservation = get_object_or_404(Reservation, pk=request.POST.get("reservation"))
@@ -572,13 +558,13 @@ def approvals(request: HttpRequest) -> HttpResponse:
     return render(request, "web/approvals.html", {"pending": pending})
 
 
-@admin_required
+@staff_required
 def scheduler_link(request: HttpRequest) -> HttpResponse:
     """The link to the testbed's scheduler: health, the portal's leases, the others'."""
     return render(request, "web/scheduler.html", scheduler_overview(now=timezone.now()))
 
 
-@admin_required
+@staff_required
 def usage_report(request: HttpRequest) -> HttpResponse:
     zone = ZoneInfo(settings.TIME_ZONE)
     today = timezone.localdate()

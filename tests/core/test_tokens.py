@@ -62,7 +62,7 @@ def test_only_a_digest_of_the_token_is_stored(token):
 
 def test_the_cache_never_holds_the_password_hash_nor_the_token(token, person):
     _client(token).get("/api/v1/quota/")
-    cached, _expiry = cache.get(_cache_key(token_digest(token)))
+    cached, _expiry, _verified = cache.get(_cache_key(token_digest(token)))
     assert cached.pk == person.pk
     assert "password" in cached.get_deferred_fields()
     cached.first_name = "Dana"
@@ -93,8 +93,8 @@ def test_an_expired_token_is_refused_even_from_the_cache(person):
     client = _client(token)
     assert client.get("/api/v1/quota/").status_code == 200
     ApiToken.objects.update(expiry=timezone.now() - timedelta(seconds=1))
-    cached_user, _ = cache.get(_cache_key(token_digest(token)))
-    cache.set(_cache_key(token_digest(token)), (cached_user, timezone.now()), 60)
+    cached_user, _, verified = cache.get(_cache_key(token_digest(token)))
+    cache.set(_cache_key(token_digest(token)), (cached_user, timezone.now(), verified), 60)
     assert client.get("/api/v1/quota/").status_code == 401
     cache.clear()
     assert client.get("/api/v1/quota/").status_code == 401

@@ -21,7 +21,7 @@ from bookings.choices import Channel, ReservationState
 from bookings.models import CALENDAR, Reservation, ReservationItem, Resource
 from bookings.rules import PROBLEM_CODES
 from core.accounts.models import User
-from core.accounts.permissions import StaffMfaRequired
+from core.accounts.permissions import StaffVerified
 from core.api import (
     DateTimeInput,
     Pagination,
@@ -339,7 +339,7 @@ class DecisionInput(serializers.Serializer):
 
 
 class ReservationDecisionApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         request=DecisionInput,

@@ -23,7 +23,7 @@ from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
-from core.accounts.permissions import StaffMfaRequired
+from core.accounts.permissions import StaffVerified
 from core.api import GreaterThan, request_user, valid_input
 from core.audit.services import client_ip
 from core.openapi import errors
@@ -134,7 +134,7 @@ def _mobile_named(name: str) -> Resource:
 
 
 class RobotStatusApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(responses={200: RobotStatusOutput, **errors(400, 503, e400=NOT_MOBILE)})
     def get(self, request: Request, name: str) -> Response:
@@ -142,7 +142,7 @@ class RobotStatusApi(APIView):
 
 
 class RobotDriveApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         request=RobotDriveInput,
@@ -171,7 +171,7 @@ class RobotDriveApi(APIView):
 
 
 class RobotStopApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
     # Never throttled: a stop is refused only for who asks (the throttle counts calls
     # per user; a stop pressed again and again is a person in a hurry, not abuse).
     throttle_classes: list[type[BaseThrottle]] = []
@@ -194,7 +194,7 @@ class RobotStopApi(APIView):
 
 
 class RobotReleaseApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         request=ReleaseInput,
@@ -213,7 +213,7 @@ class RobotReleaseApi(APIView):
 
 
 class RobotLogApi(APIView):
-    permission_classes = [StaffMfaRequired]
+    permission_classes = [StaffVerified]
 
     @extend_schema(
         parameters=[OpenApiParameter("day", date, OpenApiParameter.PATH, description="UTC day.")],
