@@ -71,6 +71,9 @@ class Command(BaseCommand):
                     password=password,
                     is_staff=staff,
                     is_superuser=staff,
+                    # Made by the operator who runs this command: the demo admin may enrol
+                    # its first factor (staff powers need it).
+                    mfa_enrolment_allowed=staff,
                 )
                 created.append((username, password))
         for username, password in created:
