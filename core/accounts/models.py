@@ -19,8 +19,11 @@ class User(AbstractUser):  # type: ignore[django-manager-missing]
     # Another admin (the admin site, or ``manage.py mfa_enrolment_allow``) lets this staff
     # account set up its first factor: a password alone must not choose the second factor.
     # Cleared once it has.
+    # A database default too: rows written by code that predates the column (a migration's
+    # historical model, another version during a rolling deploy) still insert.
     mfa_enrolment_allowed: models.BooleanField[bool, bool] = models.BooleanField(
         default=False,
+        db_default=False,
         help_text="A staff account may set up its first second factor (cleared once it has).",
     )
 
@@ -63,7 +66,9 @@ class ApiToken(AbstractAuthToken):
 
     # Minted from a session that passed its second factor (or with its code): only such a
     # token of a staff account carries the staff powers, and it always expires.
-    mfa_verified: models.BooleanField[bool, bool] = models.BooleanField(default=False)
+    mfa_verified: models.BooleanField[bool, bool] = models.BooleanField(
+        default=False, db_default=False
+    )
 
     class Meta:
         ordering = ["-created"]

@@ -55,12 +55,13 @@ class Migration(migrations.Migration):
         migrations.AddField(
             model_name="apitoken",
             name="mfa_verified",
-            field=models.BooleanField(default=False),
+            field=models.BooleanField(db_default=False, default=False),
         ),
         migrations.AddField(
             model_name="user",
             name="mfa_enrolment_allowed",
             field=models.BooleanField(
+                db_default=False,
                 default=False,
                 help_text="A staff account may set up its first second factor (cleared once it has).",
             ),
