@@ -13,6 +13,7 @@ from rest_framework.test import APIClient
 
 from core.accounts.staff import has_staff_role
 from portal.celery import app as celery_app
+from tests.durations import UNKNOWN_LONG_S, UNKNOWN_S, UNKNOWN_SLOW_S, file_durations
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 
 # The real-process stack (agent, web, worker, beat) for integration and browser tests.
@@ -167,12 +168,13 @@ def eager_tasks():
 
 @pytest.hookimpl(trylast=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The longest files first (a test marked ``long``), then the files that start real
-    processes (integration and browser tests), then the rest: the workers (pytest-xdist, a
-    file each) take the long files while the short ones are left to fill the end, instead of
-    one worker finishing a long file alone. Within a file the order is unchanged. (After
-    pytest-django's ordering: under xdist a file runs whole on one worker anyway, so its
-    database groups already interleave with other files'.)"""
+    """The longest files first (their seconds in ``tests/durations.json``; a file not there
+    by its markers: ``long`` first, then the files that start real processes, then the rest):
+    the workers (pytest-xdist, a file each, handed out in this order: ``--no-loadscope-reorder``
+    in pyproject.toml) take the long files while the short ones are left to fill the end,
+    instead of one worker finishing a long file alone. Within a file the order is unchanged.
+    (After pytest-django's ordering: under xdist a file runs whole on one worker anyway, so
+    its database groups already interleave with other files'.)"""
 
     def files_marked(*names: str) -> set[str]:
         return {
@@ -182,9 +184,14 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         }
 
     long_files, slow_files = files_marked("long"), files_marked("integration", "browser")
+    known = file_durations()
 
-    def rank(item: pytest.Item) -> int:
-        file = item.nodeid.partition("::")[0]
-        return 0 if file in long_files else 1 if file in slow_files else 2
+    def seconds(file: str) -> float:
+        if file in known:
+            return known[file]
+        if file in long_files:
+            return UNKNOWN_LONG_S
+        return UNKNOWN_SLOW_S if file in slow_files else UNKNOWN_S
 
-    items.sort(key=rank)
+    cost = {file: seconds(file) for file in {item.nodeid.partition("::")[0] for item in items}}
+    items.sort(key=lambda item: -cost[item.nodeid.partition("::")[0]])
