@@ -27,8 +27,10 @@ env = environ.Env()
 
 
 def env_secret(name: str, default: str | None = None) -> str | None:
-    """A secret from ``NAME`` or from the file named by ``NAME_FILE`` (Docker/systemd secrets)."""
-    value = env.str(name, default=None)
+    """A secret from ``NAME`` or from the file named by ``NAME_FILE`` (Docker/systemd secrets),
+    as given: read from the environment itself, since django-environ takes a value starting
+    with ``$`` for the name of another variable (and Django's own keys may start so)."""
+    value = os.environ.get(name)
     if value:
         return value
     path = env.str(f"{name}_FILE", default=None)
@@ -69,7 +71,8 @@ if _secret_key is None:
 SECRET_KEY: str = _secret_key
 # Earlier secret keys, still accepted for signatures and for reading the agent tokens stored
 # under them (bookings/agent_tokens.py), while a new key takes over.
-SECRET_KEY_FALLBACKS: list[str] = env.list("DJANGO_SECRET_KEY_FALLBACKS", default=[])
+_fallbacks = os.environ.get("DJANGO_SECRET_KEY_FALLBACKS", "")
+SECRET_KEY_FALLBACKS: list[str] = [key.strip() for key in _fallbacks.split(",") if key.strip()]
 
 ALLOWED_HOSTS: list[str] = env.list(
     "DJANGO_ALLOWED_HOSTS", default=["127.0.0.1", "localhost"] if DEBUG else []

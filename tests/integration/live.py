@@ -41,6 +41,9 @@ def live_portal(
     env.update(
         {
             "DJANGO_DEBUG": "1",
+            # The test's key: the server reads what the test wrote under it (MFA secrets are
+            # encrypted with a key derived from it, core/crypto.py).
+            "DJANGO_SECRET_KEY": settings.SECRET_KEY,
             "DATABASE_URL": f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}",
             "AMAZING_VAR_DIR": str(var_dir),
             "AGENT_TOKEN": secrets.token_urlsafe(24),

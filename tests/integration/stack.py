@@ -57,7 +57,9 @@ def running_stack(
         redis_url=redis_url,
         second_robot=second_robot,
         with_scheduler=with_scheduler,
-        extra_env=extra_env,
+        # The test's key: the processes read what the test wrote under it (MFA secrets are
+        # encrypted with a key derived from it, core/crypto.py), the test what they wrote.
+        extra_env={"DJANGO_SECRET_KEY": settings.SECRET_KEY, **(extra_env or {})},
     ) as stack:
         yield stack
 

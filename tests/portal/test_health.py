@@ -11,6 +11,7 @@ from django.test import override_settings
 
 from core.health import SWEEP, heartbeat_record
 from portal.runs.tasks import runs_sweep
+from tests.conftest import sign_in_with_second_factor
 
 pytestmark = pytest.mark.django_db
 
@@ -71,7 +72,7 @@ def test_a_stale_scheduler_is_shown_to_admins_only(client, admin_user, owner):
     recorded_s = time.time()
     heartbeat_record(SWEEP, now_s=recorded_s - 600)
     assert client.get("/healthz").json()["scheduler"]["ok"] is False
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     page = client.get("/").content.decode()
     assert 'id="scheduler-warning"' in page
     # 600 s, and however long this test took to get here on a busy machine.
@@ -81,7 +82,7 @@ def test_a_stale_scheduler_is_shown_to_admins_only(client, admin_user, owner):
     client.force_login(owner)
     assert 'id="scheduler-warning"' not in client.get("/").content.decode()
     heartbeat_record(SWEEP)
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     assert 'id="scheduler-warning"' not in client.get("/").content.decode()
 
 
@@ -91,7 +92,7 @@ def test_a_cache_that_fails_is_503_but_the_pages_still_work(client, admin_user):
         assert response.status_code == 503
         body = response.json()
         assert (body["status"], body["database"], body["cache"]) == ("failing", "ok", "unreachable")
-        client.force_login(admin_user)
+        sign_in_with_second_factor(client, admin_user)
         page = client.get("/")
         assert page.status_code == 200
         assert 'id="scheduler-warning"' in page.content.decode()

@@ -14,6 +14,7 @@ import pytest
 from core.logs import current_request_id, logging_config, request_id_bound
 from portal.celery import _bind_request_id, _carry_request_id
 from tests.basestation.processes import Agent, start_agent
+from tests.conftest import sign_in_with_second_factor
 from tests.factories import MobileResourceFactory, UserFactory
 
 TOKEN = "request-id-agent-token-0123456789"
@@ -42,7 +43,7 @@ def _agent_lines(agent: Agent) -> list[dict[str, Any]]:
 def _robot_status(client, agent: Agent, settings, **headers: str):
     settings.AGENT_TOKENS = {"default": TOKEN}
     MobileResourceFactory(name="mobile-1", agent_url=agent.url)
-    client.force_login(UserFactory(is_staff=True))
+    sign_in_with_second_factor(client, UserFactory(is_staff=True))
     response = client.get("/api/v1/resources/mobile-1/robot/", headers=headers)
     assert response.status_code == 200, response.content
     return response

@@ -16,7 +16,9 @@ CHECK = "import django; django.setup(); print('started')"
 _NOT_INHERITED = ("DJANGO_", "AGENT_", "DATABASE_", "CELERY_", "REDIS_")
 
 
-def _start(env_changes: dict[str, str], tmp_path: Path) -> subprocess.CompletedProcess[str]:
+def _start(
+    env_changes: dict[str, str], tmp_path: Path, check: str = CHECK
+) -> subprocess.CompletedProcess[str]:
     env = {
         k: v
         for k, v in os.environ.items()
@@ -25,7 +27,7 @@ def _start(env_changes: dict[str, str], tmp_path: Path) -> subprocess.CompletedP
     env.update({"DJANGO_SETTINGS_MODULE": "portal.settings", "AMAZING_VAR_DIR": str(tmp_path)})
     env.update(env_changes)
     return subprocess.run(
-        [sys.executable, "-c", CHECK], cwd=REPO, env=env, capture_output=True, text=True, timeout=60
+        [sys.executable, "-c", check], cwd=REPO, env=env, capture_output=True, text=True, timeout=60
     )
 
 
@@ -54,6 +56,20 @@ def test_production_starts_with_its_settings_and_reads_secrets_from_files(tmp_pa
     result = _start(env, tmp_path)
     assert result.returncode == 0, result.stderr
     assert "started" in result.stdout
+
+
+def test_secrets_are_read_as_given_even_starting_with_a_dollar(tmp_path):
+    # Django's key generator draws from "$" among others; django-environ would read
+    # "$name" as the value of the variable "name" (here none: no key at all).
+    key, old = "$" + "k" * 49, "$" + "o" * 49
+    env = dict(PRODUCTION, DJANGO_SECRET_KEY=key, DJANGO_SECRET_KEY_FALLBACKS=old, AGENT_TOKEN=key)
+    check = (
+        "import django; django.setup(); from django.conf import settings as s; "
+        "print(s.SECRET_KEY, s.SECRET_KEY_FALLBACKS, s.AGENT_TOKEN)"
+    )
+    result = _start(env, tmp_path, check)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == [key, f"['{old}']", key]
 
 
 def test_production_starts_without_an_agent_token_in_the_environment(tmp_path):

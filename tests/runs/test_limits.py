@@ -28,6 +28,7 @@ from portal.runs.services import staging
 from portal.runs.services.booking import booking_create
 from portal.runs.services.health import robot_health_check
 from portal.runs.states import RunState
+from tests.conftest import sign_in_with_second_factor
 from tests.factories import ExperimentFactory
 
 pytestmark = pytest.mark.django_db
@@ -156,7 +157,7 @@ def test_a_resource_limit_looser_than_the_agents_cannot_be_saved(robot):
 def test_a_stricter_agent_shows_on_the_console_and_the_admins_resource_page(
     robot, admin_user, client
 ):
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     warning = "Its base station allows at most 1.5 m/s"
     assert warning not in client.get(f"/robot/{robot.name}/").content.decode()
     robot_health_check(resource_id=robot.pk)

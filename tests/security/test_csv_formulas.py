@@ -33,6 +33,7 @@ from core.accounts.models import User
 from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
 from tests.basestation.conftest import run_body
+from tests.conftest import sign_in_with_second_factor
 from tests.factories import FixedResourceFactory, UserFactory
 from tests.runs.conftest import TOKEN, agent  # noqa: F401  (the in-process agent fixture)
 
@@ -139,7 +140,7 @@ def test_the_agents_day_log_escapes_titles_and_users(agent, day_log):  # noqa: F
 
 
 def test_the_portals_day_log_escapes_titles_and_users(client, mobile, admin_user, day_log):
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     answer = client.get(f"/robot/{mobile.name}/log.csv?day={day_log}")
     assert answer.status_code == 200
     titles, users = _titles_and_users(_rows(answer.content.decode()))
@@ -160,13 +161,15 @@ def test_the_usage_report_escapes_user_and_group_names(client, admin_user):
             start_at=at,
             end_at=at + timedelta(hours=1),
         )
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     params = {"from": day.isoformat(), "to": day.isoformat(), "format": "csv"}
     for by, expected in (
         ("user", {"'" + text for text in FORMULAS}),
         ("group", {"'" + text for text in FORMULAS}),
     ):
-        rows = _rows(client.get("/usage/", {**params, "by": by}).content.decode())
+        answer = client.get("/usage/", {**params, "by": by})
+        assert answer.status_code == 200
+        rows = _rows(answer.content.decode())
         assert rows[0] == [by, "hours", "reservations"]
         assert {row[0] for row in rows[1:]} == expected
         assert {row[1] for row in rows[1:]} == {"1.0"}  # numbers stay numbers

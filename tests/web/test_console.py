@@ -11,6 +11,7 @@ import pytest
 
 from basestation.api.logs import LOG_CSV_COLUMNS
 from portal.web.console import DAY_LOG_COLUMNS
+from tests.conftest import sign_in_with_second_factor
 from tests.runs.conftest import agent  # noqa: F401  (the in-process agent fixture)
 
 pytestmark = pytest.mark.django_db
@@ -29,7 +30,7 @@ def test_an_admin_downloads_a_days_log(client, agent, mobile, admin_user):  # no
 
     day_before = agent_day()
     agent.client.control(user="charlie", velocity_mps=0.2, direction="cw", ttl_s=1)
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     # The log is by the agent's date: if its midnight passed meanwhile, the entry is in either.
     users = []
     for day in sorted({day_before, agent_day()}):
@@ -44,7 +45,7 @@ def test_an_admin_downloads_a_days_log(client, agent, mobile, admin_user):  # no
 
 @pytest.mark.parametrize("day", ["", "2026-02-30", "yesterday", "2026-1-1"])
 def test_a_bad_day_is_refused(client, mobile, admin_user, day):
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     assert client.get(f"/robot/{mobile.name}/log.csv?day={day}").status_code == 400
 
 

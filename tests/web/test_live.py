@@ -15,12 +15,14 @@ from django.utils import timezone
 
 from bookings.models import Resource
 from core import live
+from core.accounts.staff import has_staff_role
 from portal.runs.models import Run
 from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import Cause, RunState
 from portal.web.live import KEEPALIVE_S
+from tests.conftest import sign_in_with_second_factor
 from tests.factories import ExperimentFactory, FixedResourceFactory
 
 # The view reads the database from another thread: the test's rows must be committed.
@@ -29,11 +31,22 @@ pytestmark = pytest.mark.django_db(transaction=True)
 WAIT_S = 5.0
 
 
-def _status(user: Any, url: str) -> int:
+def _signed_in(user: Any, *, second_factor: bool = True) -> AsyncClient:
+    """A client as ``user``; staff in a session that passed its second factor unless
+    ``second_factor`` is off. (Signed in before the scenario: the session is saved here.)"""
+    client = AsyncClient()
+    if user is None:
+        return client
+    if second_factor and has_staff_role(user):
+        return sign_in_with_second_factor(client, user)
+    client.force_login(user)
+    return client
+
+
+def _status(user: Any, url: str, *, second_factor: bool = True) -> int:
+    client = _signed_in(user, second_factor=second_factor)
+
     async def scenario() -> int:
-        client = AsyncClient()
-        if user is not None:
-            await client.aforce_login(user)
         response = await client.get(url)
         if response.streaming:
             await response.streaming_content.aclose()
@@ -45,10 +58,9 @@ def _status(user: Any, url: str) -> int:
 def _follow(user: Any, url: str, then: Callable[[], Any], count: int) -> list[str]:
     """Open ``url`` as ``user``, do ``then`` (in a thread, as a worker would), and return the
     first ``count`` events after the stream's opening one."""
+    client = _signed_in(user)
 
     async def scenario() -> list[str]:
-        client = AsyncClient()
-        await client.aforce_login(user)
         response = await client.get(url)
         assert response.status_code == 200
         assert response["Content-Type"] == "text/event-stream"
@@ -90,6 +102,7 @@ def test_a_run_stream_is_for_those_who_may_see_the_run(run, owner, other, admin_
     assert _status(None, url) == 403
     assert _status(other, url) == 404
     assert _status(owner, url) == 200
+    assert _status(admin_user, url, second_factor=False) == 404  # a plain user without it
     assert _status(admin_user, url) == 200
 
 
@@ -117,6 +130,8 @@ def test_a_robots_stream_is_for_admins_and_carries_its_hold(owner, admin_user, m
     url = f"/live/robots/{mobile.name}/"
     assert _status(None, url) == 403
     assert _status(owner, url) == 403
+    assert _status(admin_user, url, second_factor=False) == 403
+    assert _status(admin_user, url) == 200
     assert _status(admin_user, "/live/robots/no-such-robot/") == 404
 
     def hold() -> None:

@@ -39,6 +39,7 @@ from portal.runs.services.booking import (
     booking_reschedule,
 )
 from tests.bookings.scheduler.conftest import Standin
+from tests.conftest import sign_in_with_second_factor
 from tests.factories import ExperimentFactory, FixedResourceFactory
 from tests.runs.test_tasks_twice import twice
 from tests.sqlite import run_on_sqlite
@@ -597,7 +598,7 @@ def test_the_link_status_and_the_admins_page(linked, admin_user, client, slot):
     linked.faults(unavailable=True)
     leases.scheduler_sweep()
     linked.faults(unavailable=False)
-    client.force_login(admin_user)
+    sign_in_with_second_factor(client, admin_user)
     page = client.get("/scheduler-link/")
     assert page.status_code == 200
     link = SchedulerLink.objects.get()
