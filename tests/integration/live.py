@@ -43,6 +43,8 @@ def live_portal(
             "DJANGO_DEBUG": "1",
             "DATABASE_URL": f"postgres://{db['USER']}@{db['HOST']}:{db['PORT']}/{db['NAME']}",
             "AMAZING_VAR_DIR": str(var_dir),
+            # This process's secret key: what a test stores encrypted, the portal reads back.
+            "DJANGO_SECRET_KEY": settings.SECRET_KEY,
             "AGENT_TOKEN": secrets.token_urlsafe(24),
             "AGENT_DATA_DIR": str(tmp_path / "agent"),
             "PYTHONUNBUFFERED": "1",

@@ -49,7 +49,10 @@ def running_stack(
     with_scheduler: bool = False,
     extra_env: dict[str, str] | None = None,
 ) -> Iterator[Stack]:
-    """Every process of ``system_processes`` on the test database, started and ready."""
+    """Every process of ``system_processes`` on the test database, started and ready.
+
+    The processes share this process's secret key, as a deployment's processes share one:
+    what a test stores encrypted (a staff account's TOTP secret) they read back."""
     with processes.running_stack(
         var_dir,
         database_url=_test_database_url(),
@@ -57,7 +60,7 @@ def running_stack(
         redis_url=redis_url,
         second_robot=second_robot,
         with_scheduler=with_scheduler,
-        extra_env=extra_env,
+        extra_env={"DJANGO_SECRET_KEY": settings.SECRET_KEY, **(extra_env or {})},
     ) as stack:
         yield stack
 
