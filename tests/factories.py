@@ -96,6 +96,16 @@ def totp_code(secret: str) -> str:
     return format_hotp_value(hotp_value(secret, int(time.time()) // mfa_settings.TOTP_PERIOD))
 
 
+def next_totp_code(secret: str, given: str) -> str:
+    """The code an authenticator app shows once ``given`` (taken already: allauth refuses a
+    code a second time) has made way for the next, as a person waits for it."""
+    deadline = time.monotonic() + mfa_settings.TOTP_PERIOD + 5
+    while (code := totp_code(secret)) == given:
+        assert time.monotonic() < deadline, "the authenticator's code did not change"
+        time.sleep(0.1)
+    return code
+
+
 def totp_secret_of(username: str) -> str | None:
     """The TOTP secret of ``username``'s authenticator app, if it has one."""
     found = Authenticator.objects.filter(
