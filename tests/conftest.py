@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import time
 
 import pytest
@@ -54,6 +55,30 @@ def pytest_configure(config: pytest.Config) -> None:
             raise pytest.UsageError(f"tests must run on PostgreSQL, got {engine}")
         if not settings.CELERY_BROKER_URL.startswith("redis://"):
             raise pytest.UsageError(f"tests must use Redis, got {settings.CELERY_BROKER_URL}")
+
+
+@pytest.fixture(scope="session")
+def django_db_setup(django_db_setup, django_db_blocker):
+    """pytest-django's test databases; before they are dropped, the connections still open on
+    them are ended and named. A process a test started and killed, or a thread's connection,
+    can outlive the test by a moment, and ``DROP DATABASE`` then fails the whole session's
+    last test with "being accessed by other users"."""
+    yield
+    from django.db import connection
+
+    if connection.vendor != "postgresql":
+        return
+    with django_db_blocker.unblock(), connection.cursor() as cursor:
+        cursor.execute(
+            "SELECT pid, application_name, state, left(query, 120),"
+            " pg_terminate_backend(pid) FROM pg_stat_activity"
+            " WHERE datname = current_database() AND pid <> pg_backend_pid()"
+        )
+        for pid, application, state, query, _ in cursor.fetchall():
+            sys.stderr.write(
+                f"test database still in use at the end, connection ended: pid {pid} "
+                f"{application!r} {state} {query!r}\n"
+            )
 
 
 @pytest.fixture(autouse=True)
