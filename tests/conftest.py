@@ -58,27 +58,46 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 @pytest.fixture(scope="session")
-def django_db_setup(django_db_setup, django_db_blocker):
-    """pytest-django's test databases; before they are dropped, the connections still open on
-    them are ended and named. A process a test started and killed, or a thread's connection,
-    can outlive the test by a moment, and ``DROP DATABASE`` then fails the whole session's
+def django_db_setup(django_db_setup):
+    """pytest-django's test databases; before they are dropped, this process's connection
+    pools are closed (a pool refills itself to its minimum) and any other connection still
+    open on them is ended and named. ``DROP DATABASE`` would otherwise fail the session's
     last test with "being accessed by other users"."""
     yield
-    from django.db import connection
+    import psycopg
+    from django.db import connections
 
-    if connection.vendor != "postgresql":
+    for alias in connections:
+        wrapper = connections[alias]
+        wrapper.close()
+        if hasattr(wrapper, "close_pool"):
+            wrapper.close_pool()
+    db = connections["default"].settings_dict
+    if "postgresql" not in db["ENGINE"]:
         return
-    with django_db_blocker.unblock(), connection.cursor() as cursor:
-        cursor.execute(
-            "SELECT pid, application_name, state, left(query, 120),"
-            " pg_terminate_backend(pid) FROM pg_stat_activity"
-            " WHERE datname = current_database() AND pid <> pg_backend_pid()"
-        )
-        for pid, application, state, query, _ in cursor.fetchall():
+    with psycopg.connect(
+        host=db["HOST"], port=db["PORT"] or None, user=db["USER"], dbname="postgres",
+        password=db.get("PASSWORD") or None, autocommit=True,
+    ) as maintenance:  # fmt: skip
+        ended = maintenance.execute(
+            "SELECT pid, application_name, state, left(query, 120), pg_terminate_backend(pid)"
+            " FROM pg_stat_activity WHERE datname = %s",
+            [db["NAME"]],
+        ).fetchall()
+        for pid, application, state, query, _ in ended:
             sys.stderr.write(
                 f"test database still in use at the end, connection ended: pid {pid} "
                 f"{application!r} {state} {query!r}\n"
             )
+        # pg_terminate_backend only signals: wait (a hang bounded) until they have gone.
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            left = maintenance.execute(
+                "SELECT count(*) FROM pg_stat_activity WHERE datname = %s", [db["NAME"]]
+            ).fetchone()
+            if not left or left[0] == 0:
+                break
+            time.sleep(0.05)
 
 
 @pytest.fixture(autouse=True)

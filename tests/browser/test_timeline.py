@@ -74,7 +74,10 @@ def _drag(page: Page, day: date, hours: tuple[int, int], rows: tuple[str, str]) 
     page.mouse.move(x0, y0)
     page.mouse.down()
     page.mouse.move((x0 + x1) / 2, (y0 + y1) / 2, steps=6)
-    page.mouse.move(x1, y1, steps=6)
+    # Where the last row is now, as a person looks before letting the pointer arrive: the
+    # page may have moved under the pointer meanwhile (a line of the live check, a re-read
+    # of the calendar), and a position taken before the drag then lands a row short.
+    page.mouse.move(x1, _row_y(page, rows[1]), steps=6)
 
 
 def _broker_leases(standin: str) -> list[dict]:
