@@ -10,6 +10,8 @@ behind its agent's back).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from django import forms
 from django.contrib import admin, messages
 from django.contrib.admin.helpers import ActionForm
@@ -137,28 +139,43 @@ class ReservationAdmin(admin.ModelAdmin):
     def has_delete_permission(self, request: HttpRequest, obj: object = None) -> bool:
         return False  # cancelled through ``booking_cancel``; the row and its run are kept
 
-    def _decide(
-        self, request: HttpRequest, queryset: QuerySet[Reservation], *, approve: bool
+    def _each(
+        self,
+        request: HttpRequest,
+        queryset: QuerySet[Reservation],
+        act: Callable[[Reservation], object],
+        done: str,
     ) -> None:
-        reason = request.POST.get("reason", "").strip()
+        """``act`` on each reservation through the runs' booking service; a refusal is shown
+        for that reservation and the others go on."""
         for reservation in queryset:
             try:
-                booking_decide(
-                    reservation=reservation,
-                    by=request.user,  # type: ignore[arg-type]
-                    approve=approve,
-                    reason=reason,
-                    via=Channel.ADMIN,
-                )
+                act(reservation)
             except DomainError as exc:
                 self.message_user(
                     request, f"Reservation {reservation.pk}: {exc.message}", messages.ERROR
                 )
             else:
-                done = "approved" if approve else "rejected"
                 self.message_user(
                     request, f"Reservation {reservation.pk} {done}.", messages.SUCCESS
                 )
+
+    def _decide(
+        self, request: HttpRequest, queryset: QuerySet[Reservation], *, approve: bool
+    ) -> None:
+        reason = request.POST.get("reason", "").strip()
+        self._each(
+            request,
+            queryset,
+            lambda reservation: booking_decide(
+                reservation=reservation,
+                by=request.user,  # type: ignore[arg-type]
+                approve=approve,
+                reason=reason,
+                via=Channel.ADMIN,
+            ),
+            "approved" if approve else "rejected",
+        )
 
     @admin.action(description="Approve (requested bookings)")
     def approve(self, request: HttpRequest, queryset: QuerySet[Reservation]) -> None:
@@ -173,19 +190,14 @@ class ReservationAdmin(admin.ModelAdmin):
         reason = _action_reason(self, request)
         if reason is None:
             return
-        for reservation in queryset:
-            try:
-                booking_cancel(
-                    reservation=reservation,
-                    by=request.user,  # type: ignore[arg-type]
-                    reason=reason,
-                    via=Channel.ADMIN,
-                )
-            except DomainError as exc:
-                self.message_user(
-                    request, f"Reservation {reservation.pk}: {exc.message}", messages.ERROR
-                )
-            else:
-                self.message_user(
-                    request, f"Reservation {reservation.pk} cancelled.", messages.SUCCESS
-                )
+        self._each(
+            request,
+            queryset,
+            lambda reservation: booking_cancel(
+                reservation=reservation,
+                by=request.user,  # type: ignore[arg-type]
+                reason=reason,
+                via=Channel.ADMIN,
+            ),
+            "cancelled",
+        )
