@@ -75,6 +75,16 @@ system-deps:
 
 setup: $(STAMPS)/venv $(STAMPS)/assets
 
+# nginx, the compose file's proxy, for the tests that put deploy/nginx.conf in front of the web
+# server (tests/security/test_behind_nginx.py): Debian's binary unpacked under var/, never
+# installed as a service (its package's scripts would start one on port 80).
+NGINX := var/tools/nginx/usr/sbin/nginx
+$(NGINX):
+	@rm -rf var/tools/nginx var/tools/nginx-deb && mkdir -p var/tools/nginx-deb
+	cd var/tools/nginx-deb && apt-get download -qq nginx 2>&1 | grep -v "^W: Download is performed unsandboxed" || true
+	dpkg-deb -x var/tools/nginx-deb/nginx_*.deb var/tools/nginx
+	@$(NGINX) -v
+
 run: setup
 	$(PY) -m portal.launcher
 
@@ -82,7 +92,7 @@ services:
 	@bash tests/ensure_services.sh $(TEST_DATABASE_URL) $(TEST_REDIS_URL)
 
 # Firmware first (seconds), then every Python suite; pytest's summary closes the output.
-test: setup system-deps services
+test: setup system-deps services $(NGINX)
 	$(MAKE) --no-print-directory -C firmware test hex size-check
 	$(TEST_ENV) $(PY) -m pytest
 

@@ -222,8 +222,13 @@ ACCOUNT_ALLOW_SIGNUP = env.bool("ACCOUNT_ALLOW_SIGNUP", default=False)
 ACCOUNT_ADAPTER = "core.accounts.adapter.AccountAdapter"
 # Sign-in, failed sign-in, password reset (allauth's own limits besides): on in production,
 # answered with 429. The API's token sign-in (``amazing login``) counts against the same.
+# allauth's limits on failed sign-ins and password resets, per client address and per account.
+# Always on in production; under DEBUG (a developer's machine, the test processes) only when
+# SIGN_IN_LIMITS=1 asks for them, as the test that puts nginx in front does.
 ACCOUNT_RATE_LIMITS: dict[str, str] | bool = (
-    False if DEBUG else {"login_failed": "10/m/ip,5/5m/key", "reset_password": "20/m/ip,5/m/key"}
+    {"login_failed": "10/m/ip,5/5m/key", "reset_password": "20/m/ip,5/m/key"}
+    if not DEBUG or env.bool("SIGN_IN_LIMITS", default=False)
+    else False
 )
 # How many proxies of ours stand in front of the web server, each appending the address it
 # saw to X-Forwarded-For (docker-compose.yml: 1, its nginx). 0: the peer's own address
