@@ -348,28 +348,62 @@ def test_mfa_secrets_are_stored_encrypted(admin_user):
 
 
 @pytest.mark.django_db(transaction=True)
-def test_one_recovery_code_used_twice_at_once_passes_once():
-    """(e) Two requests with the same recovery code, at the same moment: one passes."""
+def test_one_recovery_code_used_twice_at_once_passes_once(monkeypatch):
+    """(e) Two checks of the same recovery code, forced to overlap: the first has taken the
+    code and not yet committed when the second starts. The second must wait for the first's
+    lock (seen in PostgreSQL's ``pg_blocking_pids``), then read the code as used. Without the
+    transaction that holds the lock (``mfa_code_check``) nothing waits, and this fails."""
     staff = UserFactory(username="sam", is_staff=True, is_superuser=True)
     code = RecoveryCodes(
         Authenticator.objects.get(user=staff, type=Authenticator.Type.RECOVERY_CODES)
     ).get_unused_codes()[0]
-    start = threading.Barrier(2)
-    results: list[bool] = []
+    first_took_it = threading.Event()
+    second_waited = threading.Event()
+    backends: dict[str, int] = {}
+    results: dict[str, bool] = {}
+    record_usage = Authenticator.record_usage
+
+    def record_then_hold(self: Authenticator) -> None:
+        record_usage(self)
+        if threading.current_thread().name == "first":
+            # The code is marked used in this transaction, which stays open until the
+            # second check is seen waiting.
+            first_took_it.set()
+            assert second_waited.wait(30), "the second check was never seen waiting"
+
+    monkeypatch.setattr(Authenticator, "record_usage", record_then_hold)
 
     def use() -> None:
+        name = threading.current_thread().name
         try:
-            start.wait()
-            results.append(mfa_code_check(staff, code) is not None)
+            with connection.cursor() as cursor:
+                cursor.execute("SELECT pg_backend_pid()")
+                backends[name] = cursor.fetchone()[0]
+            results[name] = mfa_code_check(staff, code) is not None
         finally:
             close_old_connections()
 
-    threads = [threading.Thread(target=use) for _ in range(2)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(timeout=30)
-    assert sorted(results) == [False, True]
+    first = threading.Thread(target=use, name="first")
+    first.start()
+    assert first_took_it.wait(30), "the first check never took the code"
+    second = threading.Thread(target=use, name="second")
+    second.start()
+    try:
+        deadline = time.monotonic() + 10
+        waiting = False
+        while not waiting and time.monotonic() < deadline:
+            if "second" in backends:
+                with connection.cursor() as cursor:
+                    cursor.execute("SELECT pg_blocking_pids(%s)", [backends["second"]])
+                    waiting = backends["first"] in cursor.fetchone()[0]
+            if not waiting:
+                time.sleep(0.05)
+        assert waiting, "the second check did not wait for the first's lock on the code"
+    finally:
+        second_waited.set()
+        first.join(timeout=30)
+        second.join(timeout=30)
+    assert results == {"first": True, "second": False}
 
 
 def test_turning_mfa_on_ends_the_accounts_other_sessions(db, django_capture_on_commit_callbacks):
