@@ -60,24 +60,42 @@ def _slot_x(page: Page, day: date, hour: int) -> float:
 
 
 def _row_y(page: Page, name: str) -> float:
-    label = page.locator(f"[data-resource='{name}']")
-    bounds = page.locator(".ec-row-head", has=label).bounding_box()
-    assert bounds
+    bounds = _row_box(page, name)
     return bounds["y"] + bounds["height"] / 2
 
 
 def _drag(page: Page, day: date, hours: tuple[int, int], rows: tuple[str, str]) -> None:
-    """Press in the first row at the first hour, let go in the last row before the second."""
+    """Press in the first row at the first hour, and bring the pointer to the last row before
+    the second, still pressed."""
     x0 = _slot_x(page, day, hours[0]) + 4
     x1 = _slot_x(page, day, hours[1]) - 4
     y0, y1 = _row_y(page, rows[0]), _row_y(page, rows[1])
     page.mouse.move(x0, y0)
     page.mouse.down()
     page.mouse.move((x0 + x1) / 2, (y0 + y1) / 2, steps=6)
-    # Where the last row is now, as a person looks before letting the pointer arrive: the
-    # page may have moved under the pointer meanwhile (a line of the live check, a re-read
-    # of the calendar), and a position taken before the drag then lands a row short.
-    page.mouse.move(x1, _row_y(page, rows[1]), steps=6)
+    # As a person watches the pointer: if the page has moved under it meanwhile (a line of
+    # the live check, a re-read of the calendar, a scroll), it is brought to the last row
+    # where that row is now. Each correction is printed, so a failure shows what moved.
+    y = y1
+    for attempt in range(4):
+        page.mouse.move(x1, y, steps=6)
+        box = _row_box(page, rows[1])
+        if box["y"] <= y < box["y"] + box["height"]:
+            return
+        scroll_y = page.evaluate("window.scrollY")
+        print(
+            f"the {rows[1]} row moved under the pointer (try {attempt}): pointer at y={y:.0f}, "
+            f"row now {box['y']:.0f}–{box['y'] + box['height']:.0f}, scrollY {scroll_y}"
+        )
+        y = box["y"] + box["height"] / 2
+    raise AssertionError(f"the {rows[1]} row kept moving under the pointer")
+
+
+def _row_box(page: Page, name: str) -> dict[str, float]:
+    label = page.locator(f"[data-resource='{name}']")
+    bounds = page.locator(".ec-row-head", has=label).bounding_box()
+    assert bounds
+    return bounds
 
 
 def _broker_leases(standin: str) -> list[dict]:
