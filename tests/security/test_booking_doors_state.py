@@ -1,18 +1,21 @@
 """Bookings and their runs changed at random through every door, checked after each step.
 
 The doors: the REST API (as itself, as the pages' scripts and as the ``amazing`` command
-say they are), the lease API of the testbed scheduler, the Django admin's reservation actions
-and the pages' cancel form. After every step: a scheduled run's booking is requested or
-confirmed and holds the run's window; every run's program fits its window; no two active
-bookings of the robot overlap; every change is audited with the door it came through.
+say they are), the lease API of the testbed scheduler, the Django admin's reservation actions,
+the Book page's form and the pages' cancel form. After every step: a scheduled run's booking
+is requested or confirmed and holds the run's window; every run's program fits its window; no
+two active bookings of the robot overlap; every change is audited with the door it came
+through.
 """
 
 from __future__ import annotations
 
 from datetime import UTC, timedelta
 from itertools import pairwise
+from zoneinfo import ZoneInfo
 
 import pytest
+from django.conf import settings as django_settings
 from django.contrib import admin
 from django.contrib.auth.models import Permission
 from django.contrib.messages.storage.cookie import CookieStorage
@@ -71,7 +74,7 @@ class BookingDoors(RuleBasedStateMachine):
             owner=self.owner,
             segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 40.0}],
         )
-        self.base = timezone.now().replace(microsecond=0) + timedelta(days=1)
+        self.base = timezone.now().replace(second=0, microsecond=0) + timedelta(days=1)
         # The doors each booking's changes came through, in order, as the audit should say.
         self.doors: dict[int, list[tuple[str, str]]] = {}
 
@@ -113,6 +116,30 @@ class BookingDoors(RuleBasedStateMachine):
         assert answer.status_code in (201, 400, 409), answer.content
         made = answer.json().get("id") if answer.status_code == 201 else None
         self._done(answer, made, "reservation.create", door)
+
+    @rule(
+        slot=st.integers(0, SLOTS - 1),
+        length_s=st.sampled_from(LENGTHS_S),
+        # Mostly with it: the robot is refused without the experiment it will run.
+        with_experiment=st.sampled_from([True, True, True, False]),
+    )
+    def book_on_the_page(self, slot: int, length_s: int, with_experiment: bool) -> None:
+        """The Book page's form: times typed as the testbed's wall clock, to the minute."""
+        zone = ZoneInfo(django_settings.TIME_ZONE)
+        start = (self.base + timedelta(minutes=10 * slot)).astimezone(zone)
+        end = start + timedelta(seconds=max(length_s, 60))  # the form takes whole minutes
+        form = {
+            "resource": self.robot.name,
+            "start_at": start.strftime("%Y-%m-%dT%H:%M"),
+            "end_at": end.strftime("%Y-%m-%dT%H:%M"),
+            "experiment": str(self.experiment.pk) if with_experiment else "",
+        }
+        before = set(self._mine().values_list("pk", flat=True))
+        answer = self.pages.post("/book/", form)
+        assert answer.status_code in (200, 302), answer.status_code
+        made = set(self._mine().values_list("pk", flat=True)) - before
+        assert len(made) == (1 if answer.status_code == 302 else 0), answer.status_code
+        self._done(answer, made.pop() if made else None, "reservation.create", "web")
 
     @rule(slot=st.integers(0, SLOTS - 1), length_s=st.sampled_from(LENGTHS_S))
     def lease(self, slot: int, length_s: int) -> None:
