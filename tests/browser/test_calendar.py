@@ -109,5 +109,18 @@ def test_the_calendar_explains_a_refusal_in_the_dialog(browser, live_server):
     assert refused.value.status >= 400
     expect(page.locator("#booking-feedback")).to_contain_text("at most 30 min")
     expect(dialog).to_be_visible()
+    # A time the clocks skip is refused before anything is asked, saying why (the portal's
+    # rule, core/wall_clock.py); a time they pass twice is booked as the first of the two.
+    start = dialog.get_by_label("Start")
+    start.fill("2027-03-28T01:30")
+    expect(page.locator("#booking-feedback")).to_have_text(
+        "01:30 does not exist on 28 March 2027 in Europe/Lisbon: "
+        "clocks go forward from 01:00 to 02:00."
+    )
+    start.fill("2027-10-31T01:30")
+    dialog.get_by_label("End").fill("2027-10-31T01:50")
+    expect(page.locator("#booking-feedback")).to_contain_text(
+        "01:30 is the first of the two that night (UTC+01:00)."
+    )
     assert not Reservation.objects.exists()
     context.close()

@@ -147,6 +147,13 @@ def test_a_drag_over_the_robot_and_two_nodes_books_them_in_one_lease(browser, st
     for name in ("mobile-1", "node-01", "node-02"):
         expect(dialog.get_by_label(name)).to_be_checked()
     expect(dialog.get_by_label("node-03")).not_to_be_checked()
+    # A time the clocks skip is refused in the dialog, saying why (core/wall_clock.py's rule).
+    dialog.get_by_label("Start").fill("2027-03-28T01:30")
+    expect(page.locator("#timeline-feedback")).to_have_text(
+        "01:30 does not exist on 28 March 2027 in Europe/Lisbon: "
+        "clocks go forward from 01:00 to 02:00."
+    )
+    dialog.get_by_label("Start").fill(f"{day.isoformat()}T10:00")
     dialog.get_by_label("experiment").select_option(label="loop test (6 s)")
     expect(page.locator("#timeline-feedback")).to_contain_text("Free, and within your quota")
     dialog.get_by_role("button", name="Confirm booking").click()

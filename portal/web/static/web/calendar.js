@@ -13,23 +13,32 @@
   let selected = null;
 
   const { api, explain } = window.AmazingApi;
+  const { typedWindow } = window.AmazingWallClock;
 
-  // datetime-local values are wall-clock times in the testbed's zone.
+  // datetime-local values are wall-clock times in the testbed's zone, read by the portal's
+  // rule for the nights the clocks change (wall_clock.js).
   const toLocalInput = (date) => DateTime.fromJSDate(date, { zone }).toFormat("yyyy-LL-dd'T'HH:mm");
-  const fromLocalInput = (value) => DateTime.fromISO(value, { zone }).toISO();
 
+  // The booking the dialog holds; `times` says which occurrence a repeated time is, or why a
+  // time cannot be booked.
   function bookingBody() {
     const resources = Array.from(form.resources.selectedOptions).map((o) => o.value);
-    const body = { resources, start_at: fromLocalInput(form.start.value), end_at: fromLocalInput(form.end.value) };
+    const times = typedWindow(form.start.value, form.end.value, zone);
+    const body = { resources, start_at: times.start, end_at: times.end };
     if (form.experiment.value) body.experiment = Number(form.experiment.value);
     if (form.title.value) body.title = form.title.value;
-    return body;
+    return { body, times };
   }
 
   let checkTimer = null;
   async function liveCheck() {
-    const body = bookingBody();
-    if (!body.resources.length || !body.start_at || !body.end_at) {
+    const { body, times } = bookingBody();
+    if (times.error) {
+      feedback.textContent = times.error + ".";
+      feedback.className = "error";
+      return;
+    }
+    if (!body.resources.length) {
       feedback.textContent = "Choose at least one resource.";
       feedback.className = "";
       return;
@@ -45,6 +54,7 @@
     let text = d.fits ? "Free, and within your quota." : problems.join(" ");
     if (d.fits && d.needs_approval) text += " An admin will confirm it.";
     if (d.notice) text += " " + d.notice;
+    if (times.note) text += " " + times.note;
     feedback.textContent = text;
     feedback.className = d.fits ? "ok" : "error";
   }
@@ -67,8 +77,16 @@
     const button = document.getElementById("booking-confirm");
     button.setAttribute("aria-busy", "true");
     button.disabled = true;
+    const { body, times } = bookingBody();
+    if (times.error) {
+      feedback.textContent = times.error + ".";
+      feedback.className = "error";
+      button.removeAttribute("aria-busy");
+      button.disabled = false;
+      return;
+    }
     const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
-    const result = await api("POST", "/api/v1/reservations/", bookingBody(), { "X-Idempotency-Key": key });
+    const result = await api("POST", "/api/v1/reservations/", body, { "X-Idempotency-Key": key });
     button.removeAttribute("aria-busy");
     button.disabled = false;
     if (result.ok) {

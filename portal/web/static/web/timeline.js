@@ -21,6 +21,7 @@
   const SLOT_MIN = 30;
 
   const { api, explain } = window.AmazingApi;
+  const { typedWindow } = window.AmazingWallClock;
 
   // Event Calendar's dates carry the testbed's wall-clock time in the browser's fields.
   const wall = (d) => DateTime.fromObject(
@@ -29,7 +30,6 @@
   );
   const floating = (iso) => DateTime.fromISO(iso, { zone }).toFormat(FLOATING);
   const toLocalInput = (dt) => dt.toFormat("yyyy-LL-dd'T'HH:mm");
-  const fromLocalInput = (value) => DateTime.fromISO(value, { zone }).toISO();
   const shown = (dt) => dt.toFormat("ccc d LLL HH:mm");
 
   // --- What the rows hold --------------------------------------------------------------------
@@ -101,7 +101,7 @@
   }
 
   // The same rules booking applies, asked again whenever the dragged rows or times change.
-  async function check(resources, start, end, experiment, target) {
+  async function check(resources, start, end, experiment, target, note = "") {
     const seq = ++checkSeq;
     const body = { resources, start_at: start.toISO(), end_at: end.toISO() };
     if (experiment) body.experiment = experiment;
@@ -117,6 +117,7 @@
       text = d.fits ? "Free, and within your quota." : problems.join(" ");
       if (d.fits && d.needs_approval) text += " An admin will confirm it.";
       if (d.notice) text += " " + d.notice;
+      if (note) text += " " + note;
     }
     target.textContent = target === checkLine ? `${resources.join(", ")} · ${shown(start)}–${end.toFormat("HH:mm")}: ${text}` : text;
     target.className = (target === checkLine ? "timeline-check " : "") + (fits ? "ok" : "error");
@@ -148,24 +149,33 @@
   });
 
   // --- The booking dialog --------------------------------------------------------------------
+  // The booking the dialog holds; `times` says which occurrence a repeated time is, or why a
+  // time cannot be booked (wall_clock.js: the portal's rule for the nights the clocks change).
   function bookingBody() {
     const resources = Array.from(form.querySelectorAll("input[name=resources]:checked")).map((i) => i.value);
-    const body = { resources, start_at: fromLocalInput(form.start.value), end_at: fromLocalInput(form.end.value) };
+    const times = typedWindow(form.start.value, form.end.value, zone);
+    const body = { resources, start_at: times.start, end_at: times.end };
     if (form.experiment.value) body.experiment = Number(form.experiment.value);
     if (form.title.value) body.title = form.title.value;
-    return body;
+    return { body, times };
   }
   let dialogTimer = null;
   function checkDialog() {
-    const body = bookingBody();
-    if (!body.resources.length || !body.start_at || !body.end_at) {
+    const { body, times } = bookingBody();
+    clearTimeout(dialogTimer);
+    if (times.error) {
+      feedback.textContent = times.error + ".";
+      feedback.className = "error";
+      return;
+    }
+    if (!body.resources.length) {
       feedback.textContent = "Choose at least one resource.";
       feedback.className = "";
       return;
     }
-    clearTimeout(dialogTimer);
     dialogTimer = setTimeout(() => check(
-      body.resources, DateTime.fromISO(body.start_at), DateTime.fromISO(body.end_at), body.experiment, feedback,
+      body.resources, DateTime.fromISO(body.start_at, { zone }), DateTime.fromISO(body.end_at, { zone }),
+      body.experiment, feedback, times.note,
     ), 150);
   }
   form.addEventListener("change", checkDialog);
@@ -206,8 +216,16 @@
     const button = document.getElementById("timeline-confirm");
     button.setAttribute("aria-busy", "true");
     button.disabled = true;
+    const { body, times } = bookingBody();
+    if (times.error) {
+      feedback.textContent = times.error + ".";
+      feedback.className = "error";
+      button.removeAttribute("aria-busy");
+      button.disabled = false;
+      return;
+    }
     const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
-    const result = await api("POST", "/api/v1/reservations/", bookingBody(), { "X-Idempotency-Key": key });
+    const result = await api("POST", "/api/v1/reservations/", body, { "X-Idempotency-Key": key });
     button.removeAttribute("aria-busy");
     button.disabled = false;
     if (result.ok) {
