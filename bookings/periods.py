@@ -3,10 +3,11 @@
 Every period the product keeps (reservations and their items, maintenance windows, the
 testbed scheduler's leases, quota periods, a report's range) includes its start and excludes
 its end, so two periods back to back share no instant. PostgreSQL's
-``tstzrange(start, end, '[)')`` means the same. The portal's queries spell the condition once,
-in ``bookings.models.PeriodQuerySet.overlapping``, and the agent once, in
+``tstzrange(start, end, '[)')`` means the same. The portal's ORM queries spell the condition
+once, in ``bookings.models.PeriodQuerySet.overlapping``, its hand-written SQL once, in
+``bookings.models.overlap_sql`` (the booking check's one round trip), and the agent once, in
 ``basestation.store.overlap_condition`` (SQLite); ``tests/bookings/test_overlap.py`` holds
-the three to agree with PostgreSQL, and ``tests/test_architecture.py`` refuses a start/end
+them all to agree with PostgreSQL, and ``tests/test_architecture.py`` refuses a start/end
 comparison anywhere else.
 
 A period is not empty (``start < end``: the models' check constraints and the services'

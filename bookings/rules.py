@@ -18,8 +18,9 @@ first one (``Problem.as_error``), the calendar's live check shows them all.
   argument: bookings know nothing of runs.
 
 :func:`velocity_limit` is the portal's one answer to "how fast may this robot go": the
-stricter of the resource's own limit and the one its base-station agent reports (DESIGN.md
-§4: firmware ≥ agent ≥ portal, each layer only stricter), naming which of the two limits.
+stricter of the resource's own limit and the one its base-station agent reports (the layers'
+limits nest: firmware ≥ agent ≥ portal, each layer only stricter; docs/architecture.md
+"Velocity limits"), naming which of the two limits.
 :func:`velocity_problem` checks a velocity against it: programs at booking (the booked robot),
 programs when written (:func:`robots_fitting`, every robot the author may book) and manual
 drive. :func:`resource_limit_problem` refuses a resource limit looser than its agent's.
