@@ -22,6 +22,7 @@ from basestation.app import MAX_BODY_BYTES, create_app
 from basestation.backup import AgentRunning, data_dir_lock
 from basestation.config import AgentConfig, ConfigError
 from basestation.contract import STOP_PATH
+from basestation.cpu_slots import DEFAULT_SLOTS, CpuSlots
 from basestation.logs import LOG_FORMATS, configure_logging
 from basestation.runtime import get_runtime
 
@@ -109,6 +110,11 @@ def is_stop(request: Any) -> bool:
     return bool(request.command == "POST" and request.path == STOP_PATH)
 
 
+def is_stop_environ(environ: dict[str, Any]) -> bool:
+    """Whether the WSGI request ``environ`` is a stop: it takes no CPU slot."""
+    return bool(environ.get("REQUEST_METHOD") == "POST" and environ.get("PATH_INFO") == STOP_PATH)
+
+
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="amazing-agent",
@@ -125,6 +131,14 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=STOP_THREADS,
         help="threads that serve only POST /api/v1/stop, ahead of the queue (default 2; "
         "0 queues stops with every other request, for comparison)",
+    )
+    parser.add_argument(
+        "--cpu-slots",
+        type=int,
+        default=DEFAULT_SLOTS,
+        help="requests that run at once, the stop aside (default 2; 0: as many as threads, "
+        "for comparison); the others wait without competing for the interpreter lock "
+        "(basestation/cpu_slots.py)",
     )
     parser.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ...")
     parser.add_argument(
@@ -193,6 +207,7 @@ def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
             port=args.port,
             threads=args.threads,
             stop_threads=args.stop_threads,
+            cpu_slots=args.cpu_slots,
         )
     except OSError as exc:
         logger.error("cannot listen on %s:%s: %s", args.host, args.port, exc)
@@ -226,10 +241,21 @@ def _serve(args: argparse.Namespace, config: AgentConfig) -> int:
 
 
 def make_server(
-    app: Any, *, host: str, port: int, threads: int, stop_threads: int = STOP_THREADS
+    app: Any,
+    *,
+    host: str,
+    port: int,
+    threads: int,
+    stop_threads: int = STOP_THREADS,
+    cpu_slots: int = DEFAULT_SLOTS,
 ) -> BaseWSGIServer:
-    """waitress serving ``app``: API errors in JSON, and ``stop_threads`` threads that serve
-    stops ahead of the queue (0: stops queue with every other request)."""
+    """waitress serving ``app``: API errors in JSON, ``stop_threads`` threads that serve
+    stops ahead of the queue (0: stops queue with every other request), and at most
+    ``cpu_slots`` other requests running at once (0: no limit but the threads)."""
+    if cpu_slots < 0:
+        raise ValueError("cpu_slots must be 0 or more")
+    if cpu_slots:
+        app = CpuSlots(app, cpu_slots, exempt=is_stop_environ)
     dispatcher = StopFirstDispatcher(stop_threads) if stop_threads > 0 else ThreadedTaskDispatcher()
     dispatcher.set_thread_count(threads)
     server = create_server(

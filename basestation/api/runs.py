@@ -13,6 +13,7 @@ from flask.typing import ResponseReturnValue
 from basestation.api.bodies import json_body
 from basestation.api.errors import invalid_response
 from basestation.contract import SAMPLE_FIELDS, CsvWriter
+from basestation.cpu_slots import slot_released
 from basestation.errors import RunNotFound
 from basestation.program import FieldErrors
 from basestation.runtime import get_runtime
@@ -163,7 +164,9 @@ def _samples_or_wait(
             return record, samples
         # The store's writer may live in another process (the control loop's): its commits
         # wake no waiter here, so the wait is cut into short slices that look again.
-        store.wait_changed(version, min(remaining_s, CROSS_PROCESS_LOOK_S))
+        # Only waiting: another request may run meanwhile (basestation/cpu_slots.py).
+        with slot_released():
+            store.wait_changed(version, min(remaining_s, CROSS_PROCESS_LOOK_S))
 
 
 def _page_json(run_id: str, state: str, samples: list[Sample], last_seq: int, more: bool) -> str:

@@ -330,3 +330,40 @@ def test_a_stop_is_answered_while_every_request_thread_is_busy(agent_app):
     finally:
         server.close()
         runtime.close()
+
+
+def test_a_long_poll_gives_its_cpu_slot_back_while_it_waits(agent_app):
+    """One CPU slot, a long-poll waiting for samples: a status read still runs at once (the
+    wait holds a thread, not the slot)."""
+    runtime = get_runtime(agent_app)
+    client = agent_app.test_client()
+    soon = round(time.time()) + 60.0
+    client.put("/api/v1/runs/run-1", json=run_body(soon), headers=_bearer(TOKEN))
+    server = make_server(agent_app, host="127.0.0.1", port=0, threads=4, cpu_slots=1)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    url = f"http://127.0.0.1:{server.effective_port}"  # type: ignore[attr-defined]
+    dispatcher = server.task_dispatcher
+
+    def hold() -> None:
+        with contextlib.suppress(requests.RequestException):
+            requests.get(
+                f"{url}/api/v1/runs/run-1/samples?wait_s={HOLD_S}",
+                headers=_bearer(TOKEN),
+                timeout=HOLD_S + 5,
+            )
+
+    holder = threading.Thread(target=hold, daemon=True)
+    try:
+        holder.start()
+        deadline = time.monotonic() + DEADLINE_S
+        while dispatcher.active_count != 1:
+            assert time.monotonic() < deadline, "the long-poll never started"
+            time.sleep(0.01)
+        # Without the slot given back, this waits for the long-poll's 30 s and times out.
+        status = requests.get(f"{url}/api/v1/status", headers=_bearer(TOKEN), timeout=DEADLINE_S)
+        assert status.status_code == 200
+        assert dispatcher.active_count >= 1  # the long-poll is still waiting
+    finally:
+        server.close()
+        runtime.close()
