@@ -1,10 +1,10 @@
 """Booking with a robot program: a reservation and its run change together, or not at all.
 
 Each function here opens one transaction and, inside it, calls the booking service of
-``bookings/services.py`` (which takes the booking locks and asks ``bookings.rules`` whether
-the booking can be made) and then does the run's part. Bookings know nothing of runs: what
-only this layer knows (who wrote the experiment, whether the run has left the schedule) is
-passed in.
+``bookings/services/reservations.py`` (which takes the booking locks and asks
+``bookings.rules`` whether the booking can be made) and then does the run's part. Bookings
+know nothing of runs: what only this layer knows (who wrote the experiment, whether the run
+has left the schedule) is passed in.
 
 This is the one door for a booking that holds or may hold a run: the pages, the REST API (and
 the ``amazing`` command through it), the Django admin's actions and the testbed scheduler's

@@ -2,8 +2,9 @@
 
 Beat asks every ``HEALTH_POLL_INTERVAL_S`` for each mobile node's ``GET /status``. The answer
 (or that the agent did not answer) is cached for the console and the calendar and pushed to
-them live. A robot is taken out of booking (``bookings.services.resource_hold``, which the
-booking rule "out of service" reads under the booking lock) when its agent reports
+them live. A robot is taken out of booking (``resource_hold`` in
+``bookings/services/resources.py``, which the booking rule "out of service" reads under the
+booking lock) when its agent reports
 
 - a latched emergency stop,
 - a fault (``faults`` in the status: the control loop stopped, the robot not answering),

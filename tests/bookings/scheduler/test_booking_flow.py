@@ -137,7 +137,7 @@ def test_a_refusal_by_the_scheduler_leaves_nothing_behind_and_names_the_node(
         account_attributes={"name": "someone"},
     )
     # The lease came after the portal's look at the scheduler: the scheduler itself refuses.
-    monkeypatch.setattr("bookings.services.leases_refresh", lambda **kwargs: None)
+    monkeypatch.setattr("bookings.services.reservations.leases_refresh", lambda **kwargs: None)
     response = client_for(owner).post(
         "/api/v1/reservations/",
         {
@@ -149,6 +149,8 @@ def test_a_refusal_by_the_scheduler_leaves_nothing_behind_and_names_the_node(
     )
     assert response.status_code == 409, response.content
     assert "node-03" in response.json()["detail"]
+    # The scheduler's refusal, not the portal's (which would name the lease): the look is skipped.
+    assert "The testbed scheduler refused the lease" in response.json()["detail"]
     assert not Reservation.objects.exists()
     assert [lease.name for lease in _live(linked)] == ["made-a-moment-ago"]
 
@@ -175,7 +177,7 @@ def test_a_failure_after_the_lease_cancels_it_at_once(linked, owner, slot, monke
     def broken(**kwargs):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr("bookings.services.lease_record", broken)
+    monkeypatch.setattr("bookings.services.reservations.lease_record", broken)
     with pytest.raises(RuntimeError, match="disk full"):
         reservation_create(owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1])
     assert not Reservation.objects.exists()

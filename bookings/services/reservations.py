@@ -1,32 +1,27 @@
-"""Writes for reservations, blackouts and quota policies, and the live check of a booking.
+"""Reservations: the live check of a booking, and booking, moving, attaching a program to,
+cancelling, deciding and completing one.
 
 Every check that guards capacity runs inside one transaction under row locks taken in a
-fixed order (the user, then the resources by id), so concurrent bookings are decided one at
-a time; on PostgreSQL an exclusion constraint backs the overlap check. What may be booked,
-moved or cancelled is decided in ``bookings.rules``; these functions raise its first problem.
+fixed order (the user, then the resources by id: ``_lock``), so concurrent bookings are decided
+one at a time; on PostgreSQL an exclusion constraint backs the overlap check. What may be
+booked, moved or cancelled is decided in ``bookings.rules``; these functions raise its first
+problem.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import uuid
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from functools import partial
-from typing import Any, Literal
+from typing import Literal
 
-from django.core.exceptions import ValidationError
 from django.db import IntegrityError, connection, transaction
 from django.utils import timezone
 
-from bookings.choices import (
-    BookedVia,
-    Channel,
-    ReservationState,
-    ResourceKind,
-)
+from bookings.choices import BookedVia, Channel, ReservationState
 from bookings.leases import (
     booking_guard,
     lease_move,
@@ -36,20 +31,9 @@ from bookings.leases import (
     leases_clear_own_orphans,
     leases_for_check,
     leases_refresh,
-    scheduler_client,
-    scheduler_enabled,
     scheduler_owned,
 )
-from bookings.models import (
-    HOLD_REASON_MAX_CHARS,
-    Blackout,
-    QuotaPolicy,
-    Reservation,
-    ReservationItem,
-    Resource,
-    placeholders,
-    table_sql,
-)
+from bookings.models import Reservation, ReservationItem, Resource, placeholders, table_sql
 from bookings.rules import (
     Problem,
     Program,
@@ -62,18 +46,14 @@ from bookings.rules import (
     needs_approval,
     request_problems,
 )
-from bookings.scheduler import Lease, SchedulerError
-from bookings.tasks import lease_cancel, reservation_notify
+from bookings.scheduler import Lease
+from bookings.services._common import _notify
+from bookings.tasks import lease_cancel
 from core.accounts.models import User
-from core.audit.counters import event_count
 from core.audit.services import audit_record
-from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
+from core.errors import Conflict, DomainError
 
 logger = logging.getLogger(__name__)
-
-
-def _notify(kind: str, reservation_id: int, **extra: Any) -> None:
-    transaction.on_commit(partial(reservation_notify.delay, kind, reservation_id, **extra))
 
 
 def _release_lease_after_commit(reservation: Reservation) -> None:
@@ -601,322 +581,3 @@ def reservation_complete(*, reservation_id: int) -> bool:
             state=ReservationState.COMPLETED, updated_at=timezone.now()
         )
     )
-
-
-def resource_set_service(
-    *, resource: Resource, by: User, enabled: bool, reason: str, ip: str | None = None
-) -> Resource:
-    """Take a resource out of service (no new bookings) or back in; audited.
-
-    Back in service also lifts the health check's hold (``resource_hold``): only an admin
-    returns a robot the health check took out, and the audit keeps the hold it lifted.
-    """
-    if not by.is_testbed_admin:
-        raise NotAllowed("Only admins take resources in or out of service.")
-    if not reason.strip():
-        raise InvalidInput.on_field("reason", "Say why.")
-    with transaction.atomic():
-        # The same row lock bookings take: none is half-way through while this changes.
-        locked = Resource.objects.select_for_update().get(pk=resource.pk)
-        lifted = locked.hold_reason if enabled else ""
-        locked.enabled = enabled
-        if enabled:
-            locked.hold_reason, locked.held_at, locked.hold_notified_at = "", None, None
-        locked.save(update_fields=["enabled", "hold_reason", "held_at", "hold_notified_at"])
-        audit_record(
-            actor=by,
-            action="resource.in_service" if enabled else "resource.out_of_service",
-            target=locked,
-            ip=ip,
-            reason=reason,
-            **({"lifted_hold": lifted} if lifted else {}),
-        )
-    return locked
-
-
-def resource_hold(*, resource_id: int, reason: str) -> bool:
-    """Take a robot out of booking for what its health check found; audited.
-
-    True if this made the hold; False if it was already held (the first reason stays, and the
-    admins are e-mailed once) or is out of service anyway.
-    """
-    with transaction.atomic():
-        held = Resource.objects.filter(pk=resource_id, enabled=True, hold_reason="").update(
-            hold_reason=reason[:HOLD_REASON_MAX_CHARS],
-            held_at=timezone.now(),
-            hold_notified_at=None,
-        )
-        if held:
-            resource = Resource.objects.get(pk=resource_id)
-            audit_record(actor=None, action="resource.hold", target=resource, reason=reason)
-            event_count("robot_holds", resource=resource.name)
-    return bool(held)
-
-
-# The hold of a robot whose base-station agent the portal cannot reach for want of
-# configuration (no token for it): the health check and the demo set-up make it.
-AGENT_NOT_CONFIGURED = "agent not configured"
-
-
-def resource_hold_lift(*, resource_id: int, reason_prefix: str, why: str) -> bool:
-    """Lift a hold the system made for a cause the system knows is gone (a robot's agent
-    configured again); audited. Only a hold whose reason starts with ``reason_prefix``:
-    every other hold stays for an admin to lift. True if a hold was lifted."""
-    with transaction.atomic():
-        locked = Resource.objects.select_for_update().filter(pk=resource_id).first()
-        if locked is None or not locked.hold_reason.startswith(reason_prefix):
-            return False
-        lifted = locked.hold_reason
-        locked.hold_reason, locked.held_at, locked.hold_notified_at = "", None, None
-        locked.save(update_fields=["hold_reason", "held_at", "hold_notified_at"])
-        audit_record(
-            actor=None, action="resource.hold_lifted", target=locked, reason=why, lifted_hold=lifted
-        )
-    return True
-
-
-def resource_agent_unreachable(*, resource_id: int, at: datetime) -> datetime:
-    """Record that the robot's agent did not answer at ``at``; returns since when it has not
-    (``at``, or the first failed check of this row). Written once per row of failures."""
-    Resource.objects.filter(pk=resource_id, agent_unreachable_since__isnull=True).update(
-        agent_unreachable_since=at
-    )
-    since = (
-        Resource.objects.filter(pk=resource_id)
-        .values_list("agent_unreachable_since", flat=True)
-        .first()
-    )
-    return since or at
-
-
-def resource_agent_reachable(*, resource_id: int) -> None:
-    """The robot's agent answered: the next failure starts a new count."""
-    Resource.objects.filter(pk=resource_id, agent_unreachable_since__isnull=False).update(
-        agent_unreachable_since=None
-    )
-
-
-@dataclass(frozen=True)
-class AgentLimits:
-    """A robot's limits as its base-station agent reports them in ``GET /status``."""
-
-    max_velocity_mps: float
-    max_accel_mps2: float
-    robot_hard_max_velocity_mps: float | None
-
-
-def resource_record_agent_limits(*, resource_id: int, limits: AgentLimits) -> bool:
-    """Record what the robot's agent reports of its limits; True when they changed.
-
-    Written only on a change (the health sweep reads every agent every few seconds).
-    Booking reads them: a program is checked against the stricter of the resource's limit
-    and these (``bookings.rules.velocity_limit``).
-    """
-    values = {
-        "agent_max_velocity_mps": limits.max_velocity_mps,
-        "agent_max_accel_mps2": limits.max_accel_mps2,
-        "robot_hard_max_velocity_mps": limits.robot_hard_max_velocity_mps,
-    }
-    unchanged = Resource.objects.filter(pk=resource_id, **values).exists()
-    if unchanged:
-        return False
-    return bool(
-        Resource.objects.filter(pk=resource_id).update(**values, agent_limits_at=timezone.now())
-    )
-
-
-def blackout_create(
-    *,
-    by: User,
-    start_at: datetime,
-    end_at: datetime,
-    reason: str,
-    resources: Iterable[Resource] = (),
-    all_resources: bool = False,
-    ip: str | None = None,
-) -> tuple[Blackout, list[Reservation]]:
-    """Declare a maintenance window; returns it and the reservations it conflicts with.
-
-    Existing reservations are not cancelled (an admin decides); they are flagged, and their
-    owners and the admins are told.
-    """
-    if not by.is_testbed_admin:
-        raise NotAllowed("Only admins declare maintenance windows.")
-    resources = list(resources)
-    if not resources and not all_resources:
-        raise InvalidInput.on_field("resources", "Choose the resources, or all of them.")
-    if not reason.strip():
-        raise InvalidInput.on_field("reason", "Say what the maintenance is.")
-    start_at = aware_utc(start_at, "start_at")
-    end_at = aware_utc(end_at, "end_at")
-    if end_at <= start_at:
-        raise InvalidInput.on_field("end_at", "The end must be after the start.")
-    with transaction.atomic():
-        blackout = Blackout(
-            start_at=start_at,
-            end_at=end_at,
-            reason=reason.strip(),
-            all_resources=all_resources,
-            created_by=by,
-        )
-        blackout.full_clean()
-        blackout.save()
-        blackout.resources.set(resources)
-        items = ReservationItem.objects.overlapping(start_at, end_at).filter(active=True)
-        if not all_resources:
-            items = items.filter(resource__in=resources)
-        conflicted = list(
-            Reservation.objects.filter(pk__in=items.values("reservation_id")).order_by("start_at")
-        )
-        local = timezone.localtime
-        note = (
-            f"Overlaps maintenance “{blackout.reason}” "
-            f"({local(start_at):%Y-%m-%d %H:%M} – {local(end_at):%Y-%m-%d %H:%M})."
-        )
-        Reservation.objects.filter(pk__in=[r.pk for r in conflicted]).update(conflict=note)
-        audit_record(
-            actor=by,
-            action="blackout.create",
-            target=blackout,
-            ip=ip,
-            reason=reason,
-            resources="all" if all_resources else [r.name for r in resources],
-            conflicts=[r.pk for r in conflicted],
-        )
-        for r in conflicted:
-            _notify("blackout_conflict", r.pk, blackout_id=blackout.pk)
-    return blackout, conflicted
-
-
-QUOTA_FIELDS = (
-    "name",
-    "user",
-    "group",
-    "resource",
-    "resource_group",
-    "period",
-    "max_hours",
-    "max_count",
-    "max_length_s",
-    "min_notice_s",
-    "max_advance_s",
-    "max_future",
-    "active",
-)
-
-
-def quota_policy_save(
-    *, by: User, policy: QuotaPolicy | None = None, ip: str | None = None, **fields: Any
-) -> QuotaPolicy:
-    """Create or change a quota policy; the audit log keeps the old and new values."""
-    if not by.is_testbed_admin:
-        raise NotAllowed("Only admins set quotas.")
-    unknown = set(fields) - set(QUOTA_FIELDS)
-    if unknown:
-        raise InvalidInput(f"Unknown quota fields: {', '.join(sorted(unknown))}.")
-    creating = policy is None
-    policy = policy or QuotaPolicy()
-    before = {f: _plain(getattr(policy, f, None)) for f in QUOTA_FIELDS} if not creating else {}
-    for name, value in fields.items():
-        setattr(policy, name, value)
-    if (policy.max_hours is not None or policy.max_count is not None) and not policy.period:
-        raise InvalidInput.on_field("period", "A limit in hours or count needs a period.")
-    with transaction.atomic():
-        policy.full_clean()
-        policy.save()
-        audit_record(
-            actor=by,
-            action="quota.create" if creating else "quota.change",
-            target=policy,
-            ip=ip,
-            before=before,
-            after={f: _plain(getattr(policy, f, None)) for f in QUOTA_FIELDS},
-        )
-    return policy
-
-
-def _plain(value: Any) -> Any:
-    return str(value) if hasattr(value, "pk") else value
-
-
-@dataclass(frozen=True)
-class TestbedSpec:
-    """The resources of a testbed installation: one mobile node and the fixed nodes."""
-
-    agent_url: str
-    mobile_name: str = "mobile-1"
-    fixed_nodes: int = 24
-    max_velocity_mps: float = 2.0
-    max_accel_mps2: float = 1.0
-    # The name of the agent's token in AGENT_TOKENS ("default" is AGENT_TOKEN).
-    agent_token_name: str = "default"  # noqa: S105 - a name, not the secret
-    mobile_description: str = "Rail robot around the roof of IT building 1"
-    # The fixed nodes by name, as the testbed's scheduler lists them; ``node-01`` … otherwise.
-    fixed_node_names: tuple[str, ...] = ()
-
-    def fixed_names(self) -> tuple[str, ...]:
-        if self.fixed_node_names:
-            return self.fixed_node_names
-        return tuple(f"node-{i:02d}" for i in range(1, self.fixed_nodes + 1))
-
-
-def fixed_node_names_from_scheduler() -> tuple[str, ...]:
-    """The nodes the testbed's scheduler leases (empty when none is configured)."""
-    if not scheduler_enabled():
-        return ()
-    try:
-        with scheduler_client() as scheduler:
-            return tuple(node.name for node in scheduler.list_nodes())
-    except SchedulerError as exc:
-        raise InvalidInput(f"The testbed scheduler did not list its nodes: {exc.message}") from exc
-
-
-def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
-    """Create whichever of the spec's resources do not exist yet; returns their names.
-
-    Existing ones are left untouched (an admin may have changed them since). Everything is
-    checked before anything is written.
-    """
-    if not 1 <= len(spec.fixed_names()) <= 200:
-        raise InvalidInput.on_field("fixed_nodes", "Give between 1 and 200 fixed nodes.")
-    for field_name, value in (
-        ("max_velocity_mps", spec.max_velocity_mps),
-        ("max_accel_mps2", spec.max_accel_mps2),
-    ):
-        if not (math.isfinite(value) and value > 0):
-            raise InvalidInput.on_field(field_name, f"{field_name} must be positive, got {value}.")
-    wanted = [
-        Resource(
-            name=spec.mobile_name,
-            kind=ResourceKind.MOBILE,
-            description=spec.mobile_description,
-            agent_url=spec.agent_url,
-            agent_token_name=spec.agent_token_name,
-            max_velocity_mps=spec.max_velocity_mps,
-            max_accel_mps2=spec.max_accel_mps2,
-        ),
-        *(
-            Resource(
-                name=name,
-                kind=ResourceKind.FIXED,
-                description="Fixed node on the roof of IT building 1",
-            )
-            for name in spec.fixed_names()
-        ),
-    ]
-    for resource in wanted:
-        try:
-            resource.full_clean(validate_unique=False)
-        except ValidationError as exc:
-            raise InvalidInput(f"{resource.name}: {'; '.join(exc.messages)}") from exc
-    with transaction.atomic():
-        existing = set(
-            Resource.objects.filter(name__in=[r.name for r in wanted]).values_list(
-                "name", flat=True
-            )
-        )
-        missing = [r for r in wanted if r.name not in existing]
-        Resource.objects.bulk_create(missing)
-    for resource in missing:
-        logger.info("resource %s created", resource.name)
-    return [r.name for r in missing]

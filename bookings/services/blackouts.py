@@ -1,0 +1,79 @@
+"""Maintenance windows (blackouts): declared by an admin, flagging the bookings they overlap."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from datetime import datetime
+
+from django.db import transaction
+from django.utils import timezone
+
+from bookings.models import Blackout, Reservation, ReservationItem, Resource
+from bookings.rules import aware_utc
+from bookings.services._common import _notify
+from core.accounts.models import User
+from core.audit.services import audit_record
+from core.errors import InvalidInput, NotAllowed
+
+
+def blackout_create(
+    *,
+    by: User,
+    start_at: datetime,
+    end_at: datetime,
+    reason: str,
+    resources: Iterable[Resource] = (),
+    all_resources: bool = False,
+    ip: str | None = None,
+) -> tuple[Blackout, list[Reservation]]:
+    """Declare a maintenance window; returns it and the reservations it conflicts with.
+
+    Existing reservations are not cancelled (an admin decides); they are flagged, and their
+    owners and the admins are told.
+    """
+    if not by.is_testbed_admin:
+        raise NotAllowed("Only admins declare maintenance windows.")
+    resources = list(resources)
+    if not resources and not all_resources:
+        raise InvalidInput.on_field("resources", "Choose the resources, or all of them.")
+    if not reason.strip():
+        raise InvalidInput.on_field("reason", "Say what the maintenance is.")
+    start_at = aware_utc(start_at, "start_at")
+    end_at = aware_utc(end_at, "end_at")
+    if end_at <= start_at:
+        raise InvalidInput.on_field("end_at", "The end must be after the start.")
+    with transaction.atomic():
+        blackout = Blackout(
+            start_at=start_at,
+            end_at=end_at,
+            reason=reason.strip(),
+            all_resources=all_resources,
+            created_by=by,
+        )
+        blackout.full_clean()
+        blackout.save()
+        blackout.resources.set(resources)
+        items = ReservationItem.objects.overlapping(start_at, end_at).filter(active=True)
+        if not all_resources:
+            items = items.filter(resource__in=resources)
+        conflicted = list(
+            Reservation.objects.filter(pk__in=items.values("reservation_id")).order_by("start_at")
+        )
+        local = timezone.localtime
+        note = (
+            f"Overlaps maintenance “{blackout.reason}” "
+            f"({local(start_at):%Y-%m-%d %H:%M} – {local(end_at):%Y-%m-%d %H:%M})."
+        )
+        Reservation.objects.filter(pk__in=[r.pk for r in conflicted]).update(conflict=note)
+        audit_record(
+            actor=by,
+            action="blackout.create",
+            target=blackout,
+            ip=ip,
+            reason=reason,
+            resources="all" if all_resources else [r.name for r in resources],
+            conflicts=[r.pk for r in conflicted],
+        )
+        for r in conflicted:
+            _notify("blackout_conflict", r.pk, blackout_id=blackout.pk)
+    return blackout, conflicted
