@@ -106,7 +106,7 @@ NOT_OVERLAP = {
     ("portal/runs/models.py", "Run.Meta", "end_at__gt=models.F('start_at')"),
     ("bookings/rules.py", "_window_problems", "end_at <= start_at"),
     ("bookings/rules.py", "booking_problems", "end_at <= start_at"),
-    ("bookings/services/reservations.py", "reservation_create", "start_at < end_at"),
+    ("bookings/services/reservations.py", "_create_check_request", "start_at < end_at"),
     ("bookings/services/reservations.py", "reservation_check", "start_at < end_at"),
     ("bookings/services/reservations.py", "reservation_reschedule", "start_at < end_at"),
     ("bookings/services/blackouts.py", "blackout_create", "end_at <= start_at"),

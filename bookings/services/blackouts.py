@@ -53,18 +53,9 @@ def blackout_create(
         blackout.full_clean()
         blackout.save()
         blackout.resources.set(resources)
-        items = ReservationItem.objects.overlapping(start_at, end_at).filter(active=True)
-        if not all_resources:
-            items = items.filter(resource__in=resources)
-        conflicted = list(
-            Reservation.objects.filter(pk__in=items.values("reservation_id")).order_by("start_at")
+        conflicted = _conflicts_flag(
+            blackout, resources, all_resources=all_resources, start_at=start_at, end_at=end_at
         )
-        local = timezone.localtime
-        note = (
-            f"Overlaps maintenance “{blackout.reason}” "
-            f"({local(start_at):%Y-%m-%d %H:%M} – {local(end_at):%Y-%m-%d %H:%M})."
-        )
-        Reservation.objects.filter(pk__in=[r.pk for r in conflicted]).update(conflict=note)
         audit_record(
             actor=by,
             action="blackout.create",
@@ -77,3 +68,28 @@ def blackout_create(
         for r in conflicted:
             _notify("blackout_conflict", r.pk, blackout_id=blackout.pk)
     return blackout, conflicted
+
+
+def _conflicts_flag(
+    blackout: Blackout,
+    resources: list[Resource],
+    *,
+    all_resources: bool,
+    start_at: datetime,
+    end_at: datetime,
+) -> list[Reservation]:
+    """Flag the bookings the window overlaps (on its resources, or on any when it covers all),
+    saying which maintenance and when; returns them, earliest first."""
+    items = ReservationItem.objects.overlapping(start_at, end_at).filter(active=True)
+    if not all_resources:
+        items = items.filter(resource__in=resources)
+    conflicted = list(
+        Reservation.objects.filter(pk__in=items.values("reservation_id")).order_by("start_at")
+    )
+    local = timezone.localtime
+    note = (
+        f"Overlaps maintenance “{blackout.reason}” "
+        f"({local(start_at):%Y-%m-%d %H:%M} – {local(end_at):%Y-%m-%d %H:%M})."
+    )
+    Reservation.objects.filter(pk__in=[r.pk for r in conflicted]).update(conflict=note)
+    return conflicted

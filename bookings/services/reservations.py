@@ -202,14 +202,6 @@ def reservation_check(
     if owned and start_at < end_at:
         fresh, notice = leases_for_check(start_at=start_at, end_at=end_at)
         leases_from = "scheduler" if fresh is not None else "mirror"
-    own_lease_uuid = ""
-    if exclude_reservation_id is not None:
-        own_lease_uuid = (
-            Reservation.objects.filter(pk=exclude_reservation_id)
-            .values_list("lease_uuid", flat=True)
-            .first()
-            or ""
-        )
     problems += booking_problems(
         owner=owner,
         resources=resources,
@@ -220,13 +212,23 @@ def reservation_check(
         exclude_reservation_id=exclude_reservation_id,
         scheduler_owned=owned,
         scheduler_leases=fresh,
-        own_lease_uuid=own_lease_uuid,
+        own_lease_uuid=_lease_uuid_of(exclude_reservation_id),
     )
     return BookingCheck(
         problems,
         needs_approval=needs_approval(resources=resources, by=by),
         leases_from=leases_from,
         notice=notice,
+    )
+
+
+def _lease_uuid_of(reservation_id: int | None) -> str:
+    """The lease the booking being moved holds ("" when none is moved, or it holds none)."""
+    if reservation_id is None:
+        return ""
+    return (
+        Reservation.objects.filter(pk=reservation_id).values_list("lease_uuid", flat=True).first()
+        or ""
     )
 
 
@@ -264,8 +266,93 @@ def reservation_create(
     does not answer is a 503 and nothing is booked.
     """
     now = now or timezone.now()
-    by = by or owner
-    resources = list(resources or ([resource] if resource is not None else []))
+    booking = _create_check_request(
+        owner=owner,
+        by=by or owner,
+        resources=list(resources or ([resource] if resource is not None else [])),
+        start_at=start_at,
+        end_at=end_at,
+        override_reason=override_reason,
+        program_owner_id=program_owner_id,
+    )
+    public_id = uuid.uuid4()
+    lease: Lease | None = None
+
+    try:
+        with transaction.atomic():
+            overridden = _create_check_locked(
+                booking, program=program, now=now, program_required=program_required
+            )
+            if booking.owned:
+                booking_guard(public_id)
+                lease = lease_take(
+                    public_id=public_id,
+                    start_at=booking.start_at,
+                    end_at=booking.end_at,
+                    resources=booking.owned,
+                )
+            reservation = _create_write(
+                booking,
+                public_id=public_id,
+                lease=lease,
+                overridden=overridden,
+                title=title,
+                booked_via=booked_via,
+                ip=ip,
+                via=via,
+            )
+    except IntegrityError as exc:
+        if lease is not None:
+            lease_release(lease_uuid=lease.uuid)
+        # The exclusion constraint caught an overlap the locked check could not see
+        # (only possible if something wrote around the services).
+        raise Conflict.on_field("start_at", "That slot was just taken.") from exc
+    except BaseException:
+        if lease is not None:
+            lease_release(lease_uuid=lease.uuid)
+        raise
+    logger.info(
+        "reservation %s (%s) created by %s",
+        reservation.pk,
+        booking.state,
+        booking.by.get_username(),
+    )
+    return reservation
+
+
+@dataclass(frozen=True)
+class _NewBooking:
+    """A booking ``reservation_create`` is making, as its checks before the locks left it."""
+
+    owner: User
+    by: User
+    resources: list[Resource]
+    start_at: datetime  # aware, in UTC
+    end_at: datetime
+    override_reason: str  # stripped
+    waits: bool  # for an admin's approval
+    owned: list[Resource]  # those the testbed's scheduler owns
+    # The scheduler's leases over the period, asked a moment ago (None: not asked).
+    fresh: list[Lease] | None
+
+    @property
+    def state(self) -> ReservationState:
+        return ReservationState.REQUESTED if self.waits else ReservationState.CONFIRMED
+
+
+def _create_check_request(
+    *,
+    owner: User,
+    by: User,
+    resources: list[Resource],
+    start_at: datetime,
+    end_at: datetime,
+    override_reason: str,
+    program_owner_id: int | None,
+) -> _NewBooking:
+    """The checks before the locks: raise the first problem with the request itself (who
+    books what for whom), put the period in UTC, and ask the scheduler for its leases over
+    the period when it owns any of the resources. Nothing is locked or written here."""
     _refuse(
         request_problems(
             owner=owner,
@@ -279,101 +366,132 @@ def reservation_create(
     start_at = aware_utc(start_at, "start_at")
     end_at = aware_utc(end_at, "end_at")
     waits = needs_approval(resources=resources, by=by)
-    state = ReservationState.REQUESTED if waits else ReservationState.CONFIRMED
     owned = scheduler_owned(resources)
     fresh: list[Lease] | None = None
     if owned and start_at < end_at:
         # The leases made elsewhere a moment ago refuse this booking by name, not by a 409
         # from the scheduler (which names no lease).
         fresh = leases_refresh(start_at=start_at, end_at=end_at)
-    public_id = uuid.uuid4()
-    lease: Lease | None = None
+    return _NewBooking(
+        owner=owner,
+        by=by,
+        resources=resources,
+        start_at=start_at,
+        end_at=end_at,
+        override_reason=override_reason,
+        waits=waits,
+        owned=owned,
+        fresh=fresh,
+    )
 
-    try:
-        with transaction.atomic():
-            locked = _lock(owner, resources)
-            if fresh is not None:
-                # A retry of a booking killed after its lease finds that lease here.
-                fresh = leases_clear_own_orphans(
-                    fresh, resources=owned, start_at=start_at, end_at=end_at, now=now
-                )
-            overridden = _check(
-                owner=owner,
-                resources=locked,
-                start_at=start_at,
-                end_at=end_at,
-                program=program,
-                now=now,
-                exclude_id=None,
-                override_reason=override_reason,
-                program_required=program_required,
-                scheduler_leases=fresh,
-            )
-            if owned:
-                booking_guard(public_id)
-                lease = lease_take(
-                    public_id=public_id, start_at=start_at, end_at=end_at, resources=owned
-                )
-            reservation = Reservation(
-                owner=owner,
-                start_at=start_at,
-                end_at=end_at,
-                state=state,
-                title=title,
-                override_reason=override_reason if overridden else "",
-                public_id=public_id,
-                lease_uuid=lease.uuid if lease is not None else "",
-                booked_via=booked_via,
-            )
-            # The window was checked above and the database enforces the constraint again;
-            # re-running it here would only cost round trips under the lock (a fresh uuid4
-            # public id needs no uniqueness query either: the unique index stands behind it).
-            reservation.full_clean(exclude=["owner", "public_id"], validate_constraints=False)
-            reservation.save()
-            items = ReservationItem.objects.bulk_create(
-                ReservationItem(
-                    reservation=reservation, resource=r, start_at=start_at, end_at=end_at
-                )
-                for r in resources
-            )
-            _hold_items(reservation, items)
-            if lease is not None:
-                lease_record(lease=lease, reservation=reservation, resources=owned)
-            audit_record(
-                actor=by,
-                action="reservation.create",
-                target=reservation,
-                ip=ip,
-                owner=owner.get_username(),
-                resources=[r.name for r in resources],
-                start_at=start_at.isoformat(),
-                end_at=end_at.isoformat(),
-                state=state,
-                lease=lease.uuid if lease is not None else None,
-                via=_door(via),
-            )
-            if overridden:
-                audit_record(
-                    actor=by,
-                    action="reservation.override",
-                    target=reservation,
-                    ip=ip,
-                    reason=override_reason,
-                    overridden=overridden,
-                )
-            _notify("requested" if waits else "confirmed", reservation.pk)
-    except IntegrityError as exc:
-        if lease is not None:
-            lease_release(lease_uuid=lease.uuid)
-        # The exclusion constraint caught an overlap the locked check could not see
-        # (only possible if something wrote around the services).
-        raise Conflict.on_field("start_at", "That slot was just taken.") from exc
-    except BaseException:
-        if lease is not None:
-            lease_release(lease_uuid=lease.uuid)
-        raise
-    logger.info("reservation %s (%s) created by %s", reservation.pk, state, by.get_username())
+
+def _create_check_locked(
+    booking: _NewBooking, *, program: Program | None, now: datetime, program_required: bool
+) -> list[str]:
+    """The check under the booking's locks (the user, then the resources: ``_lock``), which
+    ``reservation_create`` holds until it commits: raise the first problem with the booking;
+    returns the quota rules its ``override_reason`` overrides."""
+    locked = _lock(booking.owner, booking.resources)
+    fresh = booking.fresh
+    if fresh is not None:
+        # A retry of a booking killed after its lease finds that lease here.
+        fresh = leases_clear_own_orphans(
+            fresh,
+            resources=booking.owned,
+            start_at=booking.start_at,
+            end_at=booking.end_at,
+            now=now,
+        )
+    return _check(
+        owner=booking.owner,
+        resources=locked,
+        start_at=booking.start_at,
+        end_at=booking.end_at,
+        program=program,
+        now=now,
+        exclude_id=None,
+        override_reason=booking.override_reason,
+        program_required=program_required,
+        scheduler_leases=fresh,
+    )
+
+
+def _create_write(
+    booking: _NewBooking,
+    *,
+    public_id: uuid.UUID,
+    lease: Lease | None,
+    overridden: list[str],
+    title: str,
+    booked_via: BookedVia,
+    ip: str | None,
+    via: Channel | None,
+) -> Reservation:
+    """Write the checked booking under its locks: the reservation (holding ``lease``, if the
+    scheduler's resources are among its own), its items, the lease's mirror, the audit rows,
+    and the owner's notice once committed."""
+    start_at, end_at = booking.start_at, booking.end_at
+    reservation = Reservation(
+        owner=booking.owner,
+        start_at=start_at,
+        end_at=end_at,
+        state=booking.state,
+        title=title,
+        override_reason=booking.override_reason if overridden else "",
+        public_id=public_id,
+        lease_uuid=lease.uuid if lease is not None else "",
+        booked_via=booked_via,
+    )
+    # The window was checked under these locks and the database enforces the constraint again;
+    # re-running it here would only cost round trips under the lock (a fresh uuid4
+    # public id needs no uniqueness query either: the unique index stands behind it).
+    reservation.full_clean(exclude=["owner", "public_id"], validate_constraints=False)
+    reservation.save()
+    items = ReservationItem.objects.bulk_create(
+        ReservationItem(reservation=reservation, resource=r, start_at=start_at, end_at=end_at)
+        for r in booking.resources
+    )
+    _hold_items(reservation, items)
+    if lease is not None:
+        lease_record(lease=lease, reservation=reservation, resources=booking.owned)
+    _create_audit(booking, reservation, lease=lease, overridden=overridden, ip=ip, via=via)
+    _notify("requested" if booking.waits else "confirmed", reservation.pk)
     return reservation
+
+
+def _create_audit(
+    booking: _NewBooking,
+    reservation: Reservation,
+    *,
+    lease: Lease | None,
+    overridden: list[str],
+    ip: str | None,
+    via: Channel | None,
+) -> None:
+    """The new booking's audit rows: what was booked through which door, and the quota rules
+    an admin's ``override_reason`` let it past."""
+    audit_record(
+        actor=booking.by,
+        action="reservation.create",
+        target=reservation,
+        ip=ip,
+        owner=booking.owner.get_username(),
+        resources=[r.name for r in booking.resources],
+        start_at=booking.start_at.isoformat(),
+        end_at=booking.end_at.isoformat(),
+        state=booking.state,
+        lease=lease.uuid if lease is not None else None,
+        via=_door(via),
+    )
+    if overridden:
+        audit_record(
+            actor=booking.by,
+            action="reservation.override",
+            target=reservation,
+            ip=ip,
+            reason=booking.override_reason,
+            overridden=overridden,
+        )
 
 
 def reservation_reschedule(
@@ -405,52 +523,97 @@ def reservation_reschedule(
     try:
         with transaction.atomic():
             locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
-            _refuse(move_problems(reservation=locked, by=by, now=now, run_started=run_started))
-            resources = _lock(locked.owner, list(locked.resources.all()))
-            _check(
-                owner=locked.owner,
-                resources=resources,
+            _reschedule_check_locked(
+                locked,
+                by=by,
                 start_at=start_at,
                 end_at=end_at,
                 program=program,
                 now=now,
-                exclude_id=locked.pk,
-                override_reason=locked.override_reason,
-                program_required=locked.booked_via == BookedVia.PORTAL,
-                scheduler_leases=fresh,
-                own_lease_uuid=locked.lease_uuid,
+                run_started=run_started,
+                fresh=fresh,
             )
             before = (locked.start_at, locked.end_at)
             if locked.lease_uuid:
                 lease_move(lease_uuid=locked.lease_uuid, start_at=start_at, end_at=end_at)
                 moved_lease = before
-            locked.start_at, locked.end_at = start_at, end_at
-            locked.full_clean()
-            locked.save(update_fields=["start_at", "end_at", "updated_at"])
-            locked.items.update(start_at=start_at, end_at=end_at)
-            audit_record(
-                actor=by,
-                action="reservation.reschedule",
-                target=locked,
-                ip=ip,
-                before=(before[0].isoformat(), before[1].isoformat()),
-                after=(start_at.isoformat(), end_at.isoformat()),
-                via=_door(via),
+            _reschedule_write(
+                locked, by=by, start_at=start_at, end_at=end_at, before=before, ip=ip, via=via
             )
     except BaseException:
         if moved_lease is not None:
             # Put the lease back where the booking still is; if that fails too, the sweep
             # flags the booking when its lease no longer covers it.
-            try:
-                lease_move(
-                    lease_uuid=reservation.lease_uuid,
-                    start_at=moved_lease[0],
-                    end_at=moved_lease[1],
-                )
-            except DomainError as exc:
-                logger.error("lease %s not moved back: %s", reservation.lease_uuid, exc.message)
+            _lease_move_back(reservation.lease_uuid, *moved_lease)
         raise
     return locked
+
+
+def _reschedule_check_locked(
+    locked: Reservation,
+    *,
+    by: User,
+    start_at: datetime,
+    end_at: datetime,
+    program: Program | None,
+    now: datetime,
+    run_started: bool,
+    fresh: list[Lease] | None,
+) -> None:
+    """The checks under the booking's row lock, then its owner's and resources' (``_lock``):
+    raise the first problem with moving it, or with it at its new period (itself and its
+    lease excluded; its quota override kept; a program required only of a portal booking)."""
+    _refuse(move_problems(reservation=locked, by=by, now=now, run_started=run_started))
+    resources = _lock(locked.owner, list(locked.resources.all()))
+    _check(
+        owner=locked.owner,
+        resources=resources,
+        start_at=start_at,
+        end_at=end_at,
+        program=program,
+        now=now,
+        exclude_id=locked.pk,
+        override_reason=locked.override_reason,
+        program_required=locked.booked_via == BookedVia.PORTAL,
+        scheduler_leases=fresh,
+        own_lease_uuid=locked.lease_uuid,
+    )
+
+
+def _reschedule_write(
+    locked: Reservation,
+    *,
+    by: User,
+    start_at: datetime,
+    end_at: datetime,
+    before: tuple[datetime, datetime],
+    ip: str | None,
+    via: Channel | None,
+) -> None:
+    """Write the checked move under the booking's locks: its period and its items', and the
+    audit row (the period ``before`` and after, the door)."""
+    locked.start_at, locked.end_at = start_at, end_at
+    locked.full_clean()
+    locked.save(update_fields=["start_at", "end_at", "updated_at"])
+    locked.items.update(start_at=start_at, end_at=end_at)
+    audit_record(
+        actor=by,
+        action="reservation.reschedule",
+        target=locked,
+        ip=ip,
+        before=(before[0].isoformat(), before[1].isoformat()),
+        after=(start_at.isoformat(), end_at.isoformat()),
+        via=_door(via),
+    )
+
+
+def _lease_move_back(lease_uuid: str, start_at: datetime, end_at: datetime) -> None:
+    """Move a booking's lease back to where the booking still is, after its move failed; a
+    failure here is logged, not raised (the caller raises what made the move fail)."""
+    try:
+        lease_move(lease_uuid=lease_uuid, start_at=start_at, end_at=end_at)
+    except DomainError as exc:
+        logger.error("lease %s not moved back: %s", lease_uuid, exc.message)
 
 
 def reservation_program_attach(
