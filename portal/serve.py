@@ -4,7 +4,7 @@ Granian (a WSGI server whose HTTP side is compiled) runs ``WEB_WORKERS`` process
 per core by default) of ``WEB_THREADS`` threads each: a request is plain synchronous Django on
 a thread, with no bridge between an event loop and the views, and the processes use every
 core. Measured against gunicorn's threaded workers with the same application and requests,
-the server's part of a request costs a third of the instructions (``docs/performance.md``).
+the server's part of a request costs a third of the instructions (``docs/performance-history.md``).
 The live streams are the ASGI server's (``portal/processes.py`` ``streams_process``): a stream
 here would hold a thread for good.
 
