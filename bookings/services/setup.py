@@ -97,6 +97,8 @@ def testbed_resources_ensure(spec: TestbedSpec) -> list[str]:
         )
         missing = [r for r in wanted if r.name not in existing]
         Resource.objects.bulk_create(missing)
-    for resource in missing:
-        logger.info("resource %s created", resource.name)
+    if missing:
+        # One line, not one a resource: `make run` prints it among the start's few lines.
+        names = [r.name for r in missing]
+        logger.info("%d resources created: %s", len(names), ", ".join(names))
     return [r.name for r in missing]
