@@ -87,7 +87,7 @@ KILLED = {
     "redis": "Redis",
     "agent": "agent",
     "web": "web server",
-    "broker": "stand-in scheduler",
+    "scheduler": "stand-in scheduler",
 }
 POSTGRES_RESTART = "postgresql"
 # Each Celery queue and the worker process that takes its tasks (portal.processes).

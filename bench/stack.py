@@ -414,7 +414,7 @@ class Stack:
             wait_http(f"{self.web}/accounts/login/", timeout_s, running, server=server)
         elif name == "streams":
             wait_http(f"{self.streams}/healthz", timeout_s, running, server=server)
-        elif name == "broker":
+        elif name == "scheduler":
             wait_http(f"{self.standin}/resources/nodes", timeout_s, running, server=server)
         elif name in ("worker", "mail"):
             self.procs[name].wait_for_line(lambda line: "ready." in line, timeout_s)

@@ -284,7 +284,7 @@ def main() -> int:
     try:
         set_up = False
         for child in children:
-            if child.name != "broker" and not set_up:
+            if child.name != "scheduler" and not set_up:
                 # The stand-in, if any, is up first: it lists the fixed nodes demo_setup makes.
                 _manage(env, "migrate", "--no-input", "-v", "0")
                 if second_port is not None:
@@ -293,7 +293,7 @@ def main() -> int:
                     _manage(env, "demo_setup")
                 set_up = True
             _start(child, env)
-            stand_in = child.name == "broker" and standin_port is not None
+            stand_in = child.name == "scheduler" and standin_port is not None
             if stand_in and not _wait_for_port(standin_port or 0, 30):
                 _say("launch", "the stand-in scheduler did not start; stopping")
                 return 1
