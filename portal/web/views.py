@@ -242,10 +242,18 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     }
 
 
+def _visible_run(request: HttpRequest, pk: int, *related: str) -> Run:
+    """The run ``pk`` if the signed-in user may see it, else 404 (never 403: whether another's
+    run exists is not told)."""
+    runs = runs_visible(user=_user(request))
+    # select_related() without names would follow every foreign key.
+    return get_object_or_404(runs.select_related(*related) if related else runs, pk=pk)
+
+
 @page_throttled
 @login_required
 def run_page(request: HttpRequest, pk: int) -> HttpResponse:
-    run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    run = _visible_run(request, pk)
     context = _run_context(request, run)
     context["events"] = run.events.all()
     context["provenance"] = provenance_summary(run.provenance)
@@ -261,7 +269,7 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
     if request.method != "POST":
         return redirect("run", pk=pk)
     user = _user(request)
-    run = get_object_or_404(runs_visible(user=user).select_related("experiment"), pk=pk)
+    run = _visible_run(request, pk, "experiment")
     try:
         reservation = booking_repeat(run=run, by=user, ip=client_ip(request), via=Channel.WEB)
     except DomainError as exc:
@@ -280,7 +288,7 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
 @page_throttled
 @login_required
 def run_package(request: HttpRequest, pk: int) -> StreamingHttpResponse:
-    run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    run = _visible_run(request, pk)
     return run_package_response(request, run)
 
 
@@ -288,7 +296,7 @@ def run_package(request: HttpRequest, pk: int) -> StreamingHttpResponse:
 @login_required
 def run_data(request: HttpRequest, pk: int) -> JsonResponse:
     """What the run page's charts, status and tables need, polled while the run is live."""
-    run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    run = _visible_run(request, pk)
     context = _run_context(request, run)
     report = context["report"]
     return JsonResponse(
@@ -309,14 +317,14 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
 @page_throttled
 @login_required
 def run_json(request: HttpRequest, pk: int) -> StreamingHttpResponse:
-    run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    run = _visible_run(request, pk)
     return samples_json_response(request, run)
 
 
 @page_throttled
 @login_required
 def run_csv(request: HttpRequest, pk: int) -> StreamingHttpResponse:
-    run = get_object_or_404(runs_visible(user=_user(request)), pk=pk)
+    run = _visible_run(request, pk)
     return samples_csv_response(request, run)
 
 

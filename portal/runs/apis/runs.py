@@ -350,11 +350,9 @@ class SamplesDocumentOutput(serializers.Serializer):
     samples = SampleOutput(many=True)
 
 
-class CsvRenderer(BaseRenderer):
-    """Names text/csv for content negotiation; the CSV itself is streamed by the view."""
-
-    media_type = "text/csv"
-    format = "csv"
+class StreamedRenderer(BaseRenderer):
+    """Names a streamed download's media type for content negotiation; the view streams the
+    body itself, and its errors are rendered as JSON (``DownloadApi``)."""
 
     def render(
         self, data: Any, accepted_media_type: str | None = None, renderer_context: Any = None
@@ -362,12 +360,22 @@ class CsvRenderer(BaseRenderer):
         raise NotImplementedError  # never reached: errors are rendered as JSON
 
 
+class CsvRenderer(StreamedRenderer):
+    media_type = "text/csv"
+    format = "csv"
+
+
+class ZipRenderer(StreamedRenderer):
+    media_type = "application/zip"
+    format = "zip"
+
+
 class DownloadApi(APIView):
     """A streamed download. Its errors are JSON whatever the client accepts."""
 
     def perform_content_negotiation(self, request: Request, force: bool = False) -> Any:
         renderer, media_type = super().perform_content_negotiation(request, force=True)
-        if isinstance(renderer, CsvRenderer | ZipRenderer):
+        if isinstance(renderer, StreamedRenderer):
             json_renderer = self.get_renderers()[0]
             return json_renderer, json_renderer.media_type
         return renderer, media_type
@@ -393,18 +401,6 @@ class RunSamplesJsonApi(DownloadApi):
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
         return samples_json_response(request, run)
-
-
-class ZipRenderer(BaseRenderer):
-    """Names application/zip for content negotiation; the zip is streamed by the view."""
-
-    media_type = "application/zip"
-    format = "zip"
-
-    def render(
-        self, data: Any, accepted_media_type: str | None = None, renderer_context: Any = None
-    ) -> bytes:
-        raise NotImplementedError  # never reached: errors are rendered as JSON
 
 
 class RunPackageApi(DownloadApi):
