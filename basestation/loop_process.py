@@ -8,7 +8,7 @@ writer and the thread that takes the API's requests, and runs real-time where al
 Who holds what:
 
 - The **loop process** (:func:`loop_main`) owns the robot (radio, SPI or simulator), the
-  :class:`~basestation.manager.RunManager` (``decide`` and the tick, unchanged), the store
+  :class:`~basestation.manager.RunManager` (the tick and its ``decide``, unchanged), the store
   writer and the e-stop latch and manual command in force.
 - The **agent process** (:class:`LoopProcess`) serves HTTP. It reads and writes runs in the
   run store directly (SQLite WAL: several processes, one file), and reaches the loop through
@@ -61,10 +61,11 @@ from basestation.control import (
 )
 from basestation.errors import RunConflict
 from basestation.logs import configure_logging, current_log_format
-from basestation.manager import AgentSnapshot, EstopLatch, ManualDrive, RunManager
+from basestation.manager import RunManager
 from basestation.robot import Direction, RobotLimits
 from basestation.robots import build_robot
 from basestation.store import RunStore
+from basestation.tick_rules import AgentSnapshot, EstopLatch, ManualDrive
 
 logger = logging.getLogger(__name__)
 

@@ -11,11 +11,12 @@ import re
 
 from basestation.config import AgentConfig
 from basestation.errors import RunConflict, RunNotFound, StorageFull
-from basestation.manager import EstopLatch, ManualDrive, RunControl
+from basestation.manager import RunControl
 from basestation.manual import ManualCommand, StopRequest
 from basestation.program import InvalidRunBody, RunSpec, check_run_admissible, parse_run_body
 from basestation.store import ABORTED, CANCELLED, RUNNING, STAGED, RunRecord, RunStore
 from basestation.system import DiskSpace
+from basestation.tick_rules import EstopLatch, ManualDrive
 
 RUN_ID_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
 # What one sample costs on disk: about 110 bytes in the table with its key, plus the WAL

@@ -14,7 +14,6 @@ from flask import Blueprint, jsonify, request
 from flask.typing import ResponseReturnValue
 
 from basestation.api.bodies import json_body
-from basestation.manager import EstopLatch
 from basestation.manual import (
     MAX_STOP_BODY_BYTES,
     RELEASE_FIELDS,
@@ -24,6 +23,7 @@ from basestation.manual import (
 )
 from basestation.runtime import get_runtime
 from basestation.services import estop_latch, estop_release, manual_drive
+from basestation.tick_rules import EstopLatch
 
 bp = Blueprint("control", __name__)
 

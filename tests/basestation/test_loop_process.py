@@ -23,7 +23,7 @@ import pytest
 
 from basestation.client import AgentClient, AgentError
 from basestation.loop_process import STALE_AFTER_S, LoopProcess, LoopState
-from basestation.manager import AgentSnapshot
+from basestation.tick_rules import AgentSnapshot
 from tests.basestation.conftest import TOKEN, run_body
 from tests.basestation.processes import Agent, sim_robot_process, start_agent
 

@@ -1,5 +1,5 @@
-"""The tick's decision step, rule by rule: the precedence of the manager's module docstring
-as a table, one row per rule and per combination that matters."""
+"""The tick's decision step, rule by rule: the precedence of ``basestation/tick_rules.py``'s
+module docstring as a table, one row per rule and per combination that matters."""
 
 from __future__ import annotations
 
@@ -7,11 +7,17 @@ from dataclasses import dataclass
 
 import pytest
 
-from basestation.manager import LOW_BATTERY_HOLD_S, EstopLatch, ManualDrive, TickDecision, decide
 from basestation.program import parse_run_body
 from basestation.robot import Direction
 from basestation.runtime import AgentRuntime
 from basestation.store import ABORTED, CANCELLED, COMPLETED, STAGED, RunRecord
+from basestation.tick_rules import (
+    LOW_BATTERY_HOLD_S,
+    EstopLatch,
+    ManualDrive,
+    TickDecision,
+    decide,
+)
 from tests.basestation.conftest import RecordingRobot, run_body
 
 T0 = 1_900_000_000.0  # start of the run under test

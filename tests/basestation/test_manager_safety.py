@@ -14,9 +14,9 @@ from flask import Flask
 from basestation.app import create_app
 from basestation.config import AgentConfig
 from basestation.errors import RunConflict
-from basestation.manager import LOW_BATTERY_HOLD_S
 from basestation.program import parse_run_body
 from basestation.runtime import AgentRuntime, get_runtime
+from basestation.tick_rules import LOW_BATTERY_HOLD_S
 from tests.basestation.conftest import PERIOD_S, RecordingRobot, run_body
 
 Drive = Callable[[float, float], float]
