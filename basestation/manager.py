@@ -297,21 +297,7 @@ class RunManager:
         running unless ``force`` (which aborts the run).
         """
         with self._api_lock:
-            if self._estop is not None:
-                raise RunConflict(
-                    "estop_latched",
-                    "the emergency stop is latched: release it (POST /stop/release) first",
-                )
-            aborted = None
-            running = self.store.running_run_id()
-            if running is not None:
-                if not force:
-                    raise RunConflict(
-                        "robot_busy",
-                        f'run {running} holds the robot; send "force": true to abort it '
-                        "and take over",
-                    )
-                aborted = self._abort_running(now_s, f"aborted: {user} took manual control")
+            aborted = self._make_way_for_manual(now_s, user=user, force=force)
             current = self.manual(now_s)
             if velocity_mps == 0:
                 if current is not None and self._take_manual(current) is current:
@@ -343,6 +329,24 @@ class RunManager:
             with self._manual_lock:
                 self._manual = drive
             return drive, aborted
+
+    def _make_way_for_manual(self, now_s: float, *, user: str, force: bool) -> str | None:
+        """Free the robot for ``user``'s manual command (under ``_api_lock``): the conflicts
+        of :meth:`drive_manually`, or the id of the run aborted with ``force``."""
+        if self._estop is not None:
+            raise RunConflict(
+                "estop_latched",
+                "the emergency stop is latched: release it (POST /stop/release) first",
+            )
+        running = self.store.running_run_id()
+        if running is None:
+            return None
+        if not force:
+            raise RunConflict(
+                "robot_busy",
+                f'run {running} holds the robot; send "force": true to abort it and take over',
+            )
+        return self._abort_running(now_s, f"aborted: {user} took manual control")
 
     def _abort_running(self, now_s: float, reason: str) -> str | None:
         run_id = self.store.running_run_id()
