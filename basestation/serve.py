@@ -112,7 +112,8 @@ def is_stop(request: Any) -> bool:
 
 def is_stop_environ(environ: dict[str, Any]) -> bool:
     """Whether the WSGI request ``environ`` is a stop: it takes no CPU slot."""
-    return bool(environ.get("REQUEST_METHOD") == "POST" and environ.get("PATH_INFO") == STOP_PATH)
+    # Both keys are always there (PEP 3333; waitress sets them for every request).
+    return bool(environ["REQUEST_METHOD"] == "POST" and environ["PATH_INFO"] == STOP_PATH)
 
 
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
