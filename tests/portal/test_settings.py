@@ -90,7 +90,7 @@ def test_an_unreadable_secret_file_is_a_clear_error(tmp_path):
 def test_the_readme_documents_every_setting():
     sources = [REPO / "portal" / "settings.py", REPO / "portal" / "launcher.py"]
     sources += sorted((REPO / "basestation").glob("*.py"))
-    sources += sorted((REPO / "amazing_cli").glob("*.py"))
+    sources += sorted((REPO / "amazing_cli").rglob("*.py"))
     names: set[str] = set()
     for source in sources:
         text = source.read_text()
