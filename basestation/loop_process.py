@@ -26,6 +26,9 @@ faults, ``/healthz``) and started again; meanwhile the robot hears nothing and i
 500 ms dead-man stops it. The loop process stops cleanly (robot to zero, the run
 interrupted) when the agent asks, on SIGTERM, and when the agent process dies (Linux: the
 parent-death signal; elsewhere the pipe's end).
+
+One thing: the two ends of one pipe — the control loop's process and the agent's handle to it
+(:class:`LoopProcess`); their messages change together.
 """
 
 from __future__ import annotations

@@ -16,6 +16,10 @@ The values the tick and the API hand around (``ManualDrive``, ``EstopLatch``,
 ``AgentSnapshot``, ``TickDecision``, ...) belong to :mod:`basestation.tick_rules` and are
 imported from there: this module uses them but does not re-export them. It offers
 :class:`RunControl`, :class:`RunManager` and its own tuning constants.
+
+One thing: the run manager, the state a tick changes and everything that changes it (runs, the
+e-stop latch, manual control, the robot's exchange, what is recorded); its rule book is apart,
+in basestation.tick_rules.
 """
 
 from __future__ import annotations

@@ -9,6 +9,11 @@ Each thread gets its own connection: in WAL mode readers never block the writer,
 thread paging through 5 000 samples does not delay the control loop's next commit.
 Writers are serialised by SQLite itself (``BEGIN IMMEDIATE`` with a busy timeout), which
 also makes every check-then-write below atomic.
+
+One thing: the run store, and everything that reads or writes its file — staging, samples,
+provenance, the usage log, purging — kept together because its durability rules (one
+transaction per batch, exactly-once sequence numbers) hold only if every query obeys them in
+one place.
 """
 
 from __future__ import annotations

@@ -24,6 +24,9 @@ limits nest: firmware ≥ agent ≥ portal, each layer only stricter; docs/archi
 :func:`velocity_problem` checks a velocity against it: programs at booking (the booked robot),
 programs when written (:func:`robots_fitting`, every robot the author may book) and manual
 drive. :func:`resource_limit_problem` refuses a resource limit looser than its agent's.
+
+One thing: the booking rules, the one answer to "may this be booked, moved or cancelled"; the
+services, the live check and the lease API all ask here, so the rules are read in one file.
 """
 
 from __future__ import annotations

@@ -34,6 +34,9 @@ reads. What the emulation covers (SX1231 datasheet, section 6 register map):
 Time comes from an injected clock. Nothing runs in the background: pending events (mode
 ready, packet sent, packets arriving) are evaluated when the chip is accessed, so the chip is
 exact under a fake clock and correct under ``time.monotonic``.
+
+One thing: one emulated chip, register by register; its size is the datasheet's register map,
+modes and timings, which split across files would have to be read together anyway.
 """
 
 from __future__ import annotations

@@ -16,6 +16,9 @@ numbered from 1 clockwise, e.g. ``A2``.
 
 The simulator drives its robot along the same :class:`Rail` (``SimConfig.rail``), so the
 simulated GPS and the agent's projection always agree about where the rail is.
+
+One thing: the rail's geometry, with the checks of its configuration file, which name the field
+at fault in the same terms the geometry uses.
 """
 
 from __future__ import annotations

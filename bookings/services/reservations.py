@@ -6,6 +6,10 @@ fixed order (the user, then the resources by id: ``_lock``), so concurrent booki
 one at a time; on PostgreSQL an exclusion constraint backs the overlap check. What may be
 booked, moved or cancelled is decided in ``bookings.rules``; these functions raise its first
 problem.
+
+One thing: the writes of a reservation under the booking locks (check, create, move, attach,
+cancel, decide, complete); each takes the same locks in the same order and raises the rules'
+first problem, which is easiest to see when they sit together.
 """
 
 from __future__ import annotations

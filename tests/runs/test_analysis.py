@@ -15,9 +15,8 @@ from portal.runs.analysis import (
     analyse,
     analyse_columns,
     chart_series,
-    downsample,
-    lttb,
 )
+from portal.runs.downsampling import downsample, lttb
 from tests.runs.driving import HZ, RAIL_M, drive, segments
 
 
