@@ -162,7 +162,7 @@ def beat_process(*, python: str, schedule_file: Path, log_level: str = "INFO") -
 def standin_process(
     *, python: str, port: int, db_path: Path, host: str = DEFAULT_HOST, test_control: bool = False
 ) -> ProcessSpec:
-    """The stand-in for the testbed's scheduler (``bookings/scheduler/standin.py``), the
+    """The stand-in for the testbed's scheduler (``bookings/scheduler/standin/``), the
     process named ``scheduler``: the embedded default of ``make run``, which then owns the 24
     fixed nodes, and the testbed scheduler of the integration tests (with its test-only
     control endpoints)."""

@@ -114,13 +114,25 @@ NOT_OVERLAP = {
     ("bookings/quotas.py", "_upcoming", "end_at > %s"),
     ("bookings/scheduler/adapter.py", "covering_window", "valid_from >= valid_until"),
     ("bookings/scheduler/omf.py", "lease_from_resource", "valid_from >= valid_until"),
-    ("bookings/scheduler/standin.py", "Broker._check_window", "valid_from_s >= valid_until_s"),
+    (
+        "bookings/scheduler/standin/broker.py",
+        "Broker._check_window",
+        "valid_from_s >= valid_until_s",
+    ),
     ("basestation/program.py", "parse_run_body", "end_at <= start_at"),
     ("portal/web/views.py", "_range", "end <= start"),
     # The stand-in broker plays the testbed's omf_sfa broker and models that broker's own
     # rule (half-open too, docs/integration.md); borrowing ours would hide a disagreement.
-    ("bookings/scheduler/standin.py", "Broker._clashes", "other.valid_from_s < valid_until_s"),
-    ("bookings/scheduler/standin.py", "Broker._clashes", "other.valid_until_s > valid_from_s"),
+    (
+        "bookings/scheduler/standin/broker.py",
+        "Broker._clashes",
+        "other.valid_from_s < valid_until_s",
+    ),
+    (
+        "bookings/scheduler/standin/broker.py",
+        "Broker._clashes",
+        "other.valid_until_s > valid_from_s",
+    ),
     # The emulated radio: whether a packet arrives while the receiver is still busy, an
     # instant against airtime rather than a booked period (and the agent imports no bookings).
     ("basestation/sim/rfm69.py", "EmulatedRFM69._receive", "self._busy_until > reception.start_s"),

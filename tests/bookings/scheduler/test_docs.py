@@ -23,7 +23,7 @@ def test_it_documents_every_switch_of_the_stand_in() -> None:
     flags -= {"--help", "--no-empty-as-404", "--no-test-control"}
     assert {"--conflict-as", "--granularity-s", "--test-control", "--db"} <= flags
     assert not [flag for flag in sorted(flags) if flag not in text]
-    source = (DOC.parents[1] / "bookings" / "scheduler" / "standin.py").read_text()
+    source = (DOC.parents[1] / "bookings" / "scheduler" / "standin" / "config.py").read_text()
     variables = {ENV_PREFIX + name for name in re.findall(r'get\("([A-Z0-9_]+)"\)', source)}
     assert len(variables) >= 7
     assert not [name for name in sorted(variables) if name not in text and name[:-5] not in text]
