@@ -120,7 +120,7 @@ NOT_OVERLAP = {
         "valid_from_s >= valid_until_s",
     ),
     ("basestation/program.py", "parse_run_body", "end_at <= start_at"),
-    ("portal/web/views.py", "_range", "end <= start"),
+    ("portal/web/calendars.py", "_range", "end <= start"),
     # The stand-in broker plays the testbed's omf_sfa broker and models that broker's own
     # rule (half-open too, docs/integration.md); borrowing ours would hide a disagreement.
     (
@@ -269,3 +269,59 @@ PORTAL_SQL = "SELECT id FROM items WHERE end_at > %s"
     assert allowed(("bookings/models.py", "PeriodQuerySet.overlapping", "end_at__gt=start_at"))
     assert not allowed(("bookings/models.py", "Reservation.overlapping", "end_at__gt=start_at"))
     assert not allowed(("bookings/quotas.py", "period_usage", "start_at < period_end"))
+
+
+# --- Rooms of a size a reader can hold ------------------------------------------------------
+
+PRODUCT_CODE = [
+    REPO / name for name in ("core", "portal", "bookings", "basestation", "amazing_cli", "cad")
+]
+MODULE_MAX_LINES = 600
+FUNCTION_MAX_LINES = 60
+# A long module says why it is one thing, in a paragraph of its docstring that starts so.
+ONE_THING = "One thing:"
+LONG_FUNCTIONS_DOC = REPO / "docs" / "architecture.md"
+LONG_FUNCTIONS_HEADING = "### Functions over 60 lines"
+
+
+def _long_functions() -> set[tuple[str, str]]:
+    found = set()
+    for path in _python_files(PRODUCT_CODE):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                assert node.end_lineno is not None
+                if node.end_lineno - node.lineno + 1 > FUNCTION_MAX_LINES:
+                    found.add((str(path.relative_to(REPO)), node.name))
+    return found
+
+
+def _listed_long_functions() -> set[tuple[str, str]]:
+    """The table under the heading: ``| `path` | `name` | reason |`` rows, each with a reason."""
+    text = LONG_FUNCTIONS_DOC.read_text()
+    assert LONG_FUNCTIONS_HEADING in text, f"{LONG_FUNCTIONS_DOC.name} lost its list"
+    section = text.split(LONG_FUNCTIONS_HEADING, 1)[1].split("\n#", 1)[0]
+    listed = set()
+    for path, name, reason in re.findall(
+        r"^\| `([^`]+)` \| `([^`]+)` \| ([^|]*) \|$", section, re.M
+    ):
+        assert reason.strip(), f"{path} {name}: listed without its reason"
+        listed.add((path, name))
+    return listed
+
+
+def test_every_module_over_600_lines_says_it_is_one_thing():
+    long = []
+    for path in _python_files(PRODUCT_CODE):
+        text = path.read_text()
+        if text.count("\n") > MODULE_MAX_LINES:
+            docstring = ast.get_docstring(ast.parse(text)) or ""
+            if ONE_THING not in docstring:
+                long.append(f"{path.relative_to(REPO)}: {text.count(chr(10))} lines")
+    assert not long, f"split these, or say in the docstring ({ONE_THING!r}) why not: {long}"
+
+
+def test_every_function_over_60_lines_is_listed_with_its_reason():
+    found, listed = _long_functions(), _listed_long_functions()
+    assert found - listed == set(), "list these in docs/architecture.md, with why, or split them"
+    assert listed - found == set(), "these are no longer long: take them off the list"

@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.web import attach, console, dry_runs, live, my_runs, roof, timeline, views
+from portal.web import attach, calendars, console, dry_runs, live, my_runs, roof, timeline, views
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -23,12 +23,14 @@ urlpatterns = [
     path("runs/<int:pk>/samples.json", views.run_json, name="run-json"),
     path("runs/<int:pk>/package.zip", views.run_package, name="run-package"),
     path("runs/<int:pk>/again/", views.run_again, name="run-again"),
-    path("calendar/", views.calendar_page, name="calendar"),
+    path("calendar/", calendars.calendar_page, name="calendar"),
     path("calendar/timeline/", timeline.timeline_page, name="timeline"),
-    path("calendar/events.json", views.calendar_events, name="calendar-events"),
-    path("calendar/feeds/", views.calendar_feeds, name="calendar-feeds"),
-    path("calendar/feed/<str:token>.ics", views.ical_personal, name="ical-personal"),
-    path("calendar/feed/<str:token>/<slug:name>.ics", views.ical_resource, name="ical-resource"),
+    path("calendar/events.json", calendars.calendar_events, name="calendar-events"),
+    path("calendar/feeds/", calendars.calendar_feeds, name="calendar-feeds"),
+    path("calendar/feed/<str:token>.ics", calendars.ical_personal, name="ical-personal"),
+    path(
+        "calendar/feed/<str:token>/<slug:name>.ics", calendars.ical_resource, name="ical-resource"
+    ),
     path("account/tokens/", views.api_tokens_page, name="api-tokens"),
     path("approvals/", views.approvals, name="approvals"),
     path("robot/<slug:name>/", views.robot_console, name="robot"),
