@@ -1,10 +1,11 @@
+// @ts-check
 // How the pages' scripts talk to the REST API: the session's CSRF token, JSON both ways, and
 // the API's refusal ({detail, fields}) put into one sentence for the person reading it.
 window.AmazingApi = (function () {
   "use strict";
 
   function csrf() {
-    const input = document.querySelector("[name=csrfmiddlewaretoken]");
+    const input = /** @type {HTMLInputElement | null} */ (document.querySelector("[name=csrfmiddlewaretoken]"));
     return input ? input.value : "";
   }
 

@@ -1,3 +1,4 @@
+// @ts-check
 // The booking calendar: FullCalendar in the testbed's time zone, talking to the REST API.
 (function () {
   "use strict";
@@ -5,11 +6,11 @@
   if (!el || typeof FullCalendar === "undefined") return;
   const zone = el.dataset.zone;
   const DateTime = luxon.DateTime;
-  const filter = document.getElementById("resource-filter");
-  const dialog = document.getElementById("booking-dialog");
-  const form = document.getElementById("booking-form");
+  const filter = /** @type {HTMLSelectElement} */ (document.getElementById("resource-filter"));
+  const dialog = /** @type {HTMLDialogElement} */ (document.getElementById("booking-dialog"));
+  const form = /** @type {BookingForm & {resources: HTMLSelectElement}} */ (document.getElementById("booking-form"));
   const feedback = document.getElementById("booking-feedback");
-  const eventDialog = document.getElementById("event-dialog");
+  const eventDialog = /** @type {HTMLDialogElement} */ (document.getElementById("event-dialog"));
   let selected = null;
 
   const { api, explain } = window.AmazingApi;
@@ -74,7 +75,7 @@
 
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
-    const button = document.getElementById("booking-confirm");
+    const button = /** @type {HTMLButtonElement} */ (document.getElementById("booking-confirm"));
     button.setAttribute("aria-busy", "true");
     button.disabled = true;
     const { body, times } = bookingBody();
@@ -127,7 +128,7 @@
     const fmt = (d) => DateTime.fromJSDate(d, { zone }).toFormat("yyyy-LL-dd HH:mm");
     document.getElementById("event-when").textContent = `${fmt(info.event.start)} – ${fmt(info.event.end)} (${zone})`;
     document.getElementById("event-state").textContent = "State: " + props.state;
-    const run = document.getElementById("event-run");
+    const run = /** @type {HTMLAnchorElement} */ (document.getElementById("event-run"));
     run.hidden = !props.url;
     run.href = props.url || "#";
     document.getElementById("event-cancel").hidden = !(props.state === "confirmed" || props.state === "requested");
@@ -147,7 +148,7 @@
   // booking to tab to, and a focusable scroller inside the grid would break its rows'
   // structure. The box opens at the morning, as the calendar's own scrollTime would.
   function scrollArea() {
-    const box = el.querySelector(".fc-view-harness");
+    const box = /** @type {HTMLElement | null} */ (el.querySelector(".fc-view-harness"));
     if (!box) return;
     if (!box.hasAttribute("tabindex")) {
       box.tabIndex = 0;
@@ -209,7 +210,7 @@
   // Robots held by their health check: the reason, as bookings of them would be refused.
   const holds = document.getElementById("robot-holds");
   function onHold(hold) {
-    let item = holds.querySelector(`li[data-resource="${CSS.escape(hold.resource)}"]`);
+    let item = /** @type {HTMLLIElement | null} */ (holds.querySelector(`li[data-resource="${CSS.escape(hold.resource)}"]`));
     if (!hold.reason) {
       if (item) item.remove();
     } else {

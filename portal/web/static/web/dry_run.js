@@ -1,3 +1,4 @@
+// @ts-check
 // A dry run that waits or runs: its place in line and state, read every second; once it has
 // ended the page is loaded again, with the charts and statistics of the run page.
 (function () {

@@ -1,3 +1,4 @@
+// @ts-check
 // Hold-to-drive: while a button or key is held the console repeats a short-lived manual drive
 // command (every data-repeat-ms, each valid data-ttl-s on the base station); letting go,
 // hiding or leaving the page, or losing focus sends velocity 0 at once. If that stop is lost
@@ -8,14 +9,14 @@
   const root = document.getElementById("robot");
   if (!box || !root) return;
   const url = `/api/v1/resources/${root.dataset.name}/robot/control/`;
-  const csrf = root.querySelector("[name=csrfmiddlewaretoken]").value;
+  const csrf = /** @type {HTMLInputElement} */ (root.querySelector("[name=csrfmiddlewaretoken]")).value;
   const ttlS = Number(box.dataset.ttlS);
   const repeatMs = Number(box.dataset.repeatMs);
   const state = document.getElementById("hold-state");
-  const velocity = document.getElementById("held-velocity");
-  const reason = document.getElementById("held-reason");
-  const force = document.getElementById("held-force");
-  const buttons = Array.from(box.querySelectorAll("button.hold"));
+  const velocity = /** @type {HTMLInputElement} */ (document.getElementById("held-velocity"));
+  const reason = /** @type {HTMLInputElement} */ (document.getElementById("held-reason"));
+  const force = /** @type {HTMLInputElement} */ (document.getElementById("held-force"));
+  const buttons = Array.from(/** @type {NodeListOf<HTMLButtonElement>} */ (box.querySelectorAll("button.hold")));
 
   let held = null; // {direction, timer, source}
   let inFlight = false;

@@ -1,3 +1,4 @@
+// @ts-check
 // The roof, live: the robot's rail drawn in SVG from its agent's geometry (/rails/<name>.json),
 // the thesis grid cells along it, the fixed nodes' places, and the robot placed by track_m.
 //

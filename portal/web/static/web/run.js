@@ -1,3 +1,4 @@
+// @ts-check
 // Run page: charts of velocity, position and battery; while the run is live, its state and
 // new samples are pushed (live.js) and the charts and tables redrawn.
 (function () {

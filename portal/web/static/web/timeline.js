@@ -1,3 +1,4 @@
+// @ts-check
 // The resource timeline: Event Calendar's resource timeline, one row per robot and fixed node.
 // A drag across several rows books them together; the live check answers while dragging.
 //
@@ -14,8 +15,8 @@
   const order = leaves.map((r) => r.id); // rows top to bottom: a drag takes those between
   const byId = new Map(leaves.map((r) => [r.id, r]));
   const checkLine = document.getElementById("timeline-check");
-  const dialog = document.getElementById("timeline-dialog");
-  const form = document.getElementById("timeline-form");
+  const dialog = /** @type {HTMLDialogElement} */ (document.getElementById("timeline-dialog"));
+  const form = /** @type {BookingForm} */ (document.getElementById("timeline-form"));
   const feedback = document.getElementById("timeline-feedback");
   const FLOATING = "yyyy-LL-dd'T'HH:mm:ss";
   const SLOT_MIN = 30;
@@ -152,7 +153,7 @@
   // The booking the dialog holds; `times` says which occurrence a repeated time is, or why a
   // time cannot be booked (wall_clock.js: the portal's rule for the nights the clocks change).
   function bookingBody() {
-    const resources = Array.from(form.querySelectorAll("input[name=resources]:checked")).map((i) => i.value);
+    const resources = Array.from(/** @type {NodeListOf<HTMLInputElement>} */ (form.querySelectorAll("input[name=resources]:checked"))).map((i) => i.value);
     const times = typedWindow(form.start.value, form.end.value, zone);
     const body = { resources, start_at: times.start, end_at: times.end };
     if (form.experiment.value) body.experiment = Number(form.experiment.value);
@@ -182,7 +183,7 @@
 
   function openBooking(resources, start, end) {
     form.reset();
-    for (const box of form.querySelectorAll("input[name=resources]")) box.checked = resources.includes(box.value);
+    for (const box of /** @type {NodeListOf<HTMLInputElement>} */ (form.querySelectorAll("input[name=resources]"))) box.checked = resources.includes(box.value);
     form.start.value = toLocalInput(start);
     form.end.value = toLocalInput(end);
     feedback.textContent = "";
@@ -213,7 +214,7 @@
 
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
-    const button = document.getElementById("timeline-confirm");
+    const button = /** @type {HTMLButtonElement} */ (document.getElementById("timeline-confirm"));
     button.setAttribute("aria-busy", "true");
     button.disabled = true;
     const { body, times } = bookingBody();
