@@ -22,10 +22,19 @@ interface AmazingAnswer {
   data: any;
 }
 
+interface AmazingApiOptions {
+  /** Headers besides the CSRF token and the client's name. */
+  headers?: Record<string, string>;
+  /** The request outlives the page. */
+  keepalive?: boolean;
+}
+
 interface AmazingApi {
-  api(method: string, url: string, body?: unknown, extraHeaders?: Record<string, string>): Promise<AmazingAnswer>;
+  api(method: string, url: string, body?: unknown, options?: AmazingApiOptions): Promise<AmazingAnswer>;
   /** The API's refusal ({detail, fields}) as one sentence. */
   explain(data: any): string;
+  /** Why a request came to nothing, in a few words ("no answer", "HTTP 502", ...). */
+  failure(answer: AmazingAnswer): string;
 }
 
 /** wall_clock.js: a typed wall-clock time read as an instant, or why it cannot be. */

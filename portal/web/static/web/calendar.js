@@ -13,7 +13,7 @@
   const eventDialog = /** @type {HTMLDialogElement} */ (document.getElementById("event-dialog"));
   let selected = null;
 
-  const { api, explain } = window.AmazingApi;
+  const { api, explain, failure } = window.AmazingApi;
   const { typedWindow } = window.AmazingWallClock;
 
   // datetime-local values are wall-clock times in the testbed's zone, read by the portal's
@@ -87,7 +87,7 @@
       return;
     }
     const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
-    const result = await api("POST", "/api/v1/reservations/", body, { "X-Idempotency-Key": key });
+    const result = await api("POST", "/api/v1/reservations/", body, { headers: { "X-Idempotency-Key": key } });
     button.removeAttribute("aria-busy");
     button.disabled = false;
     if (result.ok) {
@@ -184,12 +184,13 @@
     slotLabelFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     eventTimeFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     dayHeaderFormat: { weekday: "short", day: "numeric", month: "short" },
-    events: (info, success, failure) => {
+    events: (info, success, failed) => {
       const params = new URLSearchParams({ start: info.startStr, end: info.endStr });
       if (filter.value) params.set("resource", filter.value);
-      fetch(`${el.dataset.events}?${params}`, { credentials: "same-origin" })
-        .then((r) => (r.ok ? r.json() : Promise.reject(new Error(r.statusText))))
-        .then(success, failure);
+      api("GET", `${el.dataset.events}?${params}`).then((result) => {
+        if (result.ok && result.data !== null) success(result.data);
+        else failed(new Error(failure(result)));
+      });
     },
     // data-loading="false" once the shown range's bookings are in (tests and assistive
     // technology wait on it).

@@ -21,7 +21,7 @@
   const FLOATING = "yyyy-LL-dd'T'HH:mm:ss";
   const SLOT_MIN = 30;
 
-  const { api, explain } = window.AmazingApi;
+  const { api, explain, failure } = window.AmazingApi;
   const { typedWindow } = window.AmazingWallClock;
 
   // Event Calendar's dates carry the testbed's wall-clock time in the browser's fields.
@@ -69,10 +69,9 @@
   async function load(info) {
     const range = { start: DateTime.fromISO(info.startStr, { zone }), end: DateTime.fromISO(info.endStr, { zone }) };
     const params = new URLSearchParams({ start: range.start.toISO(), end: range.end.toISO() });
-    const response = await fetch(`${el.dataset.events}?${params}`, { credentials: "same-origin" });
-    if (!response.ok) throw new Error(response.statusText);
-    const entries = await response.json();
-    return entries.map(toEvent).concat(holdEvents({ start: info.startStr, end: info.endStr }));
+    const result = await api("GET", `${el.dataset.events}?${params}`);
+    if (!result.ok || result.data === null) throw new Error(failure(result));
+    return result.data.map(toEvent).concat(holdEvents({ start: info.startStr, end: info.endStr }));
   }
 
   // --- Dragging across rows ------------------------------------------------------------------
@@ -226,7 +225,7 @@
       return;
     }
     const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
-    const result = await api("POST", "/api/v1/reservations/", body, { "X-Idempotency-Key": key });
+    const result = await api("POST", "/api/v1/reservations/", body, { headers: { "X-Idempotency-Key": key } });
     button.removeAttribute("aria-busy");
     button.disabled = false;
     if (result.ok) {
