@@ -177,6 +177,8 @@
     return { distance, displacement };
   }
 
+  // The colour of one's own bookings (app.css), which the chart's line is drawn in.
+  const ownColour = () => getComputedStyle(document.documentElement).getPropertyValue("--amz-own").trim();
   let chart = null;
   function draw(points) {
     if (typeof Chart === "undefined") return;
@@ -188,7 +190,7 @@
     }
     chart = new Chart(document.getElementById("builder-chart"), {
       type: "line",
-      data: { datasets: [{ label: "velocity (m/s, cw +)", data: series, borderColor: "#1e6fb8", pointRadius: 0, tension: 0 }] },
+      data: { datasets: [{ label: "velocity (m/s, cw +)", data: series, borderColor: ownColour(), pointRadius: 0, tension: 0 }] },
       options: {
         animation: false,
         responsive: true,

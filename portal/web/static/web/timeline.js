@@ -34,7 +34,6 @@
   const shown = (dt) => dt.toFormat("ccc d LLL HH:mm");
 
   // --- What the rows hold --------------------------------------------------------------------
-  const colours = { own: "#1e6fb8", other: "#7a5195", busy: "#5f6670", blackout: "#c62828", lease: "#8a5300", hold: "#5d4037" };
   function rowsOf(names) {
     return names.includes("all") ? order.slice() : names.filter((n) => byId.has(n));
   }
@@ -46,7 +45,6 @@
       start: floating(e.start),
       end: floating(e.end),
       resourceIds: rowsOf(props.resources),
-      backgroundColor: colours[props.kind],
       editable: false,
       classNames: [`timeline-${props.kind}`],
       extendedProps: props,
@@ -60,7 +58,6 @@
       start: r.extendedProps.held_at ? floating(r.extendedProps.held_at) : range.start,
       end: range.end,
       resourceIds: [r.id],
-      backgroundColor: colours.hold,
       editable: false,
       classNames: ["timeline-hold"],
       extendedProps: { kind: "hold", resources: [r.id] },
