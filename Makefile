@@ -19,7 +19,7 @@ TEST_ENV := DJANGO_DEBUG=1 AMAZING_TEST_REQUIRE_POSTGRES=1 DATABASE_URL=$(TEST_D
 help:
 	@echo "make run    - set up and start the whole system locally (simulated robot)"
 	@echo "make test   - set up and run every test suite against PostgreSQL and Redis"
-	@echo "make lint   - ruff, mypy, import layers, compose validation, dependency audit"
+	@echo "make lint   - ruff, mypy, the pages' scripts type-checked, import layers, compose validation, dependency audit"
 	@echo "make audit  - known vulnerabilities in the Python and npm packages"
 	@echo "make bench  - benchmarks (results go to docs/performance.md)"
 	@echo "make soak   - the whole system under random faults for SOAK_MINUTES (30), checked (docs/reliability.md)"
@@ -38,9 +38,10 @@ $(STAMPS)/venv: pyproject.toml | $(STAMPS)
 	$(PY) -m pip install --quiet -e '.[portal,basestation,cli,dev,cad]'
 	@touch $@
 
-# Front-end packages from npm, copied to where Django's staticfiles finds them.
+# Front-end packages from npm, copied to where Django's staticfiles finds them; the development
+# ones too (TypeScript, which `make lint` checks the pages' scripts with), whatever NODE_ENV says.
 $(STAMPS)/assets: package.json package-lock.json | $(STAMPS)
-	npm ci --no-audit --no-fund --loglevel=error
+	npm ci --include=dev --no-audit --no-fund --loglevel=error
 	rm -rf $(ASSETS)/vendor
 	mkdir -p $(ASSETS)/vendor/pico $(ASSETS)/vendor/chart.js $(ASSETS)/vendor/swagger-ui-dist \
 		$(ASSETS)/vendor/fullcalendar $(ASSETS)/vendor/luxon $(ASSETS)/vendor/event-calendar \
@@ -103,10 +104,12 @@ AUDIT_INCOMPLETE ?= fail
 audit: setup
 	$(PY) deploy/audit_dependencies.py --incomplete=$(AUDIT_INCOMPLETE)
 
+# tsc: the pages' scripts, plain JavaScript, type-checked (portal/web/jsconfig.json).
 lint: setup system-deps
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	DJANGO_DEBUG=1 $(VENV)/bin/mypy core portal bookings basestation amazing_cli cad bench deploy/audit_dependencies.py
+	node_modules/.bin/tsc -p portal/web/jsconfig.json
 	$(VENV)/bin/lint-imports --no-cache
 	docker-compose -f docker-compose.yml config --quiet
 	DJANGO_DEBUG=1 $(PY) manage.py makemigrations --check --dry-run

@@ -78,18 +78,13 @@ def _range(request: HttpRequest) -> tuple[datetime, datetime]:
 
 @login_required
 def calendar_events(request: HttpRequest) -> JsonResponse:
-    """Events for FullCalendar: own bookings in full, others' as busy, maintenance windows."""
+    """Events for FullCalendar: own bookings in full, others' as busy, maintenance windows.
+
+    Each event's kind is its class (``calendar-<kind>``), which app.css colours."""
     start, end = _range(request)
     resource = None
     if request.GET.get("resource"):
         resource = get_object_or_404(Resource, name=request.GET["resource"])
-    colours = {
-        "own": "#1e6fb8",
-        "other": "#7a5195",
-        "busy": "#5f6670",
-        "blackout": "#c62828",
-        "lease": "#8a5300",
-    }
     entries = calendar_entries(
         viewer=_user(request), start_at=start, end_at=end, resource=resource, now=timezone.now()
     )
@@ -103,7 +98,7 @@ def calendar_events(request: HttpRequest) -> JsonResponse:
             "start": e.start_at.isoformat(),
             "end": e.end_at.isoformat(),
             "editable": e.editable,
-            "color": colours[e.kind],
+            "classNames": [f"calendar-{e.kind}"],
             "extendedProps": {
                 "kind": e.kind,
                 "reservation": e.reservation_id,

@@ -1,3 +1,4 @@
+// @ts-check
 // The experiment builder: the chosen robot's limits checked while typing, a preview of the
 // velocity profile with the ramps the robot really drives, the distance, laps and end position
 // on its rail; segments reordered (drag, or Alt+↑/↓ and the arrow buttons), cloned; the program
@@ -7,14 +8,14 @@
   "use strict";
   const form = document.getElementById("experiment-form");
   const side = document.getElementById("builder");
-  const body = document.querySelector("#segments tbody");
+  const body = /** @type {HTMLTableSectionElement | null} */ (document.querySelector("#segments tbody"));
   if (!form || !side || !body) return;
   const data = JSON.parse(document.getElementById("builder-data").textContent);
   const robots = new Map(data.robots.map((r) => [r.name, r]));
-  const robotSelect = document.getElementById("builder-robot");
-  const railInput = document.getElementById("builder-rail");
+  const robotSelect = /** @type {HTMLSelectElement} */ (document.getElementById("builder-robot"));
+  const railInput = /** @type {HTMLInputElement} */ (document.getElementById("builder-rail"));
   const problemsList = document.getElementById("builder-problems");
-  const titleInput = form.querySelector("[name=title]");
+  const titleInput = /** @type {HTMLInputElement} */ (form.querySelector("[name=title]"));
   const STOPPED = 1e-9;
   side.hidden = false;
 
@@ -74,35 +75,35 @@
     if (by < 0) body.insertBefore(row, list[to]);
     else body.insertBefore(row, list[to].nextSibling);
   }
-  body.addEventListener("click", (event) => {
+  body.addEventListener("click", (/** @type {MouseEvent & {target: Element}} */ event) => {
     const row = event.target.closest("tr");
     if (!row) return;
     if (event.target.closest(".move-up")) { move(row, -1); event.target.closest("button").focus(); }
     else if (event.target.closest(".move-down")) { move(row, 1); event.target.closest("button").focus(); }
     else if (event.target.closest(".clone-row")) {
-      const copy = row.cloneNode(true);
+      const copy = /** @type {HTMLTableRowElement} */ (row.cloneNode(true));
       // cloneNode copies attributes, not what was typed or chosen since.
       writeRow(copy, {
-        velocity_mps: row.querySelector("[name=velocity_mps]").value,
-        direction: row.querySelector("[name=direction]").value,
-        duration_s: row.querySelector("[name=duration_s]").value,
+        velocity_mps: /** @type {HTMLInputElement} */ (row.querySelector("[name=velocity_mps]")).value,
+        direction: /** @type {HTMLSelectElement} */ (row.querySelector("[name=direction]")).value,
+        duration_s: /** @type {HTMLInputElement} */ (row.querySelector("[name=duration_s]")).value,
       });
       row.after(copy);
       copy.querySelector("input").focus();
     }
   });
-  body.addEventListener("keydown", (event) => {
+  body.addEventListener("keydown", (/** @type {KeyboardEvent & {target: Element}} */ event) => {
     if (!event.altKey || (event.key !== "ArrowUp" && event.key !== "ArrowDown")) return;
     const row = event.target.closest("tr");
     if (!row) return;
     event.preventDefault();
-    const focused = document.activeElement;
+    const focused = /** @type {HTMLElement | null} */ (document.activeElement);
     move(row, event.key === "ArrowUp" ? -1 : 1);
     if (focused) focused.focus();
   });
   // Drag a row by any part of it that is not a field.
   let dragged = null;
-  body.addEventListener("dragstart", (event) => {
+  body.addEventListener("dragstart", (/** @type {DragEvent & {target: Element}} */ event) => {
     const row = event.target.closest && event.target.closest("tr");
     if (!row || event.target.matches("input, select")) return;
     dragged = row;
@@ -110,7 +111,7 @@
     event.dataTransfer.effectAllowed = "move";
     event.dataTransfer.setData("text/plain", row.querySelector(".index").textContent);
   });
-  body.addEventListener("dragover", (event) => {
+  body.addEventListener("dragover", (/** @type {DragEvent & {target: Element}} */ event) => {
     if (!dragged) return;
     event.preventDefault();
     const over = event.target.closest("tr");
@@ -176,6 +177,8 @@
     return { distance, displacement };
   }
 
+  // The colour of one's own bookings (app.css), which the chart's line is drawn in.
+  const ownColour = () => getComputedStyle(document.documentElement).getPropertyValue("--amz-own").trim();
   let chart = null;
   function draw(points) {
     if (typeof Chart === "undefined") return;
@@ -187,7 +190,7 @@
     }
     chart = new Chart(document.getElementById("builder-chart"), {
       type: "line",
-      data: { datasets: [{ label: "velocity (m/s, cw +)", data: series, borderColor: "#1e6fb8", pointRadius: 0, tension: 0 }] },
+      data: { datasets: [{ label: "velocity (m/s, cw +)", data: series, borderColor: ownColour(), pointRadius: 0, tension: 0 }] },
       options: {
         animation: false,
         responsive: true,
@@ -330,7 +333,7 @@
     });
     return doc;
   }
-  document.getElementById("builder-import").addEventListener("change", async (event) => {
+  document.getElementById("builder-import").addEventListener("change", async (/** @type {Event & {target: HTMLInputElement}} */ event) => {
     const status = document.getElementById("builder-import-status");
     const file = event.target.files[0];
     if (!file) return;

@@ -1,3 +1,4 @@
+// @ts-check
 // The booking calendar: FullCalendar in the testbed's time zone, talking to the REST API.
 (function () {
   "use strict";
@@ -5,14 +6,14 @@
   if (!el || typeof FullCalendar === "undefined") return;
   const zone = el.dataset.zone;
   const DateTime = luxon.DateTime;
-  const filter = document.getElementById("resource-filter");
-  const dialog = document.getElementById("booking-dialog");
-  const form = document.getElementById("booking-form");
+  const filter = /** @type {HTMLSelectElement} */ (document.getElementById("resource-filter"));
+  const dialog = /** @type {HTMLDialogElement} */ (document.getElementById("booking-dialog"));
+  const form = /** @type {BookingForm & {resources: HTMLSelectElement}} */ (document.getElementById("booking-form"));
   const feedback = document.getElementById("booking-feedback");
-  const eventDialog = document.getElementById("event-dialog");
+  const eventDialog = /** @type {HTMLDialogElement} */ (document.getElementById("event-dialog"));
   let selected = null;
 
-  const { api, explain } = window.AmazingApi;
+  const { api, explain, failure } = window.AmazingApi;
   const { typedWindow } = window.AmazingWallClock;
 
   // datetime-local values are wall-clock times in the testbed's zone, read by the portal's
@@ -31,7 +32,9 @@
   }
 
   let checkTimer = null;
+  let checkSeq = 0; // the newest check: an older answer arriving after it is dropped
   async function liveCheck() {
+    const seq = ++checkSeq;
     const { body, times } = bookingBody();
     if (times.error) {
       feedback.textContent = times.error + ".";
@@ -48,6 +51,7 @@
     const check = { resources: body.resources, start_at: body.start_at, end_at: body.end_at };
     if (body.experiment) check.experiment = body.experiment;
     const result = await api("POST", "/api/v1/reservations/check/", check);
+    if (seq !== checkSeq) return;
     if (!result.ok) { feedback.textContent = explain(result.data); feedback.className = "error"; return; }
     const d = result.data;
     const problems = d.problems.flatMap((p) => (p.code === "quota" ? d.quota : [p.message]));
@@ -74,7 +78,7 @@
 
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
-    const button = document.getElementById("booking-confirm");
+    const button = /** @type {HTMLButtonElement} */ (document.getElementById("booking-confirm"));
     button.setAttribute("aria-busy", "true");
     button.disabled = true;
     const { body, times } = bookingBody();
@@ -86,7 +90,7 @@
       return;
     }
     const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
-    const result = await api("POST", "/api/v1/reservations/", body, { "X-Idempotency-Key": key });
+    const result = await api("POST", "/api/v1/reservations/", body, { headers: { "X-Idempotency-Key": key } });
     button.removeAttribute("aria-busy");
     button.disabled = false;
     if (result.ok) {
@@ -127,7 +131,7 @@
     const fmt = (d) => DateTime.fromJSDate(d, { zone }).toFormat("yyyy-LL-dd HH:mm");
     document.getElementById("event-when").textContent = `${fmt(info.event.start)} – ${fmt(info.event.end)} (${zone})`;
     document.getElementById("event-state").textContent = "State: " + props.state;
-    const run = document.getElementById("event-run");
+    const run = /** @type {HTMLAnchorElement} */ (document.getElementById("event-run"));
     run.hidden = !props.url;
     run.href = props.url || "#";
     document.getElementById("event-cancel").hidden = !(props.state === "confirmed" || props.state === "requested");
@@ -147,7 +151,7 @@
   // booking to tab to, and a focusable scroller inside the grid would break its rows'
   // structure. The box opens at the morning, as the calendar's own scrollTime would.
   function scrollArea() {
-    const box = el.querySelector(".fc-view-harness");
+    const box = /** @type {HTMLElement | null} */ (el.querySelector(".fc-view-harness"));
     if (!box) return;
     if (!box.hasAttribute("tabindex")) {
       box.tabIndex = 0;
@@ -183,12 +187,13 @@
     slotLabelFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     eventTimeFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     dayHeaderFormat: { weekday: "short", day: "numeric", month: "short" },
-    events: (info, success, failure) => {
+    events: (info, success, failed) => {
       const params = new URLSearchParams({ start: info.startStr, end: info.endStr });
       if (filter.value) params.set("resource", filter.value);
-      fetch(`${el.dataset.events}?${params}`, { credentials: "same-origin" })
-        .then((r) => (r.ok ? r.json() : Promise.reject(new Error(r.statusText))))
-        .then(success, failure);
+      api("GET", `${el.dataset.events}?${params}`).then((result) => {
+        if (result.ok && result.data !== null) success(result.data);
+        else failed(new Error(failure(result)));
+      });
     },
     // data-loading="false" once the shown range's bookings are in (tests and assistive
     // technology wait on it).
@@ -209,7 +214,7 @@
   // Robots held by their health check: the reason, as bookings of them would be refused.
   const holds = document.getElementById("robot-holds");
   function onHold(hold) {
-    let item = holds.querySelector(`li[data-resource="${CSS.escape(hold.resource)}"]`);
+    let item = /** @type {HTMLLIElement | null} */ (holds.querySelector(`li[data-resource="${CSS.escape(hold.resource)}"]`));
     if (!hold.reason) {
       if (item) item.remove();
     } else {

@@ -1,3 +1,4 @@
+// @ts-check
 // Compare runs: each run's measured velocity and position overlaid, from its first sample.
 (function () {
   "use strict";
@@ -7,7 +8,7 @@
   // Colour-blind-safe (Okabe–Ito), one per run; the legend's swatches take the same.
   const COLOURS = ["#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9"];
   const colour = (i) => COLOURS[i % COLOURS.length];
-  for (const swatch of document.querySelectorAll(".swatch[data-index]")) {
+  for (const swatch of /** @type {NodeListOf<HTMLElement>} */ (document.querySelectorAll(".swatch[data-index]"))) {
     swatch.style.background = colour(Number(swatch.dataset.index));
   }
 

@@ -1,3 +1,4 @@
+// @ts-check
 // A dry run that waits or runs: its place in line and state, read every second; once it has
 // ended the page is loaded again, with the charts and statistics of the run page.
 (function () {
@@ -8,12 +9,13 @@
   const place = document.getElementById("dry-run-place");
   const progress = document.getElementById("run-progress");
   const POLL_MS = 1000;
+  const { api, failure } = window.AmazingApi;
 
   async function poll() {
     try {
-      const response = await fetch(status.dataset.url, { headers: { Accept: "application/json" } });
-      if (!response.ok) throw new Error(response.statusText || "HTTP " + response.status);
-      const data = await response.json();
+      const result = await api("GET", status.dataset.url);
+      if (!result.ok || result.data === null) throw new Error(failure(result));
+      const data = result.data;
       if (!data.live) { window.location.reload(); return; }
       state.textContent = data.state_label;
       state.dataset.state = data.state;

@@ -1,3 +1,4 @@
+// @ts-check
 // Hold-to-drive: while a button or key is held the console repeats a short-lived manual drive
 // command (every data-repeat-ms, each valid data-ttl-s on the base station); letting go,
 // hiding or leaving the page, or losing focus sends velocity 0 at once. If that stop is lost
@@ -8,14 +9,14 @@
   const root = document.getElementById("robot");
   if (!box || !root) return;
   const url = `/api/v1/resources/${root.dataset.name}/robot/control/`;
-  const csrf = root.querySelector("[name=csrfmiddlewaretoken]").value;
+  const { api, failure } = window.AmazingApi;
   const ttlS = Number(box.dataset.ttlS);
   const repeatMs = Number(box.dataset.repeatMs);
   const state = document.getElementById("hold-state");
-  const velocity = document.getElementById("held-velocity");
-  const reason = document.getElementById("held-reason");
-  const force = document.getElementById("held-force");
-  const buttons = Array.from(box.querySelectorAll("button.hold"));
+  const velocity = /** @type {HTMLInputElement} */ (document.getElementById("held-velocity"));
+  const reason = /** @type {HTMLInputElement} */ (document.getElementById("held-reason"));
+  const force = /** @type {HTMLInputElement} */ (document.getElementById("held-force"));
+  const buttons = Array.from(/** @type {NodeListOf<HTMLButtonElement>} */ (box.querySelectorAll("button.hold")));
 
   let held = null; // {direction, timer, source}
   let inFlight = false;
@@ -28,15 +29,10 @@
     state.dataset.state = kind;
   }
 
+  // Resolves to api.js's {ok, status, data}, never rejects.
   function send(body, keepalive) {
-    return fetch(url, {
-      method: "POST",
-      headers: { "Content-Type": "application/json", "X-CSRFToken": csrf, Accept: "application/json" },
-      body: JSON.stringify(body),
-      credentials: "same-origin",
-      // Outlives the page: the stop still goes when the tab is being closed.
-      keepalive: Boolean(keepalive),
-    });
+    // Outlives the page: the stop still goes when the tab is being closed.
+    return api("POST", url, body, { keepalive: Boolean(keepalive) });
   }
 
   async function tick() {
@@ -44,29 +40,26 @@
     inFlight = true;
     const direction = held.direction;
     try {
-      const response = await send({
+      const result = await send({
         velocity_mps: Number(velocity.value), direction, ttl_s: ttlS,
         reason: reason.value, force: force.checked, hold: true,
       });
-      if (!response.ok) {
-        let detail = response.statusText;
-        try { const data = await response.json(); detail = data.detail || JSON.stringify(data.fields || data); } catch (e) { /* not JSON */ }
+      if (!result.ok) {
+        // Refused, or no answer (nothing reached the base station: the last command expires
+        // there by itself).
+        const data = result.data;
         release(false);
-        say("Not driving: " + detail, "error");
+        say("Not driving: " + (data ? data.detail || JSON.stringify(data.fields || data) : failure(result)), "error");
         return;
       }
       if (held && held.direction === direction) {
         say(`Driving ${Number(velocity.value).toFixed(2)} m/s ${direction === "cw" ? "clockwise" : "counter-clockwise"} while held.`, "driving");
       }
-    } catch (error) {
-      // Nothing reached the base station: the last command expires there by itself.
-      release(false);
-      say("Not driving: " + error.message, "error");
     } finally {
       inFlight = false;
       const stop = stopAgain;
       stopAgain = null;
-      if (stop && !held) send(stop.body, stop.keepalive).catch(() => { /* the TTL stops the robot */ });
+      if (stop && !held) send(stop.body, stop.keepalive); // if lost too, the TTL stops the robot
     }
   }
 
@@ -92,7 +85,7 @@
     say("Stopped.", "idle");
     if (sendStop) {
       const body = { velocity_mps: 0, direction, ttl_s: ttlS, reason: reason.value || "hold released", force: false, hold: true };
-      send(body, keepalive).catch(() => { /* the command's TTL stops the robot */ });
+      send(body, keepalive); // if lost, the command's TTL stops the robot
       if (inFlight) stopAgain = { body, keepalive };
     }
   }

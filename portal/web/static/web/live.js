@@ -1,3 +1,4 @@
+// @ts-check
 // Live updates from the portal over Server-Sent Events (portal/web/live.py), polling while
 // the stream is down, with a visible "reconnecting" state.
 //
@@ -19,7 +20,7 @@
 
   // The streams are served by the ASGI server: on this page's own origin behind a proxy, or
   // on its own port of the same host (the page's meta tag names it).
-  const streamPort = document.querySelector('meta[name="live-stream-port"]');
+  const streamPort = /** @type {HTMLMetaElement | null} */ (document.querySelector('meta[name="live-stream-port"]'));
   function streamUrl(path) {
     const url = new URL(path, window.location.href);
     if (streamPort) url.port = streamPort.content;

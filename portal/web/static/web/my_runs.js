@@ -1,3 +1,4 @@
+// @ts-check
 // My runs: choose runs for one zip or a comparison; the buttons say what the choice allows.
 (function () {
   "use strict";
@@ -5,11 +6,11 @@
   if (!form) return;
   const downloadMax = Number(form.dataset.downloadMax);
   const compareMax = Number(form.dataset.compareMax);
-  const download = document.getElementById("download-chosen");
-  const compare = document.getElementById("compare-chosen");
+  const download = /** @type {HTMLButtonElement} */ (document.getElementById("download-chosen"));
+  const compare = /** @type {HTMLButtonElement} */ (document.getElementById("compare-chosen"));
   const count = document.getElementById("chosen-count");
-  const all = document.getElementById("choose-all");
-  const boxes = () => Array.from(form.querySelectorAll('input[name="ids"]'));
+  const all = /** @type {HTMLInputElement | null} */ (document.getElementById("choose-all"));
+  const boxes = () => Array.from(/** @type {NodeListOf<HTMLInputElement>} */ (form.querySelectorAll('input[name="ids"]')));
 
   function update() {
     const chosen = boxes().filter((box) => box.checked).length;

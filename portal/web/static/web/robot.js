@@ -1,3 +1,4 @@
+// @ts-check
 // Admin robot console: live status (pushed by the health check, polled while the stream is
 // down), manual drive, emergency stop, service and holds, daily log.
 (function () {
@@ -64,7 +65,7 @@
     set("hold-reason", hold.reason || "");
     set("hold-since", hold.held_at ? new Date(hold.held_at).toLocaleString() : "");
     set("service-state", hold.in_service ? "open" : "closed (out of service)");
-    document.querySelector("#service-form [name=enabled]").value = hold.in_service ? "false" : "true";
+    /** @type {HTMLInputElement} */ (document.querySelector("#service-form [name=enabled]")).value = hold.in_service ? "false" : "true";
     set("service-button", hold.in_service ? "Take out of service" : "Put back in service");
   }
 
@@ -75,7 +76,7 @@
   });
   document.getElementById("drive-form").addEventListener("submit", async (event) => {
     event.preventDefault();
-    const f = event.target;
+    const f = /** @type {HTMLFormElement & {velocity_mps: HTMLInputElement, direction: HTMLSelectElement, ttl_s: HTMLInputElement, reason: HTMLInputElement, force: HTMLInputElement}} */ (event.target);
     try {
       await call("POST", "/robot/control/", {
         velocity_mps: Number(f.velocity_mps.value), direction: f.direction.value,
@@ -87,13 +88,13 @@
   });
   document.getElementById("release-form").addEventListener("submit", async (event) => {
     event.preventDefault();
-    try { await call("POST", "/robot/release/", { reason: event.target.reason.value }); say("Emergency stop released."); }
+    try { await call("POST", "/robot/release/", { reason: /** @type {HTMLFormElement & {reason: HTMLInputElement}} */ (event.target).reason.value }); say("Emergency stop released."); }
     catch (error) { say("Not released: " + error.message, true); }
     refresh();
   });
   document.getElementById("service-form").addEventListener("submit", async (event) => {
     event.preventDefault();
-    const f = event.target;
+    const f = /** @type {HTMLFormElement & {enabled: HTMLInputElement, reason: HTMLInputElement}} */ (event.target);
     try {
       const resource = await call("POST", "/service/", { enabled: f.enabled.value === "true", reason: f.reason.value });
       onHold({ reason: resource.hold_reason, held_at: resource.held_at, in_service: resource.enabled && !resource.hold_reason });
@@ -105,10 +106,10 @@
     // "Download CSV" submits the form itself: the browser saves the day's log.
     if (event.submitter && event.submitter.id === "log-download") return;
     event.preventDefault();
-    const rows = document.getElementById("log-rows");
+    const rows = /** @type {HTMLTableSectionElement} */ (document.getElementById("log-rows"));
     rows.textContent = "";
     try {
-      const log = await call("GET", `/robot/logs/${event.target.day.value}/`);
+      const log = await call("GET", `/robot/logs/${/** @type {HTMLFormElement & {day: HTMLInputElement}} */ (event.target).day.value}/`);
       for (const entry of log.entries) {
         const tr = rows.insertRow();
         for (const key of ["user", "title", "start", "end"]) tr.insertCell().textContent = entry[key] || "";

@@ -1,3 +1,4 @@
+// @ts-check
 // The roof, live: the robot's rail drawn in SVG from its agent's geometry (/rails/<name>.json),
 // the thesis grid cells along it, the fixed nodes' places, and the robot placed by track_m.
 //
@@ -171,9 +172,11 @@
     place({ track_m: r.track_m, velocity_mps: r.velocity_mps, direction: r.direction });
   });
 
-  fetch(root.dataset.railUrl, { headers: { Accept: "application/json" }, credentials: "same-origin" })
-    .then((response) => (response.ok ? response.json() : Promise.reject(new Error("HTTP " + response.status))))
-    .then((data) => {
+  const { api, failure } = window.AmazingApi;
+  api("GET", root.dataset.railUrl)
+    .then((result) => {
+      if (!result.ok || result.data === null) throw new Error(failure(result));
+      const data = result.data;
       if (!data.available) throw new Error(data.detail || "not available");
       draw(data);
     })

@@ -1,9 +1,11 @@
+// @ts-check
 // Run page: charts of velocity, position and battery; while the run is live, its state and
 // new samples are pushed (live.js) and the charts and tables redrawn.
 (function () {
   "use strict";
   const status = document.getElementById("run-status");
   if (!status) return;
+  const { api, failure } = window.AmazingApi;
 
   function lineChart(id, datasets, yTitle) {
     const canvas = document.getElementById(id);
@@ -114,9 +116,9 @@
     if (loading) { again = true; return; }
     loading = true;
     try {
-      const response = await fetch(status.dataset.url, { headers: { Accept: "application/json" } });
-      if (!response.ok) throw new Error(response.statusText || "HTTP " + response.status);
-      const data = await response.json();
+      const result = await api("GET", status.dataset.url);
+      if (!result.ok || result.data === null) throw new Error(failure(result));
+      const data = result.data;
       if (!complete(data)) throw new Error("incomplete answer");
       render(data);
       retryMs = RETRY_FIRST_MS;

@@ -1,3 +1,4 @@
+// @ts-check
 // The resource timeline: Event Calendar's resource timeline, one row per robot and fixed node.
 // A drag across several rows books them together; the live check answers while dragging.
 //
@@ -14,13 +15,13 @@
   const order = leaves.map((r) => r.id); // rows top to bottom: a drag takes those between
   const byId = new Map(leaves.map((r) => [r.id, r]));
   const checkLine = document.getElementById("timeline-check");
-  const dialog = document.getElementById("timeline-dialog");
-  const form = document.getElementById("timeline-form");
+  const dialog = /** @type {HTMLDialogElement} */ (document.getElementById("timeline-dialog"));
+  const form = /** @type {BookingForm} */ (document.getElementById("timeline-form"));
   const feedback = document.getElementById("timeline-feedback");
   const FLOATING = "yyyy-LL-dd'T'HH:mm:ss";
   const SLOT_MIN = 30;
 
-  const { api, explain } = window.AmazingApi;
+  const { api, explain, failure } = window.AmazingApi;
   const { typedWindow } = window.AmazingWallClock;
 
   // Event Calendar's dates carry the testbed's wall-clock time in the browser's fields.
@@ -33,7 +34,6 @@
   const shown = (dt) => dt.toFormat("ccc d LLL HH:mm");
 
   // --- What the rows hold --------------------------------------------------------------------
-  const colours = { own: "#1e6fb8", other: "#7a5195", busy: "#5f6670", blackout: "#c62828", lease: "#8a5300", hold: "#5d4037" };
   function rowsOf(names) {
     return names.includes("all") ? order.slice() : names.filter((n) => byId.has(n));
   }
@@ -45,7 +45,6 @@
       start: floating(e.start),
       end: floating(e.end),
       resourceIds: rowsOf(props.resources),
-      backgroundColor: colours[props.kind],
       editable: false,
       classNames: [`timeline-${props.kind}`],
       extendedProps: props,
@@ -59,7 +58,6 @@
       start: r.extendedProps.held_at ? floating(r.extendedProps.held_at) : range.start,
       end: range.end,
       resourceIds: [r.id],
-      backgroundColor: colours.hold,
       editable: false,
       classNames: ["timeline-hold"],
       extendedProps: { kind: "hold", resources: [r.id] },
@@ -68,10 +66,9 @@
   async function load(info) {
     const range = { start: DateTime.fromISO(info.startStr, { zone }), end: DateTime.fromISO(info.endStr, { zone }) };
     const params = new URLSearchParams({ start: range.start.toISO(), end: range.end.toISO() });
-    const response = await fetch(`${el.dataset.events}?${params}`, { credentials: "same-origin" });
-    if (!response.ok) throw new Error(response.statusText);
-    const entries = await response.json();
-    return entries.map(toEvent).concat(holdEvents({ start: info.startStr, end: info.endStr }));
+    const result = await api("GET", `${el.dataset.events}?${params}`);
+    if (!result.ok || result.data === null) throw new Error(failure(result));
+    return result.data.map(toEvent).concat(holdEvents({ start: info.startStr, end: info.endStr }));
   }
 
   // --- Dragging across rows ------------------------------------------------------------------
@@ -152,7 +149,7 @@
   // The booking the dialog holds; `times` says which occurrence a repeated time is, or why a
   // time cannot be booked (wall_clock.js: the portal's rule for the nights the clocks change).
   function bookingBody() {
-    const resources = Array.from(form.querySelectorAll("input[name=resources]:checked")).map((i) => i.value);
+    const resources = Array.from(/** @type {NodeListOf<HTMLInputElement>} */ (form.querySelectorAll("input[name=resources]:checked"))).map((i) => i.value);
     const times = typedWindow(form.start.value, form.end.value, zone);
     const body = { resources, start_at: times.start, end_at: times.end };
     if (form.experiment.value) body.experiment = Number(form.experiment.value);
@@ -163,6 +160,7 @@
   function checkDialog() {
     const { body, times } = bookingBody();
     clearTimeout(dialogTimer);
+    if (times.error || !body.resources.length) checkSeq += 1; // an answer on its way is stale
     if (times.error) {
       feedback.textContent = times.error + ".";
       feedback.className = "error";
@@ -182,7 +180,7 @@
 
   function openBooking(resources, start, end) {
     form.reset();
-    for (const box of form.querySelectorAll("input[name=resources]")) box.checked = resources.includes(box.value);
+    for (const box of /** @type {NodeListOf<HTMLInputElement>} */ (form.querySelectorAll("input[name=resources]"))) box.checked = resources.includes(box.value);
     form.start.value = toLocalInput(start);
     form.end.value = toLocalInput(end);
     feedback.textContent = "";
@@ -213,7 +211,7 @@
 
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
-    const button = document.getElementById("timeline-confirm");
+    const button = /** @type {HTMLButtonElement} */ (document.getElementById("timeline-confirm"));
     button.setAttribute("aria-busy", "true");
     button.disabled = true;
     const { body, times } = bookingBody();
@@ -225,7 +223,7 @@
       return;
     }
     const key = (crypto.randomUUID && crypto.randomUUID()) || String(Date.now()) + Math.random();
-    const result = await api("POST", "/api/v1/reservations/", body, { "X-Idempotency-Key": key });
+    const result = await api("POST", "/api/v1/reservations/", body, { headers: { "X-Idempotency-Key": key } });
     button.removeAttribute("aria-busy");
     button.disabled = false;
     if (result.ok) {

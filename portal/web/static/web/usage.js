@@ -1,3 +1,4 @@
+// @ts-check
 // The usage page's chart, drawn from the table's data (json_script "usage-data").
 (function () {
   const data = document.getElementById("usage-data");

@@ -1,3 +1,4 @@
+// @ts-check
 // Wall-clock times typed in the testbed's zone, read as instants by the portal's one rule
 // (core/wall_clock.py, which the Book page's form uses): a time the clocks pass twice is its
 // first occurrence (the earlier instant, still summer time); a time they skip is refused, with
