@@ -450,15 +450,24 @@ def _flag_late_conflicts(leases: Sequence[Lease], *, now: datetime) -> list[tupl
 def _flag_vanished(
     leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, datetime]
 ) -> list[tuple[str, int]]:
-    """Upcoming portal bookings whose own lease the scheduler no longer holds."""
+    """Upcoming portal bookings whose own lease the scheduler no longer holds.
+
+    The listing was asked for after ``now``; a booking made or moved meanwhile took a lease the
+    listing may not show, and recorded it with a newer look (``lease_record``'s ``seen_at``):
+    such a lease is not gone, as in :func:`_mirror`."""
     holding = {lease.uuid for lease in leases if lease.holds_nodes}
+    seen_later = set(
+        SchedulerLease.objects.filter(seen_at__gt=now, gone_at__isnull=True).values_list(
+            "uuid", flat=True
+        )
+    )
     flagged: list[tuple[str, int]] = []
     for reservation in (
         Reservation.objects.overlapping(*window)
         .filter(state__in=RESERVATION_ACTIVE_STATES, end_at__gt=now)
         .exclude(lease_uuid="")
     ):
-        if reservation.lease_uuid in holding:
+        if reservation.lease_uuid in holding or reservation.lease_uuid in seen_later:
             continue
         note = (
             "Its lease on the testbed scheduler is gone: the fixed nodes may be booked by "

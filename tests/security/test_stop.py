@@ -287,6 +287,21 @@ def test_the_read_only_token_reads(agent_client, path):
 
 # -- ahead of the queue --------------------------------------------------------------------------
 
+
+def _serving(server: Any) -> threading.Thread:
+    """``server.run()`` in a thread of its own. Closing the server under its loop at the end
+    of a test makes the loop meet a closed descriptor (OSError): that is the test's own close,
+    and ends the thread quietly instead of failing whichever test runs next."""
+
+    def run() -> None:
+        with contextlib.suppress(OSError, ValueError):
+            server.run()
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread
+
+
 HOLD_S = 30  # the slow requests' long-poll: far longer than the deadline below
 DEADLINE_S = 10.0  # bounds a hang only
 
@@ -299,8 +314,7 @@ def test_a_stop_is_answered_while_every_request_thread_is_busy(agent_app):
     soon = round(time.time()) + 60.0
     client.put("/api/v1/runs/run-1", json=run_body(soon), headers=_bearer(TOKEN))
     server = make_server(agent_app, host="127.0.0.1", port=0, threads=2)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
+    _serving(server)
     url = f"http://127.0.0.1:{server.effective_port}"  # type: ignore[attr-defined]
     dispatcher = server.task_dispatcher
     slow = f"{url}/api/v1/runs/run-1/samples?wait_s={HOLD_S}"
@@ -340,8 +354,7 @@ def test_a_long_poll_gives_its_cpu_slot_back_while_it_waits(agent_app):
     soon = round(time.time()) + 60.0
     client.put("/api/v1/runs/run-1", json=run_body(soon), headers=_bearer(TOKEN))
     server = make_server(agent_app, host="127.0.0.1", port=0, threads=4, cpu_slots=1)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
+    _serving(server)
     url = f"http://127.0.0.1:{server.effective_port}"  # type: ignore[attr-defined]
     dispatcher = server.task_dispatcher
 

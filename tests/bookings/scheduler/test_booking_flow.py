@@ -545,6 +545,33 @@ def test_a_booking_whose_lease_vanished_is_flagged(linked, owner, slot, eager_ta
     assert mail.outbox[-1].subject.startswith("A booking lost its lease")
 
 
+def test_a_sweep_whose_listing_is_older_than_a_booking_does_not_call_its_lease_gone(
+    linked, owner, slot, eager_tasks, monkeypatch
+):
+    """The sweep asks for the scheduler's leases, a booking takes its lease and commits, and
+    then the sweep reconciles with the listing it had: the booking's lease is missing from
+    it, but recorded by a newer look, so it is not gone."""
+    began = timezone.now()
+    with linked.scheduler() as scheduler:
+        before = scheduler.list_leases(statuses=leases.ALL_STATUSES)
+    reservation = reservation_create(
+        owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
+    )
+    assert reservation.lease_uuid not in {lease.uuid for lease in before}
+    real_list = type(scheduler).list_leases
+    monkeypatch.setattr(type(scheduler), "list_leases", lambda self, **kwargs: before)
+    leases.scheduler_sweep(now=began)
+    reservation.refresh_from_db()
+    assert reservation.conflict == ""
+    # The next sweep lists it, and a lease really gone is still flagged.
+    monkeypatch.setattr(type(scheduler), "list_leases", real_list)
+    with linked.scheduler() as scheduler:
+        scheduler.cancel_lease(uuid=reservation.lease_uuid)
+    leases.scheduler_sweep()
+    reservation.refresh_from_db()
+    assert reservation.conflict.startswith("Its lease on the testbed scheduler is gone")
+
+
 def test_moving_a_booking_moves_its_lease_or_changes_neither(linked, owner, other, slot):
     reservation = reservation_create(
         owner=owner, resources=_nodes(1, 2), start_at=slot[0], end_at=slot[1]
