@@ -12,6 +12,7 @@ the whole phase. An idle phase first gives the same figures without load.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import secrets
@@ -77,6 +78,14 @@ class Phase:
 
 def _iso(epoch_s: float) -> str:
     return datetime.fromtimestamp(epoch_s, tz=UTC).isoformat()
+
+
+def _drain(stream: Any) -> None:
+    """Read a child's output to its end so that it never blocks on a full pipe; the stream
+    closed under the read when the child is stopped ends it quietly."""
+    with contextlib.suppress(ValueError, OSError):
+        for _ in stream:
+            pass
 
 
 class AgentProcess:
@@ -173,8 +182,7 @@ class RobotProcess:
             self.realtime = tasks.is_dir() and all(
                 [realtime(int(task.name)) for task in tasks.iterdir()]
             )
-            stdout = self.process.stdout
-            threading.Thread(target=lambda: [None for _ in stdout], daemon=True).start()
+            threading.Thread(target=_drain, args=(self.process.stdout,), daemon=True).start()
         except BaseException:
             self.stop()
             raise
