@@ -18,6 +18,7 @@ from django.core.exceptions import ImproperlyConfigured
 
 from bookings.scheduler import config as scheduler_config
 from core.logs import logging_config
+from portal import conf
 from portal.processes import MAIL_QUEUE, RUNS_QUEUE
 
 BASE_DIR = Path(__file__).resolve().parent.parent
@@ -257,9 +258,6 @@ MFA_FORMS = {
     # A staff account's first factor only once another admin allowed it.
     "activate_totp": "core.accounts.mfa.StaffGatedActivateTOTPForm",
 }
-# A staff account's API token (made only from a session that passed MFA) expires after at
-# most this many days, and by default after exactly this many.
-STAFF_API_TOKEN_DAYS = env.int("STAFF_API_TOKEN_DAYS", default=30)
 # API tokens (core/accounts/models.py ApiToken): an experimenter's has no expiry unless the
 # user gives one; a staff account's always has (STAFF_API_TOKEN_DAYS).
 KNOX_TOKEN_MODEL = "accounts.ApiToken"  # noqa: S105 (a model name, not a secret)
@@ -363,41 +361,31 @@ CELERY_TASK_ROUTES = {
     "portal.runs.tasks.robot_hold_notify": {"queue": MAIL_QUEUE},
 }
 CELERY_TIMEZONE = "UTC"
-# How often beat sweeps the database for runs to stage and collect, and how far ahead of
-# ``start_at`` a run is staged on its agent.
-RUN_SWEEP_INTERVAL_S = env.float("RUN_SWEEP_INTERVAL_S", default=2.0)
-RUN_STAGE_LEAD_S = env.float("RUN_STAGE_LEAD_S", default=300.0)
-# "Run again" books the first free slot starting no sooner than this from now.
-RUN_REPEAT_LEAD_S = env.float("RUN_REPEAT_LEAD_S", default=60.0)
-RESERVATION_REMINDER_LEAD_S = env.float("RESERVATION_REMINDER_LEAD_S", default=3600.0)
-# How often the testbed scheduler's leases are mirrored and orphans cancelled, and (SQLite
-# only, which cannot tell a booking in progress) how old an orphan lease must be to go.
-SCHEDULER_SYNC_INTERVAL_S = env.float("SCHEDULER_SYNC_INTERVAL_S", default=30.0)
-SCHEDULER_ORPHAN_GRACE_S = env.float("SCHEDULER_ORPHAN_GRACE_S", default=120.0)
-# Dry runs ("Try on the simulator"): how many run at once (each a short-lived process), how
-# many one person may have waiting, and after how long a dry run still marked running is
-# taken for lost (its worker killed) and its place given to the next.
-DRY_RUN_SLOTS = env.int("DRY_RUN_SLOTS", default=2)
-DRY_RUN_MAX_WAITING = env.int("DRY_RUN_MAX_WAITING", default=3)
-DRY_RUN_STALE_S = env.float("DRY_RUN_STALE_S", default=300.0)
-# A finished dry run and its samples are deleted this long after it ended (hourly task).
-DRY_RUN_KEEP_S = env.float("DRY_RUN_KEEP_S", default=30 * 24 * 3600.0)
-# A run not on its base station by this long after its start fails (its owner is told).
-RUN_START_GRACE_S = env.float("RUN_START_GRACE_S", default=60.0)
-# How long after a run's end its base station may stay unreachable, or keep samples back,
-# before the run is closed with what was collected: ``interrupted`` with the missing
-# ranges, or ``failed`` when nothing came.
-RUN_COLLECT_GRACE_S = env.float("RUN_COLLECT_GRACE_S", default=600.0)
-# The collector (portal/runs/collector.py) looks for runs to follow this often, and each of
-# its long-polls on an agent waits at most this long for the next samples.
-COLLECTOR_SCAN_INTERVAL_S = env.float("COLLECTOR_SCAN_INTERVAL_S", default=0.5)
-COLLECTOR_WAIT_S = env.int("COLLECTOR_WAIT_S", default=10)
-# Robot health: each agent's status is read this often and cached; a robot reporting a
-# latched e-stop, a fault or a battery under the threshold, or an agent unreachable for
-# longer than the threshold, is taken out of booking until an admin returns it.
-HEALTH_POLL_INTERVAL_S = env.float("HEALTH_POLL_INTERVAL_S", default=2.0)
-HEALTH_UNREACHABLE_S = env.float("HEALTH_UNREACHABLE_S", default=120.0)
-HEALTH_LOW_BATTERY_V = env.float("HEALTH_LOW_BATTERY_V", default=50.0)
+# The testbed's own timings and limits: portal/conf.py says what each means, its default and
+# bounds (and writes the README's table). Read here, so that the code and the tests use them as
+# any setting.
+RUN_SWEEP_INTERVAL_S = conf.RUN_SWEEP_INTERVAL_S.read()
+COLLECTOR_SCAN_INTERVAL_S = conf.COLLECTOR_SCAN_INTERVAL_S.read()
+COLLECTOR_WAIT_S = conf.COLLECTOR_WAIT_S.read()
+RUN_STAGE_LEAD_S = conf.RUN_STAGE_LEAD_S.read()
+RUN_REPEAT_LEAD_S = conf.RUN_REPEAT_LEAD_S.read()
+RUN_START_GRACE_S = conf.RUN_START_GRACE_S.read()
+RUN_COLLECT_GRACE_S = conf.RUN_COLLECT_GRACE_S.read()
+RESERVATION_REMINDER_LEAD_S = conf.RESERVATION_REMINDER_LEAD_S.read()
+SCHEDULER_SYNC_INTERVAL_S = conf.SCHEDULER_SYNC_INTERVAL_S.read()
+SCHEDULER_ORPHAN_GRACE_S = conf.SCHEDULER_ORPHAN_GRACE_S.read()
+DRY_RUN_SLOTS = conf.DRY_RUN_SLOTS.read()
+DRY_RUN_MAX_WAITING = conf.DRY_RUN_MAX_WAITING.read()
+DRY_RUN_STALE_S = conf.DRY_RUN_STALE_S.read()
+DRY_RUN_KEEP_S = conf.DRY_RUN_KEEP_S.read()
+HEALTH_POLL_INTERVAL_S = conf.HEALTH_POLL_INTERVAL_S.read()
+HEALTH_UNREACHABLE_S = conf.HEALTH_UNREACHABLE_S.read()
+HEALTH_LOW_BATTERY_V = conf.HEALTH_LOW_BATTERY_V.read()
+RESERVATION_MAX_S = conf.RESERVATION_MAX_S.read()
+STAFF_API_TOKEN_DAYS = conf.STAFF_API_TOKEN_DAYS.read()
+DOWNLOADS_IN_FLIGHT_MAX = conf.DOWNLOADS_IN_FLIGHT_MAX.read()
+DOWNLOAD_SLOT_S = conf.DOWNLOAD_SLOT_S.read()
+IDEMPOTENCY_KEY_TTL_S = conf.IDEMPOTENCY_KEY_TTL_S.read()
 CELERY_BEAT_SCHEDULE = {
     "scheduler-sweep": {
         "task": "bookings.tasks.scheduler_sweep",
@@ -435,11 +423,6 @@ def _throttle_rate(name: str, default: str) -> str | None:
 # API throttles (core/api.py): anonymous clients per address, authenticated ones per user.
 API_THROTTLE_ANON = _throttle_rate("API_THROTTLE_ANON", "60/minute")
 API_THROTTLE_USER = _throttle_rate("API_THROTTLE_USER", "50/second")
-# A run's downloads (CSV, JSON, zip) each hold a database cursor and a server thread to the
-# last byte: at most this many in flight per user (per address without one), then 429.
-DOWNLOADS_IN_FLIGHT_MAX = env.int("DOWNLOADS_IN_FLIGHT_MAX", default=3)
-# A slot a killed process never gave back frees itself after this long.
-DOWNLOAD_SLOT_S = env.int("DOWNLOAD_SLOT_S", default=900)
 
 REST_FRAMEWORK = {
     # The token first: a request without credentials is told how to authenticate (401 with
@@ -484,8 +467,6 @@ SPECTACULAR_SETTINGS = {
     "SWAGGER_UI_FAVICON_HREF": "/static/vendor/swagger-ui-dist/favicon-32x32.png",
 }
 
-# How long a stored X-Idempotency-Key answer is replayed; after that the key is new again.
-IDEMPOTENCY_KEY_TTL_S = env.float("IDEMPOTENCY_KEY_TTL_S", default=24 * 3600.0)
 
 # What a browser may load and run on the portal's pages: its own scripts only (no inline
 # script, no eval), its own styles (inline style attributes allowed: the chart and calendar
@@ -548,4 +529,3 @@ if LOG_JSON:
 # A line per request from the portal itself (with its request id, view and duration); off in
 # development, where the web server's own access line is printed.
 ACCESS_LOG = env.bool("ACCESS_LOG", default=not DEBUG)
-RESERVATION_MAX_S = env.float("RESERVATION_MAX_S", default=4 * 3600.0)

@@ -42,6 +42,12 @@ def kim():
     return UserFactory(username="kim")
 
 
+@pytest.fixture
+def robot():
+    """A robot to book, whose limits the dry runs are tried under."""
+    return MobileResourceFactory(max_velocity_mps=1.0)
+
+
 def _ask(user, **experiment) -> DryRun:
     return dry_run_request(
         user=user, experiment=ExperimentFactory(owner=user, segments=PROGRAM, **experiment)
@@ -61,7 +67,7 @@ def test_a_dry_run_takes_the_strictest_limits_of_the_robots_and_their_measured_r
 
 def test_what_booking_would_refuse_is_refused_and_changes_nothing(kim, settings):
     MobileResourceFactory(max_velocity_mps=0.4)
-    with pytest.raises(InvalidInput, match="Segment 1 is faster than the robots allow"):
+    with pytest.raises(InvalidInput, match=r"Segment 1: velocity 0\.5 m/s exceeds the maximum of "):
         _ask(kim)
     with pytest.raises(InvalidInput, match="only your own"):
         dry_run_request(user=kim, experiment=ExperimentFactory(segments=PROGRAM))
@@ -76,7 +82,22 @@ def test_what_booking_would_refuse_is_refused_and_changes_nothing(kim, settings)
     assert DryRun.objects.count() == 2
 
 
-def test_places_are_given_first_come_first_served_and_bounded_by_the_database(kim, settings):
+def test_the_velocity_is_checked_by_bookings_own_rule_agent_limit_included(kim):
+    # No robot to book: no limits to try under, and nothing is queued.
+    with pytest.raises(InvalidInput, match="No robot can be booked now"):
+        _ask(kim)
+    # The portal allows 1 m/s, the robot's base station reports 0.4: booking holds the
+    # program to 0.4 (``velocity_limit``), and so does the dry run, naming where it comes from.
+    MobileResourceFactory(name="mobile-1", max_velocity_mps=1.0, agent_max_velocity_mps=0.4)
+    with pytest.raises(InvalidInput, match=r"mobile-1: 0\.4 m/s, the limit its base station"):
+        _ask(kim)
+    assert not DryRun.objects.exists()
+    slow = [{"velocity_mps": 0.4, "direction": "cw", "duration_s": 1.0}]
+    dry_run = dry_run_request(user=kim, experiment=ExperimentFactory(owner=kim, segments=slow))
+    assert dry_run.limits["max_velocity_mps"] == 0.4
+
+
+def test_places_are_given_first_come_first_served_and_bounded_by_the_database(kim, robot, settings):
     settings.DRY_RUN_SLOTS = 2
     settings.DRY_RUN_MAX_WAITING = 10
     first, second, third = (_ask(kim) for _ in range(3))
@@ -96,7 +117,7 @@ def test_places_are_given_first_come_first_served_and_bounded_by_the_database(ki
         DryRun.objects.filter(pk=third.pk).update(state="running", slot=0)
 
 
-def test_a_dry_run_whose_worker_died_gives_its_place_to_the_next(kim, settings):
+def test_a_dry_run_whose_worker_died_gives_its_place_to_the_next(kim, robot, settings):
     settings.DRY_RUN_SLOTS = 1
     lost, waiting = _ask(kim), _ask(kim)
     assert dry_run_claim(lost.pk) is not None
@@ -204,7 +225,9 @@ def test_the_pages_start_show_and_refuse_as_they_should(
     with django_capture_on_commit_callbacks(execute=True):
         answer = client.post(f"/experiments/{too_fast.pk}/dry-run/", follow=True)
     assert answer.redirect_chain == [(f"/experiments/{too_fast.pk}/", 302)]
-    assert "Not tried: Segment 1 is faster than the robots allow" in answer.content.decode()
+    assert (
+        "Not tried: Segment 1: velocity 0.5 m/s exceeds the maximum of " in answer.content.decode()
+    )
     assert not DryRun.objects.exists()
     assert queued == []
 

@@ -26,6 +26,9 @@ from django.db.models import Q
 from django.utils import timezone
 
 from basestation.contract import MAX_SEGMENTS
+from bookings.models import Resource
+from bookings.rules import velocity_limit, velocity_problem
+from bookings.selectors import mobiles_bookable
 from core.accounts.models import User
 from core.errors import InvalidInput
 from portal.experiments.models import Experiment
@@ -34,8 +37,8 @@ from portal.runs.selectors import robots_for_programs
 
 logger = logging.getLogger(__name__)
 
-# Limits when no robot states any: the agent's own defaults (basestation/config.py).
-DEFAULT_MAX_VELOCITY_MPS: Final = 2.0
+# The acceleration when no robot states one: the agent's own default (basestation/config.py).
+# Velocity has no such default: it is booking's rule (``bookings.rules.velocity_limit``).
 DEFAULT_MAX_ACCEL_MPS2: Final = 1.0
 # The rail when no robot has measured one yet: the default rail's length.
 DEFAULT_RAIL_LENGTH_M: Final = 120.0
@@ -49,6 +52,19 @@ def _strictest(values: list[float | None], default: float) -> float:
     return min(known) if known else default
 
 
+def _slowest_robot() -> tuple[Resource, float]:
+    """The bookable robot with the lowest velocity limit as booking computes it, and that
+    limit: a program it takes, every robot takes."""
+    limited = [
+        (robot, limit.mps) for robot in mobiles_bookable() if (limit := velocity_limit(robot))
+    ]
+    if not limited:
+        raise InvalidInput(
+            "No robot can be booked now, so there are no limits to try the program under."
+        )
+    return min(limited, key=lambda pair: pair[1])
+
+
 def dry_run_request(*, user: User, experiment: Experiment) -> DryRun:
     """Queue a dry run of ``experiment``'s program under the strictest limits of the robots
     ``user`` may book; the caller queues ``dry_run_execute`` after the commit."""
@@ -59,17 +75,17 @@ def dry_run_request(*, user: User, experiment: Experiment) -> DryRun:
         raise InvalidInput.on_field("segments", "The program has no segments to try.")
     if len(segments) > MAX_SEGMENTS:
         raise InvalidInput.on_field("segments", f"A program has at most {MAX_SEGMENTS} segments.")
+    slowest, velocity = _slowest_robot()
+    for number, segment in enumerate(segments, 1):
+        problem = velocity_problem(resource=slowest, velocity_mps=float(segment["velocity_mps"]))
+        if problem:
+            raise InvalidInput.on_field(
+                "segments",
+                f"Segment {number}: {problem} Booking would refuse it, so the simulator does too.",
+            )
     robots = robots_for_programs()
-    velocity = _strictest([r["max_velocity_mps"] for r in robots], DEFAULT_MAX_VELOCITY_MPS)
     accel = _strictest([r["max_accel_mps2"] for r in robots], DEFAULT_MAX_ACCEL_MPS2)
     rail_m = next((r["rail_length_m"] for r in robots if r["rail_length_m"]), DEFAULT_RAIL_LENGTH_M)
-    too_fast = [n for n, s in enumerate(segments, 1) if float(s["velocity_mps"]) > velocity + 1e-9]
-    if too_fast:
-        raise InvalidInput.on_field(
-            "segments",
-            f"Segment {too_fast[0]} is faster than the robots allow ({velocity:g} m/s): "
-            "booking would refuse it, so the simulator does too.",
-        )
     with transaction.atomic():
         # One person's waiting dry runs, counted under a lock on that person's row.
         User.objects.select_for_update().filter(pk=user.pk).first()
