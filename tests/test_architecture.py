@@ -75,11 +75,11 @@ def test_bookings_never_names_a_web_page():
 #
 # Every period is half-open, ``[start, end)``. The condition "these two overlap" is written
 # once in Python (``bookings/periods.py``), once for the portal's queries
-# (``PeriodQuerySet.overlapping``) and once in the agent's SQL (``overlap_condition``). The
-# check below finds every ordering comparison between a period's start and a period's end
-# (Python, Django lookups and SQL text), and every min/max of several starts or several ends
-# (clipping), and accepts them only in those places or on the allowlist, where each entry
-# says why it is not an overlap test.
+# (``PeriodQuerySet.overlapping``; ``core.sql.overlap`` for its hand-written SQL) and once in
+# the agent's SQL (``overlap_condition``). The check below finds every ordering comparison
+# between a period's start and a period's end (Python, Django lookups and SQL text), and
+# every min/max of several starts or several ends (clipping), and accepts them only in those
+# places or on the allowlist, where each entry says why it is not an overlap test.
 
 INTERVAL_CODE = [REPO / "core", REPO / "portal", REPO / "bookings", REPO / "basestation"]
 # The names this code gives the two ends of a period (start_at/end_at, valid_from/valid_until,
@@ -93,7 +93,7 @@ _SQL_COMPARISON = re.compile(r"\b([a-z_]+)\s*(<=|>=|<|>)\s*(\?|%s|[a-z_]+)")
 OVERLAP_PLACES = {
     ("bookings/periods.py", ""),
     ("bookings/models.py", "PeriodQuerySet.overlapping"),
-    ("bookings/models.py", "overlap_sql"),
+    ("core/sql.py", "overlap"),
     ("basestation/store.py", "overlap_condition"),
 }
 # Comparisons of a start with an end that are not "do these two periods overlap".
@@ -111,7 +111,7 @@ NOT_OVERLAP = {
     ("bookings/services/reservations.py", "reservation_reschedule", "start_at < end_at"),
     ("bookings/services/blackouts.py", "blackout_create", "end_at <= start_at"),
     # "Still to come": a booking that ends after now (an instant, not a period's start).
-    ("bookings/quotas.py", "_upcoming", "end_at > %s"),
+    ("bookings/queries.py", "quota_upcoming", "end_at > %s"),
     ("bookings/scheduler/adapter.py", "covering_window", "valid_from >= valid_until"),
     ("bookings/scheduler/omf.py", "lease_from_resource", "valid_from >= valid_until"),
     (
@@ -232,7 +232,7 @@ def test_no_period_comparison_outside_the_overlap_places():
                 found.append(finding)
     assert not found, (
         "compare periods with bookings/periods.py (Python), PeriodQuerySet.overlapping "
-        "(queries), bookings.models.overlap_sql (portal SQL) or "
+        "(queries), core.sql.overlap (portal SQL) or "
         "basestation.store.overlap_condition (agent SQL); a comparison that is "
         f"no overlap test goes on NOT_OVERLAP with why: {found}"
     )
