@@ -81,7 +81,8 @@ def table(model: type[models.Model]) -> str:
 
 def column_type(model: type[models.Model], field_name: str) -> str:
     """The database type of ``model``'s field ``field_name`` (as its migration made it)."""
-    db_type = model._meta.get_field(field_name).db_type(connection)
+    field = model._meta.get_field(field_name)
+    db_type = field.db_type(connection) if isinstance(field, models.Field) else None
     if db_type is None:
         raise ValueError(f"{model.__name__}.{field_name} has no column")
     return str(db_type)

@@ -331,7 +331,7 @@ def _text(node: ast.AST) -> str | None:
     if isinstance(node, ast.Constant) and isinstance(node.value, str):
         return node.value
     if isinstance(node, ast.JoinedStr):
-        return "".join(v.value if isinstance(v, ast.Constant) else "{}" for v in node.values)
+        return "".join(str(v.value) if isinstance(v, ast.Constant) else "{}" for v in node.values)
     return None
 
 
@@ -355,7 +355,10 @@ def sql_outside_homes(source: str, path: str) -> list[tuple[str, int]]:
     return sorted(
         (path, node.lineno)
         for node in ast.walk(tree)
-        if node not in docstrings and node not in inner and SQL_TEXT.search(_text(node) or "")
+        if isinstance(node, ast.Constant | ast.JoinedStr)
+        and node not in docstrings
+        and node not in inner
+        and SQL_TEXT.search(_text(node) or "")
     )
 
 

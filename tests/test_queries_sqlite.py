@@ -56,7 +56,7 @@ GRID_IDS = ['a"b', "c\\d", "=1+1", None]  # quotes, a backslash, a spreadsheet f
 
 def public_queries() -> dict[str, Callable[..., Any]]:
     """Every public function of the query modules, by ``module.name``."""
-    found = {}
+    found: dict[str, Callable[..., Any]] = {}
     for module_name in QUERY_MODULES:
         module = importlib.import_module(module_name)
         for name, value in vars(module).items():
