@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import IO
 
 from basestation.config import STORE_FILE_NAME, data_dir_from_env
-from basestation.store import SCHEMA_VERSION
+from basestation.store import SCHEMA_VERSION, file_check, file_counts, file_standalone
 
 LOCK_FILE_NAME = "agent.lock"
 _STORE_TABLES = {"runs", "samples", "manual_sessions", "agent_state"}
@@ -79,9 +79,7 @@ def data_dir_lock(data_dir: Path) -> Iterator[IO[str]]:
 def _summary(conn: sqlite3.Connection, what: Path) -> StoreSummary:
     """Check ``conn`` is a whole agent store; its run and sample counts."""
     try:
-        integrity = conn.execute("PRAGMA integrity_check").fetchone()[0]
-        tables = {row[0] for row in conn.execute("SELECT name FROM sqlite_master")}
-        version = conn.execute("PRAGMA user_version").fetchone()[0]
+        integrity, tables, version = file_check(conn)
     except sqlite3.DatabaseError as exc:
         raise BackupError(f"{what} is not an SQLite database: {exc}") from None
     if integrity != "ok":
@@ -93,9 +91,8 @@ def _summary(conn: sqlite3.Connection, what: Path) -> StoreSummary:
             f"{what} is of a newer agent (store version {version}, this one reads up to "
             f"{SCHEMA_VERSION}): restore it with that version"
         )
-    runs = conn.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
-    samples = conn.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
-    return StoreSummary(runs=int(runs), samples=int(samples))
+    runs, samples = file_counts(conn)
+    return StoreSummary(runs=runs, samples=samples)
 
 
 def _copy(source: sqlite3.Connection, target_path: Path) -> StoreSummary:
@@ -107,8 +104,7 @@ def _copy(source: sqlite3.Connection, target_path: Path) -> StoreSummary:
     try:
         # One step (pages=-1): one read snapshot of the source, whatever commits meanwhile.
         source.backup(target)
-        # A standalone file: no WAL beside it (the agent sets WAL again when it opens it).
-        target.execute("PRAGMA journal_mode=DELETE")
+        file_standalone(target)
         summary = _summary(target, target_path)
     except BaseException:
         target.close()

@@ -11,9 +11,9 @@ Writers are serialised by SQLite itself (``BEGIN IMMEDIATE`` with a busy timeout
 also makes every check-then-write below atomic.
 
 One thing: the run store, and everything that reads or writes its file — staging, samples,
-provenance, the usage log, purging — kept together because its durability rules (one
-transaction per batch, exactly-once sequence numbers) hold only if every query obeys them in
-one place.
+provenance, the usage log, purging, the backup's checks — kept together because its
+durability rules (one transaction per batch, exactly-once sequence numbers) hold only if every
+query obeys them in one place.
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ END_STATES: Final = contract.AGENT_END_STATES
 # The samples table's columns after run_id, in the contract's order (by name, never position).
 _SAMPLE_COLUMNS_SQL: Final = ", ".join(SAMPLE_FIELDS)
 _SAMPLE_PLACEHOLDERS: Final = ", ".join("?" for _ in SAMPLE_FIELDS)
+_RUN_STATES_SQL: Final = ", ".join(f"'{state}'" for state in RUN_STATES)
 _COLUMN_NAME: Final = re.compile(r"[a-z_]+")
 
 logger = logging.getLogger(__name__)
@@ -80,7 +81,7 @@ CREATE TABLE IF NOT EXISTS runs (
     title TEXT NOT NULL,
     start_at REAL NOT NULL,          -- epoch seconds, agent clock
     end_at REAL NOT NULL,
-    state TEXT NOT NULL CHECK (state IN ({", ".join(repr(s) for s in RUN_STATES)})),
+    state TEXT NOT NULL CHECK (state IN ({_RUN_STATES_SQL})),
     reason TEXT,
     created_at REAL NOT NULL,
     updated_at REAL NOT NULL,
@@ -381,7 +382,7 @@ class RunStore:
                 "start_at", "end_at", spec.start_at_s, spec.end_at_s
             )
             other = tx.execute(
-                "SELECT id, start_at, end_at FROM runs "  # noqa: S608 (constant columns)
+                "SELECT id, start_at, end_at FROM runs "
                 f"WHERE state IN ('staged', 'running') AND {overlap} "
                 "ORDER BY start_at LIMIT 1",
                 params,
@@ -568,13 +569,12 @@ class RunStore:
         )
         with self._read() as conn:
             runs = conn.execute(
-                "SELECT id, owner, title, state, started_at, ended_at FROM runs "  # noqa: S608
+                "SELECT id, owner, title, state, started_at, ended_at FROM runs "
                 f"WHERE started_at IS NOT NULL AND {run_overlap}",
                 run_params,
             ).fetchall()
             sessions = conn.execute(
-                "SELECT user, started_at, ended_at FROM manual_sessions "  # noqa: S608
-                f"WHERE {session_overlap}",
+                f"SELECT user, started_at, ended_at FROM manual_sessions WHERE {session_overlap}",
                 session_params,
             ).fetchall()
         entries = [
@@ -621,7 +621,7 @@ class RunStore:
         run_ids = [
             row["id"]
             for row in self._conn().execute(
-                f"SELECT id FROM runs WHERE state IN ({end_states}) "  # noqa: S608
+                f"SELECT id FROM runs WHERE state IN ({end_states}) "
                 "AND COALESCE(ended_at, updated_at) < ? ORDER BY ended_at",
                 (cutoff_s,),
             )
@@ -641,7 +641,7 @@ class RunStore:
                     time.sleep(pause_s)
             with self._write() as tx:
                 runs += tx.execute(
-                    f"DELETE FROM runs WHERE id = ? AND state IN ({end_states}) "  # noqa: S608
+                    f"DELETE FROM runs WHERE id = ? AND state IN ({end_states}) "
                     "AND NOT EXISTS (SELECT 1 FROM samples WHERE run_id = ?)",
                     (run_id, run_id),
                 ).rowcount
@@ -679,7 +679,7 @@ class RunStore:
             if row is None or row["state"] != RUNNING:
                 return False
             tx.executemany(
-                f"INSERT INTO samples (run_id, {_SAMPLE_COLUMNS_SQL}) "  # noqa: S608 (constants)
+                f"INSERT INTO samples (run_id, {_SAMPLE_COLUMNS_SQL}) "
                 f"VALUES (?, {_SAMPLE_PLACEHOLDERS})",
                 [(run_id, *s.values()) for s in samples],
             )
@@ -689,7 +689,7 @@ class RunStore:
     def samples_after(self, run_id: str, after_seq: int, limit: int) -> list[Sample]:
         """Up to ``limit`` samples with ``seq > after_seq``, ordered by seq."""
         rows = self._conn().execute(
-            f"SELECT {_SAMPLE_COLUMNS_SQL} FROM samples "  # noqa: S608 (constants)
+            f"SELECT {_SAMPLE_COLUMNS_SQL} FROM samples "
             "WHERE run_id = ? AND seq > ? ORDER BY seq LIMIT ?",
             (run_id, after_seq, limit),
         )
@@ -718,13 +718,43 @@ def overlap_condition(
     ``bookings/periods.py``): back to back is no overlap. With ``open_end`` a NULL end is a
     period that has not ended yet. The columns are this module's own names, never input.
     """
-    for column in (start_column, end_column):
-        if not _COLUMN_NAME.fullmatch(column):
-            raise ValueError(f"not a column name: {column!r}")
-    ends_after = f"{end_column} > ?"
+    start, end = _column_name(start_column), _column_name(end_column)
+    ends_after = f"{end} > ?"
     if open_end:
-        ends_after = f"({end_column} IS NULL OR {ends_after})"
-    return f"({start_column} < ? AND {ends_after})", (end_s, start_s)
+        ends_after = f"({end} IS NULL OR {ends_after})"
+    return f"({start} < ? AND {ends_after})", (end_s, start_s)
+
+
+def _column_name(name: str) -> str:
+    """``name``, checked to be a plain column name (``ValueError`` otherwise)."""
+    if not _COLUMN_NAME.fullmatch(name):
+        raise ValueError(f"not a column name: {name!r}")
+    return name
+
+
+# -- a store's file as a whole (basestation.backup) ------------------------------------------
+
+
+def file_check(conn: sqlite3.Connection) -> tuple[str, set[str], int]:
+    """What SQLite's integrity check says of the file ``conn`` opened (``"ok"`` or what is
+    wrong), the names of its tables, and its store version (``user_version``)."""
+    integrity = conn.execute("PRAGMA integrity_check").fetchone()[0]
+    tables = {row[0] for row in conn.execute("SELECT name FROM sqlite_master")}
+    version = conn.execute("PRAGMA user_version").fetchone()[0]
+    return str(integrity), tables, int(version)
+
+
+def file_counts(conn: sqlite3.Connection) -> tuple[int, int]:
+    """How many runs and how many samples the file ``conn`` opened holds."""
+    runs = conn.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+    samples = conn.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
+    return int(runs), int(samples)
+
+
+def file_standalone(conn: sqlite3.Connection) -> None:
+    """Make the file ``conn`` opened a single file, with no WAL beside it (the agent sets WAL
+    again when it opens the file)."""
+    conn.execute("PRAGMA journal_mode=DELETE")
 
 
 _RUN_WITH_STATS = (

@@ -46,6 +46,7 @@ from bookings.scheduler import (
     SchedulerUnavailable,
     build_scheduler,
 )
+from core import sql
 from core.audit.counters import event_count
 from core.errors import Conflict, DomainError
 
@@ -125,21 +126,16 @@ def _domain_error(exc: SchedulerError, what: str) -> DomainError:
 
 
 def booking_guard(public_id: uuid.UUID) -> None:
-    """Mark ``public_id`` as being booked until the current transaction ends (PostgreSQL)."""
-    if connection.vendor == "postgresql":
-        with connection.cursor() as cursor:
-            cursor.execute("SELECT pg_advisory_xact_lock(%s)", [_lock_key(public_id)])
-
-
-def _lock_key(public_id: uuid.UUID) -> int:
-    return int.from_bytes(public_id.bytes[:8], "big", signed=True)
+    """Mark ``public_id`` as being booked until the current transaction ends (PostgreSQL;
+    SQLite's writing transactions already run one at a time)."""
+    sql.advisory_xact_lock(sql.advisory_key(public_id.bytes))
 
 
 def _not_being_booked(public_id: uuid.UUID) -> bool:
     """True when no transaction is booking ``public_id`` right now (PostgreSQL only)."""
-    with transaction.atomic(), connection.cursor() as cursor:
-        cursor.execute("SELECT pg_try_advisory_xact_lock(%s)", [_lock_key(public_id)])
-        return bool(cursor.fetchone()[0])
+    # A transaction of its own, so that the lock, if taken, is let go at once.
+    with transaction.atomic():
+        return sql.try_advisory_xact_lock(sql.advisory_key(public_id.bytes))
 
 
 def _leases_listed(*, start_at: datetime, end_at: datetime) -> list[Lease]:
@@ -310,7 +306,7 @@ class SweepResult:
 
 
 # The advisory lock that lets one mirror run at a time (PostgreSQL).
-MIRROR_LOCK_KEY = int.from_bytes(b"leasemir", "big", signed=True)
+MIRROR_LOCK_KEY = sql.advisory_key(b"leasemir")
 
 
 def _mirror(leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, datetime]) -> None:
@@ -322,9 +318,7 @@ def _mirror(leases: Sequence[Lease], *, now: datetime, window: tuple[datetime, d
     rows in the order the scheduler listed them, and two at once deadlocked (a booking
     answered 500 while the sweep ran)."""
     with transaction.atomic():
-        if connection.vendor == "postgresql":
-            with connection.cursor() as cursor:
-                cursor.execute("SELECT pg_advisory_xact_lock(%s)", [MIRROR_LOCK_KEY])
+        sql.advisory_xact_lock(MIRROR_LOCK_KEY)
         _mirror_locked(leases, now=now, window=window)
 
 
@@ -371,7 +365,7 @@ def _writes_one_at_a_time() -> bool:
     transaction writes, so no booking is between its lease and its commit."""
     options = connection.settings_dict.get("OPTIONS", {})
     return (
-        connection.vendor == "sqlite"
+        sql.is_sqlite()
         and connection.in_atomic_block
         and options.get("transaction_mode") == "IMMEDIATE"
     )
@@ -398,7 +392,7 @@ def _orphan(lease: Lease, *, now: datetime, booking: bool = False) -> bool:
     )
     if held:
         return False
-    if connection.vendor == "postgresql":
+    if sql.is_postgresql():
         return _not_being_booked(public_id)
     if booking and _writes_one_at_a_time():
         return True

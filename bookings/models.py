@@ -1,14 +1,14 @@
 from __future__ import annotations
 
 import uuid
-from datetime import UTC, datetime
+from datetime import datetime
 from typing import TypeVar
 from urllib.parse import urlsplit
 
 from django.conf import settings
 from django.contrib.auth.models import Group
 from django.core.exceptions import ValidationError
-from django.db import connection, models
+from django.db import models
 
 from bookings.choices import BookedVia, QuotaPeriod, ReservationState, ResourceKind
 from core.accounts.models import User
@@ -27,9 +27,10 @@ class PeriodQuerySet(ChangeTrackedQuerySet[_Timed]):
         """Rows sharing an instant with ``[start_at, end_at)``: back to back is no overlap.
 
         ``None`` leaves the window open on that side (a list filter given only one end).
-        The one place the portal's queries spell this condition, as ``bookings/periods.py``
-        ``overlaps`` spells it in Python; the PostgreSQL exclusion constraint on reservation
-        items (migration 0002) uses the same half-open ``[)`` ranges.
+        The one place the portal's ORM queries spell this condition, as ``core.sql.overlap``
+        spells it for hand-written SQL and ``bookings/periods.py`` ``overlaps`` in Python; the
+        PostgreSQL exclusion constraint on reservation items (migration 0002) uses the same
+        half-open ``[)`` ranges.
         """
         qs = self
         if end_at is not None:
@@ -37,42 +38,6 @@ class PeriodQuerySet(ChangeTrackedQuerySet[_Timed]):
         if start_at is not None:
             qs = qs.filter(end_at__gt=start_at)
         return qs
-
-
-def table_sql(model: type[models.Model]) -> str:
-    """``model``'s table, quoted for hand-written SQL."""
-    return connection.ops.quote_name(model._meta.db_table)
-
-
-def placeholders(count: int) -> str:
-    """``count`` parameter marks for hand-written SQL, as in ``IN (%s, %s)``."""
-    return ", ".join(["%s"] * count)
-
-
-def instant_param(value: datetime) -> object:
-    """An instant as hand-written SQL takes it as a parameter (as the ORM would pass it)."""
-    return connection.ops.adapt_datetimefield_value(value)
-
-
-def instant_sql(column: str) -> str:
-    """A ``DateTimeField`` column read as ISO 8601 text in UTC, for hand-written SQL that
-    reads many rows (``instant_from_sql`` turns it back): Django reads a timestamptz through a
-    Python call per value, five times slower than ``datetime.fromisoformat`` on this text."""
-    if connection.vendor == "postgresql":
-        return f"to_char({column} AT TIME ZONE 'UTC', 'YYYY-MM-DD\"T\"HH24:MI:SS.US')"
-    return column  # SQLite keeps a UTC instant as such text already
-
-
-def instant_from_sql(value: str | datetime) -> datetime:
-    """What ``instant_sql`` read, as an aware UTC datetime."""
-    instant = value if isinstance(value, datetime) else datetime.fromisoformat(value)
-    return instant.replace(tzinfo=UTC)
-
-
-def overlap_sql(alias: str) -> str:
-    """``PeriodQuerySet.overlapping`` for hand-written SQL (the booking check's one round
-    trip): the row ``alias`` shares an instant with ``[%s, %s)``, given as (end, start)."""
-    return f"{alias}.start_at < %s AND {alias}.end_at > %s"
 
 
 def validate_agent_url(value: str) -> None:

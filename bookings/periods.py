@@ -5,10 +5,10 @@ testbed scheduler's leases, quota periods, a report's range) includes its start 
 its end, so two periods back to back share no instant. PostgreSQL's
 ``tstzrange(start, end, '[)')`` means the same. The portal's ORM queries spell the condition
 once, in ``bookings.models.PeriodQuerySet.overlapping``, its hand-written SQL once, in
-``bookings.models.overlap_sql`` (the booking check's one round trip), and the agent once, in
-``basestation.store.overlap_condition`` (SQLite); ``tests/bookings/test_overlap.py`` holds
-them all to agree with PostgreSQL, and ``tests/test_architecture.py`` refuses a start/end
-comparison anywhere else.
+``core.sql.overlap`` (the booking check's one round trip, the quotas' reads), and the agent
+once, in ``basestation.store.overlap_condition`` (SQLite); ``tests/bookings/test_overlap.py``
+holds them all to agree with PostgreSQL, and ``tests/test_architecture.py`` refuses a
+start/end comparison anywhere else.
 
 A period is not empty (``start < end``: the models' check constraints and the services'
 "the end must be after the start" see to it). ``None`` for a bound of :func:`overlaps` means

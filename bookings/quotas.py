@@ -7,15 +7,14 @@ clocks change. Hours are real elapsed hours.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, date, datetime, time, timedelta
-from typing import Any
 from zoneinfo import ZoneInfo
 
 from django.conf import settings
-from django.db import connection
 
+from bookings import queries
 from bookings.choices import (
     RESERVATION_ACTIVE_STATES,
     RESERVATION_COUNTED_STATES,
@@ -24,15 +23,7 @@ from bookings.choices import (
 from bookings.models import (
     QUOTA_POLICIES,
     QuotaPolicy,
-    Reservation,
-    ReservationItem,
     Resource,
-    instant_from_sql,
-    instant_param,
-    instant_sql,
-    overlap_sql,
-    placeholders,
-    table_sql,
 )
 from bookings.periods import overlap_s, overlaps, within
 from core.accounts.models import User
@@ -112,41 +103,6 @@ def policies_for(
     ]
 
 
-def _scoped(policy: QuotaPolicy, user: User, states: Sequence[str]) -> tuple[str, list[Any]]:
-    """The user's reservations in ``states`` that ``policy`` counts (those holding a resource
-    in its scope): the FROM and WHERE of a query on reservations ``r``, and its parameters.
-
-    The one spelling of a policy's scope. SQL because it runs under the booking lock on every
-    booking, where building the same query through the ORM took longer than running it.
-    """
-    sql = (
-        f"FROM {table_sql(Reservation)} r "
-        f"WHERE r.owner_id = %s AND r.state IN ({placeholders(len(states))})"
-    )
-    params: list[Any] = [user.pk, *states]
-    items = table_sql(ReservationItem)
-    if policy.resource_id is not None:
-        sql += (
-            f" AND EXISTS (SELECT 1 FROM {items} i "  # noqa: S608
-            "WHERE i.reservation_id = r.id AND i.resource_id = %s)"
-        )
-        params.append(policy.resource_id)
-    if policy.resource_group_id is not None:
-        sql += (
-            f" AND EXISTS (SELECT 1 FROM {items} i "  # noqa: S608
-            f"JOIN {table_sql(Resource.groups.through)} g ON g.resource_id = i.resource_id "
-            "WHERE i.reservation_id = r.id AND g.resourcegroup_id = %s)"
-        )
-        params.append(policy.resource_group_id)
-    return sql, params
-
-
-def _rows(sql: str, params: Sequence[Any]) -> list[tuple[Any, ...]]:
-    with connection.cursor() as cursor:
-        cursor.execute(sql, params)
-        return cursor.fetchall()
-
-
 @dataclass(frozen=True)
 class PeriodUsage:
     policy: QuotaPolicy
@@ -176,19 +132,12 @@ def period_usage(
     *,
     exclude_id: int | None = None,
 ) -> PeriodUsage:
-    where, params = _scoped(policy, user, RESERVATION_COUNTED_STATES)
-    sql = (
-        f"SELECT {instant_sql('r.start_at')}, {instant_sql('r.end_at')} {where} "
-        f"AND {overlap_sql('r')}"
+    periods = queries.quota_periods(
+        policy, user, RESERVATION_COUNTED_STATES, period_start, period_end, exclude_id=exclude_id
     )
-    params += [instant_param(period_end), instant_param(period_start)]
-    if exclude_id is not None:
-        sql += " AND r.id <> %s"
-        params.append(exclude_id)
     used_s = 0.0
     count = 0
-    for start_text, end_text in _rows(sql, params):
-        start_at, end_at = instant_from_sql(start_text), instant_from_sql(end_text)
+    for start_at, end_at in periods:
         used_s += overlap_s(start_at, end_at, period_start, period_end)
         if within(start_at, period_start, period_end):
             count += 1
@@ -198,13 +147,7 @@ def period_usage(
 def _upcoming(policy: QuotaPolicy, user: User, *, now: datetime, exclude_id: int | None) -> int:
     """How many of the user's bookings in ``policy``'s scope are still to come (or running)."""
     states = [s for s in RESERVATION_COUNTED_STATES if s in RESERVATION_ACTIVE_STATES]
-    where, params = _scoped(policy, user, states)
-    sql = f"SELECT COUNT(*) {where} AND r.end_at > %s"
-    params.append(instant_param(now))
-    if exclude_id is not None:
-        sql += " AND r.id <> %s"
-        params.append(exclude_id)
-    return int(_rows(sql, params)[0][0])
+    return queries.quota_upcoming(policy, user, states, now=now, exclude_id=exclude_id)
 
 
 def quota_violations(

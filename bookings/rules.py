@@ -34,12 +34,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any, Final, Literal, Protocol, get_args
+from typing import Final, Literal, Protocol, get_args
 
 from django.conf import settings
-from django.db import connection
 from django.utils import timezone
 
+from bookings import queries
 from bookings.choices import (
     RESERVATION_ACTIVE_STATES,
     BookedVia,
@@ -53,10 +53,6 @@ from bookings.models import (
     ReservationItem,
     Resource,
     SchedulerLease,
-    instant_param,
-    overlap_sql,
-    placeholders,
-    table_sql,
 )
 from bookings.quotas import quota_violations
 from bookings.scheduler import Lease
@@ -422,43 +418,25 @@ def _conflicts(
 ) -> list[Problem]:
     """Maintenance windows, then other bookings, that share time with the period.
 
-    One round trip (a UNION) written as SQL: this runs under the booking lock on every
-    booking, and building the same query through the ORM took longer than the database took
-    to answer it. What it finds is read again through the ORM, only to word the refusal.
+    Found in one round trip of hand-written SQL (``queries.conflicts``: this runs under the
+    booking lock on every booking); what it finds is read again through the ORM, only to
+    word the refusal.
     """
-    if not resources:
-        return []
-    ids = [r.pk for r in resources]
-    period = [instant_param(end_at), instant_param(start_at)]
-    in_ids = placeholders(len(ids))
-    through = Blackout.resources.through
-    excluded = ""
-    params: list[Any] = [*period, *ids, *period, *ids]
-    if exclude_reservation_id is not None:
-        excluded = " AND i.reservation_id <> %s"
-        params.append(exclude_reservation_id)
-    # "blackout" sorts before "booked": a maintenance window is the better explanation.
-    # Only table names and placeholders are formatted in; every value is a parameter.
-    sql = (
-        f"SELECT 'blackout' AS kind, b.id, b.start_at FROM {table_sql(Blackout)} b "  # noqa: S608
-        f"WHERE {overlap_sql('b')} AND (b.all_resources OR b.id IN "
-        f"(SELECT t.blackout_id FROM {table_sql(through)} t WHERE t.resource_id IN ({in_ids}))) "
-        "UNION ALL "
-        f"SELECT 'booked' AS kind, i.id, i.start_at FROM {table_sql(ReservationItem)} i "
-        f"WHERE {overlap_sql('i')} AND i.active AND i.resource_id IN ({in_ids}){excluded} "
-        "ORDER BY 1, 3" + (" LIMIT 1" if first_only else "")
+    found = queries.conflicts(
+        [r.pk for r in resources],
+        start_at,
+        end_at,
+        exclude_reservation_id=exclude_reservation_id,
+        first_only=first_only,
     )
-    with connection.cursor() as cursor:
-        cursor.execute(sql, params)
-        found: list[tuple[str, int, object]] = cursor.fetchall()
     if not found:
         return []
-    blackouts = Blackout.objects.in_bulk([pk for kind, pk, _ in found if kind == "blackout"])
+    blackouts = Blackout.objects.in_bulk([pk for kind, pk in found if kind == "blackout"])
     items = ReservationItem.objects.select_related("resource").in_bulk(
-        [pk for kind, pk, _ in found if kind == "booked"]
+        [pk for kind, pk in found if kind == "booked"]
     )
     problems = []
-    for kind, pk, _ in found:
+    for kind, pk in found:
         if kind == "blackout":
             window = blackouts[pk]
             since, until = _period(window.start_at), _period(window.end_at)

@@ -27,6 +27,8 @@ from django.core.cache import cache
 from django.db import connection, models, transaction
 from django.db.models.signals import m2m_changed, post_delete, post_save
 
+from core import sql
+
 T = TypeVar("T")
 _M = TypeVar("_M", bound=models.Model)
 
@@ -39,7 +41,7 @@ def database_namespace() -> str:
     """Which database a cache entry was computed from: ids repeat between databases (a
     test's, a benchmark's, a restore) that may share one cache."""
     db = connection.settings_dict
-    where = f"{connection.vendor}:{db.get('HOST') or ''}:{db.get('PORT') or ''}:{db['NAME']}"
+    where = f"{sql.database_kind()}:{db.get('HOST') or ''}:{db.get('PORT') or ''}:{db['NAME']}"
     return _namespace(where)
 
 

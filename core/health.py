@@ -17,7 +17,8 @@ from typing import Any
 
 from django.conf import settings
 from django.core.cache import cache
-from django.db import connection
+
+from core import sql
 
 logger = logging.getLogger(__name__)
 
@@ -64,9 +65,7 @@ def health() -> tuple[bool, dict[str, Any]]:
     """Each check as ``"ok"`` or a short error (no internals), and whether the web can work."""
     body: dict[str, Any] = {}
     try:
-        with connection.cursor() as cursor:
-            cursor.execute("SELECT 1")
-            cursor.fetchone()
+        sql.ping()
         body["database"] = "ok"
     except Exception as exc:  # any failure is the answer here
         logger.error("health: database unreachable: %s", exc)

@@ -22,9 +22,10 @@ from datetime import datetime
 from functools import partial
 from typing import Literal
 
-from django.db import IntegrityError, connection, transaction
+from django.db import IntegrityError, transaction
 from django.utils import timezone
 
+from bookings import queries
 from bookings.choices import BookedVia, Channel, ReservationState
 from bookings.leases import (
     booking_guard,
@@ -37,7 +38,7 @@ from bookings.leases import (
     leases_refresh,
     scheduler_owned,
 )
-from bookings.models import Reservation, ReservationItem, Resource, placeholders, table_sql
+from bookings.models import Reservation, ReservationItem, Resource
 from bookings.rules import (
     Problem,
     Program,
@@ -92,24 +93,10 @@ def _lock(owner: User, resources: Sequence[Resource]) -> list[Resource]:
     """Serialise bookings per user (quotas) and per resource (overlaps), in a fixed order.
 
     Returns the resources as locked: whether one is in service is judged on these rows, so
-    taking it out of service while someone books it cannot let the booking through.
+    taking it out of service while someone books it cannot let the booking through. The
+    locking query (and why SQLite needs none) is ``queries.resources_locked``.
     """
-    ids = sorted({r.pk for r in resources})
-    if connection.vendor != "postgresql":
-        # SQLite has no row locks: each transaction takes the database's write lock as it
-        # begins (``transaction_mode`` IMMEDIATE in settings), so bookings run one at a time.
-        return list(Resource.objects.filter(pk__in=ids).order_by("pk"))
-    # One round trip: the user's row first (the CTE yields it before the join can give a
-    # resource row to lock), then the resources in id order.
-    in_ids = placeholders(len(ids))
-    return list(
-        Resource.objects.raw(
-            f"WITH owner AS MATERIALIZED (SELECT id FROM {table_sql(User)} WHERE id = %s "  # noqa: S608
-            f"FOR UPDATE) SELECT r.* FROM {table_sql(Resource)} r, owner WHERE r.id IN ({in_ids}) "
-            "ORDER BY r.id FOR UPDATE OF r",
-            [owner.pk, *ids],
-        )
-    )
+    return queries.resources_locked(owner.pk, [r.pk for r in resources])
 
 
 def _check(

@@ -51,11 +51,12 @@ from functools import wraps
 from typing import Any
 
 from django.conf import settings
-from django.db import connection, transaction
+from django.db import transaction
 from django.utils import timezone
 from rest_framework.request import Request
 from rest_framework.response import Response
 
+from core import sql
 from core.accounts.models import User
 from core.audit.models import IdempotencyKey
 
@@ -86,17 +87,13 @@ def _ttl() -> timedelta:
 def _lock_id(*, user_id: int, key: str) -> int:
     """A signed 64-bit advisory lock id; a collision only costs a spurious 409."""
     digest = hashlib.sha256(f"idempotency-key\0{user_id}\0{key}".encode()).digest()
-    return int.from_bytes(digest[:8], "big", signed=True)
+    return sql.advisory_key(digest)
 
 
 def _key_lock(*, user_id: int, key: str) -> bool:
-    """Take the key for this transaction; False if a concurrent request holds it."""
-    if connection.vendor != "postgresql":
-        return True  # SQLite: the IMMEDIATE transaction already holds the database.
-    with connection.cursor() as cursor:
-        cursor.execute("SELECT pg_try_advisory_xact_lock(%s)", [_lock_id(user_id=user_id, key=key)])
-        row = cursor.fetchone()
-    return bool(row and row[0])
+    """Take the key for this transaction; False if a concurrent request holds it (on SQLite
+    the IMMEDIATE transaction already holds the database: always True)."""
+    return sql.try_advisory_xact_lock(_lock_id(user_id=user_id, key=key))
 
 
 def _in_progress() -> Response:

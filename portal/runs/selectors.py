@@ -7,17 +7,17 @@ from dataclasses import dataclass, replace
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-import numpy as np
 from django.core.cache import cache
-from django.db import connection
-from django.db.models import FloatField, Func, Max, QuerySet
+from django.db.models import QuerySet
 
-from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS, CsvWriter
+from basestation.contract import SAMPLE_FIELDS, CsvWriter
 from bookings.models import PeriodQuerySet, Reservation
 from bookings.rules import velocity_limit
 from bookings.selectors import mobiles_bookable, reservations_visible
+from core import sql
 from core.accounts.models import User
 from core.cache import database_namespace
+from portal.runs import queries
 from portal.runs.analysis import (
     RailTrack,
     RunAnalysis,
@@ -86,93 +86,6 @@ def run_samples(*, run: Run, after_seq: int = 0, limit: int | None = None) -> Qu
 
 
 CSV_TIME_FORMAT = "%Y-%m-%dT%H:%M:%S.%fZ"
-# The same instant as PostgreSQL writes it: UTC, always six digits of microseconds, then Z.
-# The timestamp's own text (ISO, which the driver requires anyway) drops trailing zeros and
-# a zero fraction; padding them back costs a third of what ``to_char`` does (with which the
-# CSV took 30 % longer than a plain COPY).
-_PG_TIME = (
-    "rpad(replace(({0} AT TIME ZONE 'UTC')::text, ' ', 'T') "
-    "|| CASE WHEN {0} = date_trunc('second', {0}) THEN '.' ELSE '' END, 26, '0') || 'Z'"
-)
-# A text column of the CSV that COPY writes, escaped as basestation.contract.csv_cell does
-# (an apostrophe before a formula's first character): the agent's values are checked at
-# ingest, but a spreadsheet must not run one that got through.
-_PG_CSV_TEXT = (
-    "CASE WHEN left({0}, 1) IN ('=', '+', '-', '@', chr(9), chr(13)) THEN '''' || {0} ELSE {0} END"
-)
-_PG_CSV_COLUMNS = ", ".join(
-    _PG_TIME.format(column.name)
-    if column.name == "t"
-    else _PG_CSV_TEXT.format(column.name)
-    if column.kind == "text"
-    else column.name
-    for column in SAMPLE_COLUMNS
-)
-
-
-def _pg_json_values() -> tuple[str, list[bytes]]:
-    """The select list of ``COPY`` (text format, NULL written as ``null``) whose fields are
-    each sample's JSON values, and the literal pieces that go before each field (the last
-    one closes the object): joined alternately, a chunk of rows is a run of JSON objects
-    (see ``run_samples_json``).
-
-    The database does no more per row than for the CSV: each value is a column as it is
-    (numbers as the text that reads back exactly, NULL as ``null``), the time as in the CSV.
-    Quotes around a value that is never NULL are in the pieces; the contract's words need
-    no escaping (ingest lets no other in); free text goes through ``to_json``.
-    """
-    values, pieces, before = [], [], '},{"'
-    for column in SAMPLE_COLUMNS:
-        name = column.name
-        quoted = column.kind == "epoch" or (
-            column.kind == "text"
-            and not column.nullable
-            and column.choices is not None
-            and all(c.isalnum() for c in column.choices)
-        )
-        opening = '"' if quoted else ""
-        pieces.append(f'{before}{name}":{opening}'.encode())
-        before = '","' if quoted else ',"'
-        if column.kind == "epoch":
-            values.append(_PG_TIME.format(name))
-        elif column.kind == "text" and not quoted:
-            values.append(f"to_json({name})")
-        else:
-            values.append(name)
-    pieces.append(b'"}' if before == '","' else b"}")
-    return ", ".join(values), pieces
-
-
-# What a download hands the web server at a time: enough that the per-chunk costs (a write,
-# a gzip call, a thread hop under ASGI) vanish, little enough to stream.
-CHUNK_BYTES = 256 * 1024
-
-
-def _copy_out(query: str) -> Iterator[bytes]:
-    """The rows of ``COPY (…) TO STDOUT``, gathered into chunks of whole rows.
-
-    libpq hands over one row per call; passing each on alone would cost more than the
-    database's work of producing it. Each row is copied into the chunk at once, so libpq's
-    buffer is freed while still warm (holding on to them costs a tenth of the download).
-    """
-    with connection.cursor() as cursor, cursor.copy(query) as copy:
-        chunk = bytearray()
-        for row in copy:
-            chunk += row
-            if len(chunk) >= CHUNK_BYTES:
-                yield bytes(chunk)
-                chunk.clear()
-        if chunk:
-            yield bytes(chunk)
-
-
-def _samples_copy_query(run: Run, select: str, options: str) -> str:
-    # COPY takes no bound parameters through Django's debug cursor; the identifiers are the
-    # contract's and the model's, and the run id is an integer.
-    return (
-        f"COPY (SELECT {select} FROM {Sample._meta.db_table} "  # noqa: S608
-        f"WHERE run_id = {int(run.pk)} ORDER BY seq) TO STDOUT {options}"
-    )
 
 
 def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[bytes]:
@@ -183,8 +96,8 @@ def run_samples_csv(*, run: Run, chunk_rows: int = 5000) -> Iterator[bytes]:
     are formatted here. Both give times as UTC ISO 8601 with microseconds.
     """
     yield (",".join(SAMPLE_FIELDS) + "\r\n").encode()
-    if connection.vendor == "postgresql":
-        yield from _copy_out(_samples_copy_query(run, _PG_CSV_COLUMNS, "WITH (FORMAT csv)"))
+    if sql.is_postgresql():
+        yield from queries.samples_csv_copy(run.pk)
         return
     buffer = io.StringIO()
     writer = CsvWriter(buffer)
@@ -217,118 +130,14 @@ class RunReport:
     track: RailTrack | None = None
 
 
-class EpochSeconds(Func):
-    """A timestamp as float seconds since 1970, computed by the database.
-
-    Reading 72 000 timestamps as datetimes costs more than the whole analysis (the driver
-    parses each one in Python); a float costs nothing.
-    """
-
-    output_field = FloatField()
-    template = "CAST(EXTRACT(EPOCH FROM %(expressions)s) AS double precision)"
-
-    def as_sqlite(self, compiler: Any, connection: Any, **extra: Any) -> Any:
-        # SQLite keeps "YYYY-MM-DD HH:MM:SS.ffffff" in UTC; 2440587.5 is 1970-01-01 in Julian days.
-        return self.as_sql(
-            compiler, connection, template="((julianday(%(expressions)s) - 2440587.5) * 86400.0)"
-        )
-
-
-# The columns the run page reads, each as a float8 (NULL as NaN, the direction as 1.0 for
-# ccw), packed by the database into bytes that numpy reads as they are: no number is
-# formatted as text and parsed back, and no row passes through Python on its own.
-_PG_REPORT_COLUMNS = (
-    "seq::float8",
-    "EXTRACT(EPOCH FROM t)::float8",
-    "coalesce(segment::float8, 'NaN')",
-    "commanded_velocity_mps",
-    "velocity_mps",
-    "(direction = 'ccw')::int::float8",
-    "battery_v",
-    "track_m",
-    "coalesce(fix_quality::float8, 'NaN')",
-)
-# Samples per aggregated value: a day-long run comes as ~30 values a column, never one huge.
-_PG_PACK_SEQS = 65536
-# ``array_send`` of a one-dimensional float8 array: a 20-byte header, then each element as
-# its length (8) and its value, big-endian.
-_PG_ARRAY_HEADER_BYTES = 20
-_PG_ARRAY_ELEMENT = np.dtype([("length", ">i4"), ("value", ">f8")])
-
-
-def _pg_array(data: bytes) -> np.ndarray:
-    elements = np.frombuffer(data, dtype=_PG_ARRAY_ELEMENT, offset=_PG_ARRAY_HEADER_BYTES)
-    if int.from_bytes(data[:4], "big") != 1 or not (elements["length"] == 8).all():
-        raise RuntimeError("array_send gave something other than a float8 vector")
-    return elements["value"].astype(np.float64)
-
-
-def _pg_sample_arrays(run: Run) -> list[np.ndarray]:
-    """The columns in binary, one array per column: the database sends each as one value
-    (``array_send``), numpy reads it as it is, and no sample passes through Python alone.
-    Aggregated in any order, they are put in ``seq`` order here."""
-    arrays = ", ".join(f"array_send(array_agg({c}))" for c in _PG_REPORT_COLUMNS)
-    # Identifiers are the model's; the values are bound parameters.
-    query = (
-        f"SELECT {arrays} FROM {Sample._meta.db_table} "  # noqa: S608
-        "WHERE run_id = %s AND seq >= %s AND seq < %s"
-    )
-    last_seq = Sample.objects.filter(run=run).aggregate(last=Max("seq"))["last"] or 0
-    parts = []
-    with connection.cursor() as cursor:
-        # A range of seq at a time, read along the (run, seq) index: no sort, no hash.
-        for first in range(0, last_seq + 1, _PG_PACK_SEQS):
-            cursor.execute(query, [run.pk, first, first + _PG_PACK_SEQS])
-            part = cursor.fetchone()
-            if part is not None and part[0] is not None:
-                parts.append(part)
-    if not parts:
-        return [np.zeros(0) for _ in _PG_REPORT_COLUMNS]
-    columns = [
-        np.concatenate([_pg_array(bytes(part[i])) for part in parts])
-        for i in range(len(_PG_REPORT_COLUMNS))
-    ]
-    seq = columns[0]
-    if len(seq) > 1 and not (seq[1:] > seq[:-1]).all():
-        order = np.argsort(seq, kind="stable")
-        columns = [column[order] for column in columns]
-    return columns
-
-
 def _sample_columns(run: Run) -> tuple[SampleColumns, datetime | None]:
     """The run's samples a column at a time, times as seconds since the first sample; and
     when that first sample was."""
-    if connection.vendor == "postgresql":
-        seq, t, segment, commanded, measured, ccw, battery, track, fix = _pg_sample_arrays(run)
-        columns = SampleColumns(
-            seq.astype(np.int64), t, segment, commanded, measured, ccw == 1.0, battery, track, fix
-        )
-    else:
-        columns = _sample_columns_read(run)
+    columns = queries.sample_columns(run)
     if not len(columns):
         return columns, None
     first_s = float(columns.t_s[0])
     return replace(columns, t_s=columns.t_s - first_s), datetime.fromtimestamp(first_s, UTC)
-
-
-def _sample_columns_read(run: Run) -> SampleColumns:
-    """The same through the ORM's SQL and a cursor, for databases without binary COPY."""
-    rows = (
-        Sample.objects.filter(run=run)
-        .order_by("seq")
-        .annotate(t_epoch_s=EpochSeconds("t"))
-        .values_list(*(("t_epoch_s" if f == "t_s" else f) for f in SampleRow._fields))
-    )
-    # Every column is a plain number or string already: Django's per-row converters would
-    # cost more than the whole analysis. Each batch is turned into columns in C (``zip``).
-    sql, params = rows.query.sql_with_params()
-    lists: list[list[Any]] = [[] for _ in SampleRow._fields]
-    with connection.chunked_cursor() as cursor:
-        cursor.execute(sql, params)
-        while batch := cursor.fetchmany(5000):
-            for column, values in zip(lists, zip(*batch, strict=True), strict=True):
-                column.extend(values)
-    return SampleColumns.from_lists(*lists)
 
 
 def run_report(
@@ -511,13 +320,12 @@ def run_samples_json(*, run: Run, chunk_rows: int = 2000) -> Iterator[bytes]:
     cheap for it as the CSV); here its fields are put between the objects' literal pieces.
     """
     yield _samples_json_head(run)
-    if connection.vendor == "postgresql":
-        select, pieces = _pg_json_values()
-        query = _samples_copy_query(run, select, "WITH (NULL 'null')")
+    if sql.is_postgresql():
+        pieces = queries.SAMPLE_JSON_PIECES
         heads, close = pieces[:-1], pieces[-1]
         columns = len(heads)
         first = True
-        for chunk in _copy_out(query):
+        for chunk in queries.samples_json_copy(run.pk):
             # COPY's text format escapes only backslashes here (JSON text holds no raw tab,
             # newline or other control character): undo that; then split the chunk's whole
             # rows into fields and put each column's piece before its field, all in C (list

@@ -3,7 +3,7 @@
 The Python predicate (``bookings/periods.py``), the portal's queries
 (``PeriodQuerySet.overlapping``), PostgreSQL's own ``tstzrange(…, '[)') &&`` (the operator of
 the exclusion constraint on reservation items, and the constraint itself), the booking
-check's SQL (``bookings.models.overlap_sql``) and the agent's SQLite condition
+check's SQL (``core.sql.overlap``) and the agent's SQLite condition
 (``basestation.store.overlap_condition``) must answer alike, touching ends above all: back to
 back is no overlap.
 """
@@ -20,9 +20,10 @@ from hypothesis import strategies as st
 
 from basestation.store import overlap_condition
 from bookings.choices import ResourceKind
-from bookings.models import Blackout, Reservation, ReservationItem, Resource, overlap_sql
+from bookings.models import Blackout, Reservation, ReservationItem, Resource
 from bookings.periods import clip, gaps, overlap_s, overlaps, within
 from bookings.scheduler import Lease, LeaseStatus
+from core import sql
 from core.accounts.models import User
 
 BASE = datetime(2026, 12, 1, 10, 0, tzinfo=UTC)
@@ -115,9 +116,9 @@ def test_the_predicate_the_queryset_and_postgresql_agree(
             by_ranges = {row[0] for row in cursor.fetchall()}
         assert by_predicate == by_queryset == by_ranges
         if window_start is not None and window_end is not None:
-            # The booking check's hand-written SQL (``bookings.rules``), closed windows only.
+            # The hand-written SQL's condition (``bookings/queries.py``), closed windows only.
             with connection.cursor() as cursor:
-                condition = overlap_sql("r")
+                condition = sql.overlap("r")
                 cursor.execute(
                     f"SELECT id FROM bookings_reservation r WHERE id = ANY(%s) AND {condition}",  # noqa: S608
                     [ids, window_end, window_start],

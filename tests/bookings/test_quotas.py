@@ -11,18 +11,13 @@ from zoneinfo import ZoneInfo
 
 import pytest
 from django.contrib.auth.models import Group
-from django.db import connection, transaction
+from django.db import transaction
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bookings.choices import QuotaPeriod
-from bookings.models import (
-    QuotaPolicy,
-    Reservation,
-    ResourceGroup,
-    instant_from_sql,
-    instant_sql,
-)
+from bookings import queries
+from bookings.choices import RESERVATION_COUNTED_STATES, QuotaPeriod
+from bookings.models import QuotaPolicy, Reservation, ResourceGroup
 from bookings.quotas import period_bounds, policies_for, quota_summary
 from bookings.rules import QuotaExceeded
 from bookings.services import reservation_cancel, reservation_create
@@ -226,17 +221,14 @@ def test_the_summary_shows_what_is_left(owner):
     )
 )
 def test_usage_reads_each_instant_as_stored(start: datetime) -> None:
-    """The quota's usage reads its rows' instants as text (``instant_sql``), to the
+    """The quota's usage reads its rows' instants as text (``core.sql.instant``), to the
     microsecond, whatever the date."""
     with transaction.atomic():
         owner = User.objects.create(username="instants")
-        kept = Reservation.objects.create(owner=owner, start_at=start, end_at=start + MICROSECOND)
-        with connection.cursor() as cursor:
-            cursor.execute(
-                f"SELECT {instant_sql('start_at')}, {instant_sql('end_at')} "  # noqa: S608
-                "FROM bookings_reservation WHERE id = %s",
-                [kept.pk],
-            )
-            read = [instant_from_sql(value) for value in cursor.fetchone()]
-        assert read == [start, start + MICROSECOND]
+        Reservation.objects.create(owner=owner, start_at=start, end_at=start + MICROSECOND)
+        policy = QuotaPolicy.objects.create(name="instants", user=owner)
+        read = queries.quota_periods(
+            policy, owner, RESERVATION_COUNTED_STATES, start - MICROSECOND, start + 2 * MICROSECOND
+        )
+        assert read == [(start, start + MICROSECOND)]
         transaction.set_rollback(True)

@@ -76,7 +76,7 @@ def test_the_json_download_is_whole_across_chunks_and_for_a_run_without_samples(
 ):
     client.force_login(owner)
     # A chunk of about one row: every object's pieces meet across chunk borders.
-    monkeypatch.setattr("portal.runs.selectors.CHUNK_BYTES", 100)
+    monkeypatch.setattr("portal.runs.queries.CHUNK_BYTES", 100)
     document = json.loads(_body(client.get(f"/api/v1/runs/{run.pk}/samples.json")))
     assert document["samples"] == _expected()
 

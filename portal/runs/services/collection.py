@@ -29,7 +29,6 @@ and the final check stays :func:`run_collect`'s.
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
 from dataclasses import asdict, dataclass
@@ -38,7 +37,7 @@ from typing import Any
 
 import psycopg
 from django.conf import settings
-from django.db import IntegrityError, connection, transaction
+from django.db import IntegrityError, transaction
 from django.db.models import Count, F, Max, Min, QuerySet, Window
 from django.db.models.functions import Lead
 from django.utils import timezone
@@ -51,7 +50,9 @@ from basestation.contract import (
     samples_parse,
 )
 from bookings.services import reservation_complete
+from core import sql
 from core.live import samples_announced, samples_publish, samples_publish_on_commit
+from portal.runs import queries
 from portal.runs.agents import agent_client_for
 from portal.runs.models import RUNS, Run, Sample
 from portal.runs.provenance import provenance_at_collection, run_provenance_record
@@ -103,11 +104,12 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
     # as much as the COPY itself. Times stay seconds since the epoch until stored.
     rows = samples_parse(samples)
     last_seq = max(r[_SEQ] for r in rows)
+    timed = [_with_datetime(r) for r in rows]
     with transaction.atomic():
-        if connection.vendor == "postgresql":
-            stored = _copy_samples(run.pk, rows)
+        if sql.is_postgresql():
+            stored = _copy_samples(run.pk, timed)
         else:
-            stored = _insert_samples(run, [_with_datetime(r) for r in rows])
+            stored = _insert_samples(run, timed)
         moved = Run.objects.filter(pk=run.pk, last_seq__lt=last_seq).update(last_seq=last_seq)
         if stored and not moved:  # samples below the last one (a gap filled): counts changed
             RUNS.changed()
@@ -184,75 +186,28 @@ def _insert_samples(run: Run, rows: list[tuple[Any, ...]]) -> list[int]:
     return [r[0] for r in fresh]
 
 
-def _page_table_sql() -> str:
-    """The temporary table a page is merged through: the contract's columns, with the
-    model's column types (the contract test keeps model and contract in step)."""
-    fields = {f.name: f for f in Sample._meta.concrete_fields}
-    columns = ", ".join(f"{name} {fields[name].db_type(connection)}" for name in SAMPLE_FIELDS)
-    return f"CREATE TEMPORARY TABLE IF NOT EXISTS sample_page ({columns}) ON COMMIT DELETE ROWS"
-
-
 def _overlaps_stored(run_id: int, rows: list[tuple[Any, ...]]) -> bool:
     """Whether any sequence number in the page's range is stored already: one index probe."""
     seqs = [row[_SEQ] for row in rows]
     return Sample.objects.filter(run_id=run_id, seq__gte=min(seqs), seq__lte=max(seqs)).exists()
 
 
-@functools.cache
-def _copy_types(with_run: bool) -> tuple[str, ...]:
-    """The column types of a binary ``COPY`` of a page (the run id first when ``with_run``),
-    the model's own (the contract test keeps model and contract in step)."""
-    fields = {f.name: f for f in Sample._meta.concrete_fields}
-    names = ["run", *SAMPLE_FIELDS] if with_run else SAMPLE_FIELDS
-    # varchar(n) travels as text: the same bytes, and the column still checks n.
-    return tuple(str(fields[name].db_type(connection)).partition("(")[0] for name in names)
-
-
-def _copy_page(cursor: Any, target: str, rows: list[tuple[Any, ...]], run_id: int | None) -> None:
-    """``rows`` into ``target`` by binary ``COPY``: the database reads the values as they
-    are, instead of parsing the text of each number and time; the page goes in faster than
-    a plain text ``COPY`` of the same rows."""
-    columns = ", ".join(SAMPLE_FIELDS)
-    into = f"{target} (run_id, {columns})" if run_id is not None else f"{target} ({columns})"
-    with cursor.copy(f"COPY {into} FROM STDIN WITH (FORMAT BINARY)") as copy:
-        copy.set_types(_copy_types(run_id is not None))
-        head = () if run_id is None else (run_id,)
-        for row in rows:
-            copy.write_row((*head, *_with_datetime(row)))
-
-
 def _copy_samples(run_id: int, rows: list[tuple[Any, ...]]) -> list[int]:
     """COPY straight into the table; if a row is already there (a repeated or overlapping
     collection), merge through a temporary table instead. Returns the sequence numbers that
     were new."""
-    columns = ", ".join(SAMPLE_FIELDS)
-    table = Sample._meta.db_table
     # A page sent again goes straight to the merge, not through a whole COPY rolled back.
     if not _overlaps_stored(run_id, rows):
         try:
-            with transaction.atomic(), connection.cursor() as cursor:
-                _copy_page(cursor, table, rows, run_id)
+            with transaction.atomic():
+                queries.samples_copy(run_id, rows)
             return [row[_SEQ] for row in rows]
         except (IntegrityError, psycopg.errors.UniqueViolation):
             # Another collection stored some of them meanwhile. COPY goes to psycopg
             # directly, so its error arrives unwrapped by Django; the savepoint undid the
             # whole page.
             pass
-    with connection.cursor() as cursor:
-        # One per connection serves every page.
-        cursor.execute(_page_table_sql())
-        _copy_page(cursor, "sample_page", rows, None)
-        # Identifiers are the contract's and the model's; the run id is a bound parameter.
-        cursor.execute(
-            f"INSERT INTO {table} (run_id, {columns}) SELECT %s, {columns} FROM sample_page "  # noqa: S608
-            "ON CONFLICT (run_id, seq) DO NOTHING RETURNING seq",
-            [run_id],
-        )
-        stored = [int(row[0]) for row in cursor.fetchall()]
-        # Emptied now too: a caller's transaction holding several pages (one commit for
-        # all) must not merge a page's rows again with the next one.
-        cursor.execute("DELETE FROM sample_page")
-        return stored
+    return queries.samples_merge(run_id, rows)
 
 
 def run_sample_stats(*, run: Run) -> dict[str, int]:
