@@ -23,7 +23,7 @@ help:
 	@echo "make audit  - known vulnerabilities in the Python and npm packages"
 	@echo "make bench  - benchmarks (results go to docs/performance.md)"
 	@echo "make soak   - the whole system under random faults for SOAK_MINUTES (30), checked (docs/reliability.md)"
-	@echo "make screenshots - every page at a laptop's and a phone's width into docs/screenshots"
+	@echo "make screenshots - every page of a whole running system, at a laptop's and a phone's width, into docs/screenshots"
 	@echo "make firmware - cross-compile the robot firmware"
 	@echo "make cad   - build the 3D models (STEP, STL) into var/cad and refresh docs/cad"
 	@echo "make clean  - remove the virtualenv, assets and local data"

@@ -465,6 +465,9 @@ SPECTACULAR_SETTINGS = {
     # Swagger UI from the npm package the build installs, never from a CDN.
     "SWAGGER_UI_DIST": "/static/vendor/swagger-ui-dist",
     "SWAGGER_UI_FAVICON_HREF": "/static/vendor/swagger-ui-dist/favicon-32x32.png",
+    # Without deep links each operation's path is text, not a link inside the button that
+    # opens the operation (a control within a control, which screen readers cannot reach).
+    "SWAGGER_UI_SETTINGS": {"deepLinking": False},
 }
 
 

@@ -12,7 +12,11 @@ urlpatterns = [
     path("accounts/", include("allauth.urls")),
     path("admin/", admin.site.urls),
     path("api/schema/", SpectacularAPIView.as_view(), name="schema"),
-    path("api/docs/", SpectacularSwaggerSplitView.as_view(url_name="schema"), name="swagger-ui"),
+    path(
+        "api/docs/",
+        SpectacularSwaggerSplitView.as_view(url_name="schema", template_name="web/api_docs.html"),
+        name="swagger-ui",
+    ),
     path("api/v1/", include("portal.experiments.urls")),
     path("api/v1/", include("portal.runs.urls")),
     path("api/v1/", include("bookings.urls")),

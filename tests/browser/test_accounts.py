@@ -110,6 +110,7 @@ def test_a_user_makes_a_token_uses_it_with_amazing_revokes_it_and_is_refused(
     page = context.new_page()
     refused = _csp_watch(page)
     login(page, web, "tess", "correct horse battery")
+    page.get_by_test_id("menu-account").locator("summary").click()
     page.get_by_role("link", name="Tokens").click()
     page.get_by_label("Name").fill("laptop")
     page.get_by_label("Expires in (days)").fill("30")
