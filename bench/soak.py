@@ -220,9 +220,14 @@ class Soak:
         seed: int,
         chaos_every_s: tuple[float, float],
         program_s: float,
+        until_each_fault: bool = False,
     ) -> None:
         self.work = work
         self.minutes = minutes
+        self.until_each_fault = until_each_fault
+        # When booking stops (epoch seconds): ``minutes`` after the start, or sooner with
+        # ``until_each_fault``.
+        self.window_end = 0.0
         self.seed = seed
         self.chaos_every_s = chaos_every_s
         self.program_s = program_s
@@ -236,6 +241,7 @@ class Soak:
         self.awaiting_redelivery: list[str] = []
         self.misses: dict[str, list[str]] = {key: [] for key in CHECKS}
         self.started_mono = 0.0
+        self.started_epoch_s = 0.0
         self.started_at = datetime.now(UTC)
         self.postgres = PostgresCluster()
         self.redis = RedisServer(work / "redis")
@@ -354,7 +360,7 @@ class Soak:
                     raise
                 time.sleep(1)
 
-    def _drive(self, robot: str, window_end: float) -> None:
+    def _drive(self, robot: str) -> None:
         api = self._api("experimenter")
         experiment = self._experiment(api, robot)
         rng = random.Random(f"{self.seed}-{robot}")
@@ -363,7 +369,7 @@ class Soak:
         n = 0
         while not self.stopping.is_set():
             start_s = max(next_start, time.time() + LEAD_S)
-            if start_s >= window_end:
+            if start_s >= self.window_end:
                 return
             n += 1
             start = datetime.fromtimestamp(round(start_s), UTC)
@@ -493,15 +499,25 @@ class Soak:
             deck.insert(self.rng.randrange(len(deck) + 1), POSTGRES_RESTART)
         return deck
 
-    def _chaos(self, window_end: float) -> None:
+    def _chaos(self) -> None:
         deck = self._deck(first=True)
         while True:
             pause_s = self.rng.uniform(*self.chaos_every_s)
-            if self.stopping.wait(pause_s) or time.time() + 5 >= window_end:
+            if self.stopping.wait(pause_s) or time.time() + 5 >= self.window_end:
                 return
             if not deck:
+                if self.until_each_fault:
+                    # Every kind has occurred, and runs went on through one more pause
+                    # after the last: what the soak is for has been seen.
+                    self._close_window()
+                    return
                 deck = self._deck(first=False)
             self._inject(deck.pop(0))
+
+    def _close_window(self) -> None:
+        self.window_end = time.time()
+        self.minutes = round((self.window_end - self.started_epoch_s) / 60, 1)
+        say(f"every kind of fault has occurred: no more bookings after {self.minutes:g} min")
 
     def _inject(self, kind: str) -> None:
         at_s = self.elapsed_s()
@@ -562,7 +578,8 @@ class Soak:
         say(f"system up in {self.work}; soaking {self.minutes:g} min, seed {self.seed}")
         self.started_mono = time.monotonic()
         self.started_at = datetime.now(UTC)
-        window_end = time.time() + self.minutes * 60
+        self.started_epoch_s = time.time()
+        self.window_end = self.started_epoch_s + self.minutes * 60
         supervisor = _Supervisor(self)
 
         def watching() -> None:
@@ -571,12 +588,9 @@ class Soak:
 
         threads = [
             threading.Thread(target=watching, name="supervisor"),
-            threading.Thread(target=self._chaos, args=(window_end,), name="chaos"),
+            threading.Thread(target=self._chaos, name="chaos"),
             threading.Thread(target=self._operate, name="operator"),
-            *(
-                threading.Thread(target=self._drive, args=(robot, window_end), name=robot)
-                for robot in ROBOTS
-            ),
+            *(threading.Thread(target=self._drive, args=(robot,), name=robot) for robot in ROBOTS),
         ]
         for thread in threads:
             thread.start()
@@ -1092,6 +1106,7 @@ def run(
     chaos_every_s: tuple[float, float] = CHAOS_EVERY_S,
     program_s: float = PROGRAM_S,
     work: Path | None = None,
+    until_each_fault: bool = False,
 ) -> SoakResult:
     """One soak in ``work`` (a scratch directory by default, removed when it passes)."""
     scratch = work is None
@@ -1102,6 +1117,7 @@ def run(
         seed=seed,
         chaos_every_s=chaos_every_s,
         program_s=program_s,
+        until_each_fault=until_each_fault,
     ).run()
     if scratch and result.ok:
         shutil.rmtree(work, ignore_errors=True)
@@ -1128,6 +1144,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="pause between faults, drawn between these (default 60 180)",
     )
     parser.add_argument("--program-s", type=float, default=PROGRAM_S, help="each run's program")
+    parser.add_argument(
+        "--until-each-fault",
+        action="store_true",
+        help="stop booking one pause after every kind of fault has occurred once "
+        "(at most --minutes)",
+    )
     parser.add_argument("--out", type=Path, help="write soak.md, soak.json and soak.png here")
     parser.add_argument(
         "--report", action="store_true", help="also write the report into docs/reliability.md"
@@ -1143,6 +1165,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         chaos_every_s=(low, high),
         program_s=args.program_s,
         work=args.work,
+        until_each_fault=args.until_each_fault,
     )
     plots: list[tuple[Path, str]] = []
     if args.out is not None:

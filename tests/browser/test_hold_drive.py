@@ -29,6 +29,12 @@ VELOCITY_MPS = 0.5
 STOP_DEADLINE_S = 15.0
 
 
+@pytest.fixture
+def stack(module_stack):
+    """One system for the module: each test leaves the robot standing, as it found it."""
+    return module_stack
+
+
 def _velocity_mps(agent: AgentClient) -> float:
     return float(agent.status()["robot"]["velocity_mps"] or 0.0)
 

@@ -15,6 +15,7 @@ from django.conf import settings
 
 from bench.stack import Proc, free_port, python, wait_http
 from portal.processes import agent_process, web_process
+from tests.integration.stack import TEST_WEB
 
 
 @dataclass
@@ -49,6 +50,7 @@ def live_portal(
             "AGENT_TOKEN": secrets.token_urlsafe(24),
             "AGENT_DATA_DIR": str(tmp_path / "agent"),
             "PYTHONUNBUFFERED": "1",
+            **TEST_WEB,
             **env_changes,
         }
     )
@@ -68,8 +70,10 @@ def live_portal(
             proc.stop()
 
 
-@pytest.fixture
-def live_web(tmp_path) -> Iterator[LivePortal]:
-    """The portal's web process alone, throttles as configured."""
-    with live_portal(tmp_path) as portal:
+@pytest.fixture(scope="module")
+def live_web(tmp_path_factory, django_db_setup) -> Iterator[LivePortal]:
+    """The portal's web process alone, throttles as configured; one for a module's tests (it
+    keeps nothing of its own between requests: what a test wrote is deleted after it, and the
+    cache it shares with the test process is emptied before each test)."""
+    with live_portal(tmp_path_factory.mktemp("live-web")) as portal:
         yield portal

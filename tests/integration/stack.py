@@ -1,7 +1,8 @@
 """The system's processes as pytest fixtures: agent(s), web servers, Celery workers, beat.
 
-``stack`` is one fresh system per test on the test database and Redis. ``fault_stack`` is one
-per module, for tests that break its parts on purpose: it runs on a Redis server of its own
+``stack`` is one fresh system per test on the test database and Redis; ``module_stack`` the
+same system once for a module whose tests can share it. ``fault_stack`` is one per module, for
+tests that break its parts on purpose: it runs on a Redis server of its own
 (a test may stop it; the machine's shared one is never touched), with a second robot, and
 every process can be killed and started again (``Stack.kill``, ``Stack.start``). The
 processes themselves are started by ``bench/stack.py``, which the soak shares.
@@ -12,6 +13,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import redis
@@ -24,13 +26,18 @@ __all__ = [
     "FAULT_ENV",
     "METRICS_TOKEN",
     "PRIVATE_REDIS_STACKS",
+    "TEST_WEB",
     "RedisServer",
     "Stack",
+    "private_stack",
     "running_stack",
 ]
 
+# The web server's size in the suite's systems.
+TEST_WEB = {"WEB_WORKERS": "1", "WEB_THREADS": "8"}
+
 # The stacks that outlive a test (one a module) on a Redis server of their own.
-PRIVATE_REDIS_STACKS = ("fault_stack", "live_stack")
+PRIVATE_REDIS_STACKS = ("fault_stack", "live_stack", "module_stack")
 
 
 def _test_database_url() -> str:
@@ -57,9 +64,16 @@ def running_stack(
         redis_url=redis_url,
         second_robot=second_robot,
         with_scheduler=with_scheduler,
-        # The test's key: the processes read what the test wrote under it (MFA secrets are
-        # encrypted with a key derived from it, core/crypto.py), the test what they wrote.
-        extra_env={"DJANGO_SECRET_KEY": settings.SECRET_KEY, **(extra_env or {})},
+        extra_env={
+            # The test's key: the processes read what the test wrote under it (MFA secrets
+            # are encrypted with a key derived from it, core/crypto.py), the test what they
+            # wrote.
+            "DJANGO_SECRET_KEY": settings.SECRET_KEY,
+            # One web process, as `make run` starts (each costs seconds of CPU to start, and
+            # the suite starts dozens of systems); its threads serve a test's requests.
+            **TEST_WEB,
+            **(extra_env or {}),
+        },
     ) as stack:
         yield stack
 
@@ -91,27 +105,44 @@ FAULT_ENV = {
 }
 
 
+@contextlib.contextmanager
+def private_stack(base: Path, **options: Any) -> Iterator[Stack]:
+    """``running_stack`` on a Redis server of its own under ``base`` (the cache on its
+    database 0, the broker on 1), for a stack that outlives a test: the suite's shared Redis
+    database is flushed before each test (``tests/conftest.py``), which would take the
+    broker's queues from under the stack's workers."""
+    server = RedisServer(base / "redis")
+    server.start()
+    try:
+        with running_stack(
+            base / "var", broker_url=server.url(1), redis_url=server.url(0), **options
+        ) as running:
+            running.redis = server
+            yield running
+    finally:
+        server.stop()
+
+
 @pytest.fixture(scope="module")
 def fault_stack(tmp_path_factory, django_db_setup):
     """One system per module on a private Redis server, with two robots, to break on purpose.
 
     After the test database is made (``django_db_setup``): the processes are pointed at it.
     """
-    base = tmp_path_factory.mktemp("fault-stack")
-    server = RedisServer(base / "redis")
-    server.start()
-    try:
-        with running_stack(
-            base / "var",
-            broker_url=server.url(1),
-            redis_url=server.url(0),
-            second_robot=True,
-            extra_env=FAULT_ENV,
-        ) as running:
-            running.redis = server
-            yield running
-    finally:
-        server.stop()
+    with private_stack(
+        tmp_path_factory.mktemp("fault-stack"), second_robot=True, extra_env=FAULT_ENV
+    ) as running:
+        yield running
+
+
+@pytest.fixture(scope="module")
+def module_stack(tmp_path_factory, django_db_setup):
+    """``stack`` once for a module's tests: what a test changes in the processes (a robot
+    driven and stopped, a process killed) is the module's to put right, its rows are deleted
+    after it as any other test's, and its cache is emptied before the next
+    (``_fresh_private_cache``)."""
+    with private_stack(tmp_path_factory.mktemp("module-stack")) as running:
+        yield running
 
 
 @pytest.fixture(autouse=True)

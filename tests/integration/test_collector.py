@@ -20,7 +20,7 @@ import redis
 from core.live import REDIS_PREFIX, run_channel
 from tests.factories import MobileResourceFactory
 from tests.integration.experimenter import Experimenter
-from tests.integration.stack import FAULT_ENV, RedisServer, Stack, running_stack
+from tests.integration.stack import FAULT_ENV, Stack, private_stack
 from tests.integration.test_faults import (
     assert_same_samples,
     wait_for,
@@ -34,20 +34,11 @@ SWEEP_S = 4.0
 
 @pytest.fixture(scope="module")
 def live_stack(tmp_path_factory, django_db_setup):
-    base = tmp_path_factory.mktemp("collector-stack")
-    server = RedisServer(base / "redis")
-    server.start()
-    try:
-        with running_stack(
-            base / "var",
-            broker_url=server.url(1),
-            redis_url=server.url(0),
-            extra_env={**FAULT_ENV, "RUN_SWEEP_INTERVAL_S": str(SWEEP_S)},
-        ) as running:
-            running.redis = server
-            yield running
-    finally:
-        server.stop()
+    with private_stack(
+        tmp_path_factory.mktemp("collector-stack"),
+        extra_env={**FAULT_ENV, "RUN_SWEEP_INTERVAL_S": str(SWEEP_S)},
+    ) as running:
+        yield running
 
 
 class Listener:
