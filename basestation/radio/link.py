@@ -26,6 +26,7 @@ from basestation.protocol import (
     IDENTITY_CONFIG_FIELDS,
     PROTOCOL_VERSION,
     ROBOT_NODE,
+    TELEMETRY_FRAME_SIZE,
     VELOCITY_LIMIT_MM_S,
     CommandFlag,
     CommandFrame,
@@ -71,7 +72,11 @@ class FrameRadio(Protocol):
 
     def send(self, frame: bytes) -> None: ...
 
-    def receive(self, timeout_s: float) -> tuple[bytes, float] | None: ...
+    def receive(
+        self, timeout_s: float, *, earliest_s: float | None = None
+    ) -> tuple[bytes, float] | None: ...
+
+    def airtime_s(self, frame_len: int) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -193,7 +198,11 @@ class RadioRobotLink:
             raise RobotLinkError(f"command {frame.seq} not sent: {exc}") from exc
         self._frames_sent += 1
 
-        answer = self._await_telemetry(frame.seq)
+        # The robot answers once it has our frame: its telemetry is whole no sooner than its
+        # own airtime after ours was sent.
+        answer = self._await_telemetry(
+            frame.seq, earliest_s=self.clock() + self.radio.airtime_s(TELEMETRY_FRAME_SIZE)
+        )
         if answer is None:
             self._replies_missing += 1
             self._record_confirmed(False)
@@ -363,9 +372,11 @@ class RadioRobotLink:
                 return
             logger.debug("dropped a late frame")
 
-    def _receive_for_us(self, timeout_s: float) -> tuple[Frame, float] | None:
+    def _receive_for_us(
+        self, timeout_s: float, earliest_s: float | None = None
+    ) -> tuple[Frame, float] | None:
         try:
-            received = self.radio.receive(timeout_s)
+            received = self.radio.receive(timeout_s, earliest_s=earliest_s)
         except RadioError as exc:
             logger.warning("radio error while waiting for the robot: %s", exc)
             return None
@@ -383,11 +394,13 @@ class RadioRobotLink:
             return None
         return frame, rssi_dbm
 
-    def _await_telemetry(self, seq: int) -> tuple[TelemetryFrame, float] | None:
+    def _await_telemetry(
+        self, seq: int, earliest_s: float | None = None
+    ) -> tuple[TelemetryFrame, float] | None:
         deadline_s = self.clock() + self.reply_timeout_s
         other: tuple[TelemetryFrame, float] | None = None
         while (remaining_s := deadline_s - self.clock()) > 0:
-            decoded = self._receive_for_us(remaining_s)
+            decoded = self._receive_for_us(remaining_s, earliest_s)
             if decoded is None or not isinstance(decoded[0], TelemetryFrame):
                 continue
             telemetry_frame, rssi_dbm = decoded[0], decoded[1]

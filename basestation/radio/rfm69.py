@@ -5,7 +5,10 @@ same values as the robot's ``firmware/robot/rfm69.cpp``. The only hardware inter
 SPI device object with spidev's ``xfer2(list[int]) -> list[int]``: on the Pi a
 ``spidev.SpiDev`` (bus 0, device 0, mode 0, 4 MHz), in tests and the simulator the
 emulated chip. IRQ flags are polled over SPI, so no GPIO is needed; a DIO0 reader can be
-passed to avoid SPI traffic while waiting.
+passed to avoid SPI traffic while waiting. No poll is made while a packet cannot yet have
+crossed the air (its airtime at the configured bit rate): a send sleeps through its own
+frame's airtime, a receive given ``earliest_s`` until then, so that a 50 Hz exchange costs a
+few SPI reads instead of dozens.
 
 SPI semantics: the first byte of a transaction is the register address, bit 7 set for a
 write; further bytes go to (or come from) the following registers, except for RegFifo
@@ -19,6 +22,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
+from basestation.radio.airtime import airtime_s
 from basestation.radio.registers import (
     ADDRESS_FILTERING_NODE_OR_BROADCAST,
     AES_KEY_BYTES,
@@ -152,6 +156,8 @@ DEFAULT_POLL_INTERVAL_S: Final = 0.0002
 # Mode switches take 10 to 250 us: a finer poll keeps six of them per exchange from costing
 # a millisecond of waiting.
 DEFAULT_MODE_POLL_INTERVAL_S: Final = 0.00002
+# A wait through a packet's airtime ends this much early: the first look must not come late.
+AIRTIME_WAKE_EARLY_S: Final = 0.0005
 
 
 class SpiDevice(Protocol):
@@ -351,6 +357,16 @@ class RFM69:
     def clear_fifo(self) -> None:
         self.write_register(REG_IRQFLAGS2, IRQ2_FIFO_OVERRUN)
 
+    def airtime_s(self, frame_len: int) -> float:
+        """Seconds on air of a frame of ``frame_len`` FIFO bytes with these settings."""
+        return airtime_s(frame_len, aes=self.settings.aes_key is not None)
+
+    def _quiet_until(self, at_s: float) -> None:
+        """Sleep, without a poll, until shortly before ``at_s`` (on the radio's clock)."""
+        wait_s = at_s - AIRTIME_WAKE_EARLY_S - self.clock()
+        if wait_s > 0:
+            self.sleep(wait_s)
+
     # -- frames ------------------------------------------------------------------------------
 
     def send(self, frame: bytes) -> None:
@@ -371,6 +387,8 @@ class RFM69:
         self.write_register(REG_DIOMAPPING1, TX_DIO_MAPPING)
         try:
             self.set_mode(MODE_TX)
+            # PacketSent comes no sooner than the frame's airtime after TX began.
+            self._quiet_until(self.clock() + self.airtime_s(len(frame)))
             self._wait(
                 self._packet_sent,
                 self.packet_sent_timeout_s,
@@ -382,13 +400,18 @@ class RFM69:
             self.start_receiving()
         self.frames_sent += 1
 
-    def receive(self, timeout_s: float) -> tuple[bytes, float] | None:
+    def receive(
+        self, timeout_s: float, *, earliest_s: float | None = None
+    ) -> tuple[bytes, float] | None:
         """Wait up to ``timeout_s`` for a frame; return it (length byte first) with its RSSI
         in dBm, or ``None``. ``timeout_s=0`` looks once without waiting. A FIFO holding an
-        impossible length is dropped and the wait goes on."""
+        impossible length is dropped and the wait goes on. ``earliest_s`` (the radio's clock)
+        is when the awaited frame can have arrived at the soonest: no look before then."""
         deadline_s = self.clock() + max(timeout_s, 0.0)
         if self.mode != MODE_RX:
             self.start_receiving()
+        if earliest_s is not None:
+            self._quiet_until(min(earliest_s, deadline_s))
         while True:
             if self._payload_ready():
                 received = self._read_frame()

@@ -31,16 +31,16 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any, Final, Protocol
 
+from basestation.radio.airtime import AES_BLOCK as AES_BLOCK
+from basestation.radio.airtime import DEFAULT_BITRATE_RAW as DEFAULT_BITRATE_RAW
+from basestation.radio.airtime import FXOSC_HZ as FXOSC_HZ
+from basestation.radio.airtime import airtime_s as airtime_s
 from basestation.sim.clock import Clock
 
 LOOPBACK: Final = "127.0.0.1"
-#: The RFM69's crystal: bit rate and carrier registers are in units of it.
-FXOSC_HZ: Final = 32_000_000
 FSTEP_HZ: Final = FXOSC_HZ / 2**19
-AES_BLOCK: Final = 16
-#: docs/protocol.md §1: 433 MHz, 55 555 bit/s.
+#: docs/protocol.md §1: 433 MHz (the bit rate, 55 555 bit/s, is the driver's too).
 DEFAULT_FRF: Final = 0x6C4000
-DEFAULT_BITRATE_RAW: Final = 0x0240
 #: Free-space-ish loss between the base station and the robot on the roof, chosen so that the
 #: robot's +17 dBm arrives at about -58 dBm: a strong, comfortable link.
 DEFAULT_PATH_LOSS_DB: Final = 75.0
@@ -54,33 +54,6 @@ def aes_key_id(key: bytes | None) -> str | None:
     if key is None:
         return None
     return hashlib.sha256(b"amazing-sim-aes:" + bytes(key)).hexdigest()[:16]
-
-
-def airtime_s(
-    frame_len: int,
-    *,
-    bitrate_bps: float = FXOSC_HZ / DEFAULT_BITRATE_RAW,
-    preamble_bytes: int = 3,
-    sync_bytes: int = 2,
-    crc: bool = True,
-    aes: bool = False,
-    plaintext_bytes: int = 2,
-) -> float:
-    """Seconds on air for a packet of ``frame_len`` FIFO bytes (docs/protocol.md §5).
-
-    Preamble + sync word + packet + CRC at the bit rate. With AES the bytes after the
-    ``plaintext_bytes`` (length and address byte in variable-length mode with address
-    filtering) are encrypted in 16-byte blocks, so they are padded to a multiple of 16.
-    """
-    if frame_len < 0:
-        raise ValueError(f"frame_len {frame_len} < 0")
-    packet = frame_len
-    if aes:
-        clear = min(plaintext_bytes, frame_len)
-        secret = frame_len - clear
-        packet = clear + math.ceil(secret / AES_BLOCK) * AES_BLOCK
-    on_air_bytes = preamble_bytes + sync_bytes + packet + (2 if crc else 0)
-    return on_air_bytes * 8 / bitrate_bps
 
 
 @dataclass(frozen=True, slots=True)

@@ -3,13 +3,19 @@ and the robot's own firmware core on the other end."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import replace
 
 import pytest
 
-from basestation.protocol import FixQuality, TelemetryStatus
+from basestation.protocol import (
+    COMMAND_FRAME_SIZE,
+    FixQuality,
+    TelemetryStatus,
+)
 from basestation.radio import RFM69, RadioError, RadioRobotLink, RadioSettings, RadioTelemetry
+from basestation.radio.registers import REG_IRQFLAGS2
+from basestation.radio.rfm69 import AIRTIME_WAKE_EARLY_S, DEFAULT_POLL_INTERVAL_S
 from basestation.robot import Command, RobotLimits, RobotLinkError
 from basestation.sim.channel import InProcessChannel
 from basestation.sim.clock import FakeClock
@@ -184,6 +190,45 @@ def test_the_robot_firmware_answers_every_command_well_inside_a_tick(
     assert telemetry.battery_v > 50.0
     assert telemetry.rssi_dbm == -58.0
     assert telemetry.robot_rssi_dbm == -58
+
+
+def test_an_exchange_looks_for_each_frame_only_once_it_can_have_crossed_the_air(
+    link: RadioRobotLink, clock: FakeClock, sim_robot: SimulatedRobot, monkeypatch
+) -> None:
+    """The driver sleeps through its command's airtime and the telemetry's before it polls
+    (SPI reads cost the Pi's CPU, 50 exchanges a second), and is answered no later for it."""
+    radio = link.radio
+    assert isinstance(radio, RFM69)
+    chip = radio.spi
+    assert isinstance(chip, EmulatedRFM69)
+    polls: list[float] = []
+    xfer2 = chip.xfer2
+
+    def counting(data: Sequence[int]) -> list[int]:
+        if data[0] == REG_IRQFLAGS2:  # a read (bit 7 clear) of the flags polled for
+            polls.append(clock.now_s)
+        return xfer2(data)
+
+    chip.xfer2 = counting  # type: ignore[method-assign]
+
+    def exchange(at_s: float) -> tuple[list[float], float]:
+        polls.clear()
+        clock.set(at_s)
+        assert link.exchange(Command(velocity_mps=0.0, direction="cw"), at_s).command_accepted
+        return list(polls), clock.now_s - at_s
+
+    quiet, quiet_s = exchange(1.0)
+    command_s = radio.airtime_s(COMMAND_FRAME_SIZE)
+    # Nothing is polled for before the command can have been sent (the one look at 1.0 s
+    # is the FIFO emptied of a stale frame, before sending).
+    assert not [t for t in quiet if 1.0 < t < 1.0 + command_s - AIRTIME_WAKE_EARLY_S], quiet
+    # The same exchange from a driver that polls from the start, as it did before.
+    monkeypatch.setattr(radio, "airtime_s", lambda frame_len: 0.0)
+    eager, eager_s = exchange(2.0)
+    assert 2 * len(quiet) <= len(eager), (len(quiet), len(eager))
+    # Answered as soon: within a poll of the eager driver, well inside a tick.
+    assert quiet_s <= eager_s + DEFAULT_POLL_INTERVAL_S
+    assert 0.0105 < quiet_s < 0.012
 
 
 def test_the_robot_drives_where_it_is_told_and_the_link_follows_it(

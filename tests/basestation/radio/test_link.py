@@ -11,6 +11,7 @@ import pytest
 from basestation.config import AgentConfig
 from basestation.manager import RunManager
 from basestation.protocol import (
+    COMMAND_FRAME_SIZE,
     CommandFlag,
     Direction,
     FixQuality,
@@ -19,6 +20,7 @@ from basestation.protocol import (
     encode_telemetry,
 )
 from basestation.radio import RFM69, RadioRobotLink, RadioTelemetry
+from basestation.radio.rfm69 import AIRTIME_WAKE_EARLY_S
 from basestation.robot import Command, RobotLimits, RobotLinkError, Telemetry
 from basestation.store import RunStore
 from basestation.telemetry import Rail
@@ -138,7 +140,9 @@ def test_no_answer_is_a_robot_link_error_after_the_reply_timeout(
     with pytest.raises(RobotLinkError, match="no telemetry for command 1 within 25 ms"):
         link.exchange(CW, now_s=0.0)
     waited_s = clock.now_s - start_s
-    assert 0.025 <= waited_s < 0.027
+    # The command on air (no poll while it cannot have been sent), then the 25 ms wait.
+    sent_s = link.radio.airtime_s(COMMAND_FRAME_SIZE) - AIRTIME_WAKE_EARLY_S
+    assert 0.025 + sent_s <= waited_s < 0.027 + sent_s
     stats = link.stats(now_s=0.05)
     assert (stats.state, stats.frames_sent, stats.replies_missing, stats.loss_pct) == (
         "down",
