@@ -27,6 +27,8 @@ CHROMIUM_ARGS = [
 SCREENSHOTS = Path(
     os.environ.get("SCREENSHOT_DIR", Path(__file__).resolve().parents[2] / "var" / "screenshots")
 )
+# `make screenshots` asks for the pictures of every page; otherwise only failures are kept.
+EVERY_PAGE_PHOTOGRAPHED = "SCREENSHOT_DIR" in os.environ
 
 
 @pytest.fixture(scope="module")

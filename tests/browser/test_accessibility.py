@@ -4,11 +4,11 @@ the top bar on one line at the laptop's width, and nothing a working system neve
 
 The system is the real one (``stack``: Celery beat and workers, the web and live-stream
 servers, the agent and its simulated robot): a run is booked, runs on the robot and is
-collected; fixed nodes are booked on the timeline; the robot stands on the roof. Each page is
-photographed at both widths; ``make screenshots`` runs this module with
-``SCREENSHOT_DIR=docs/screenshots``, the pictures the README links to, and a picture showing
-the "Runs are not being dispatched" banner, a live part reconnecting or a roof not available
-fails it.
+collected; fixed nodes are booked on the timeline; the robot stands on the roof. A page
+something is found on is photographed (``var/screenshots``); ``make screenshots`` runs this
+module with ``SCREENSHOT_DIR=docs/screenshots``, which photographs every page at both widths,
+the pictures the README links to, and a page showing the "Runs are not being dispatched"
+banner, a live part reconnecting or a roof not available fails it.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from core.accounts.models import User
 from portal.runs.models import DryRun, Run
 from portal.runs.services.booking import booking_create
 from portal.runs.states import RunState
-from tests.browser.conftest import SCREENSHOTS, login
+from tests.browser.conftest import EVERY_PAGE_PHOTOGRAPHED, SCREENSHOTS, login
 from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
 from tests.integration.experimenter import Experimenter
 from tests.integration.stack import Stack
@@ -145,10 +145,6 @@ def _check(settler: Settler, name: str, width: str, found: list[str]) -> None:
         if violation["impact"] in BLOCKING:
             targets = [" ".join(node["target"]) for node in violation["nodes"]][:5]
             found.append(f"{name} @ {width}: {violation['id']} ({violation['impact']}) {targets}")
-    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
-    page.screenshot(
-        path=str(SCREENSHOTS / f"{name}-{width}.jpg"), type="jpeg", quality=70, full_page=True
-    )
 
 
 def _dry_runs(owner: User) -> tuple[DryRun, DryRun]:
@@ -192,6 +188,7 @@ RUN_S = 10.0
 def _pictured(settler: Settler, name: str, width: str, found: list[str]) -> None:
     """Checked as every page, and as a page of a working system."""
     page = settler.page
+    before = len(found)
     if page.locator("#roof").count():
         expect(page.locator("#roof")).to_have_attribute("data-ready", "1", timeout=15_000)
     if page.locator("#st-link").count():
@@ -202,6 +199,13 @@ def _pictured(settler: Settler, name: str, width: str, found: list[str]) -> None
     shown = NEVER_SHOWN.search(page.locator("body").inner_text())
     if shown:
         found.append(f"{name} @ {width}: the page says {shown.group(0)!r}")
+    # Every page for `make screenshots`; in `make test` the pages something was found on (a
+    # whole page's picture costs the browser seconds of CPU, two dozen times).
+    if EVERY_PAGE_PHOTOGRAPHED or len(found) > before:
+        SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(
+            path=str(SCREENSHOTS / f"{name}-{width}.jpg"), type="jpeg", quality=70, full_page=True
+        )
 
 
 def _completed(run_ids: list[int], timeout_s: float = 120.0) -> None:
