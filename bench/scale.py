@@ -215,6 +215,19 @@ def _round(
         connections.close_all()
         listener.close()
 
+        # A run that never reached its agent (staged too late on a machine too busy, say)
+        # has nothing to compare: said so, with the processes' last lines, not a 404.
+        unfinished = [
+            f"run {run.pk} ended {run.state}: {run.reason or 'no reason given'}"
+            for run in Run.objects.filter(pk__in=run_ids).exclude(state="completed")
+        ]
+        if unfinished:
+            raise AssertionError(
+                f"{robots} robot(s): "
+                + "; ".join(unfinished)
+                + "\n"
+                + "\n".join(proc.output(30) for proc in children.values())
+            )
         lags: list[float] = []
         exact = listener.repeats == 0
         total = 0
