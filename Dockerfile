@@ -16,9 +16,9 @@ COPY manage.py ./
 RUN pip install --no-cache-dir '.[portal,basestation]'
 COPY --from=assets /src/node_modules/@picocss/pico/css/pico.min.css var/assets/vendor/pico/
 COPY --from=assets /src/node_modules/chart.js/dist/chart.umd.js var/assets/vendor/chart.js/
-COPY --from=assets /src/node_modules/fullcalendar/index.global.min.js var/assets/vendor/fullcalendar/fullcalendar.min.js
-COPY --from=assets /src/node_modules/@fullcalendar/luxon3/index.global.min.js var/assets/vendor/fullcalendar/luxon3.min.js
 COPY --from=assets /src/node_modules/luxon/build/global/luxon.min.js var/assets/vendor/luxon/
+COPY --from=assets /src/node_modules/@event-calendar/build/dist/event-calendar.min.js /src/node_modules/@event-calendar/build/dist/event-calendar.min.css var/assets/vendor/event-calendar/
+COPY --from=assets /src/node_modules/js-yaml/dist/browser/js-yaml.umd.min.js var/assets/vendor/js-yaml/
 COPY --from=assets /src/node_modules/swagger-ui-dist/swagger-ui-bundle.js /src/node_modules/swagger-ui-dist/swagger-ui-standalone-preset.js /src/node_modules/swagger-ui-dist/swagger-ui.css /src/node_modules/swagger-ui-dist/favicon-32x32.png var/assets/vendor/swagger-ui-dist/
 ENV STATIC_ROOT=/app/static
 RUN DJANGO_DEBUG=1 AMAZING_VAR_DIR=/tmp/build python manage.py collectstatic --no-input -v 0 \

@@ -44,14 +44,13 @@ $(STAMPS)/assets: package.json package-lock.json | $(STAMPS)
 	npm ci --include=dev --no-audit --no-fund --loglevel=error
 	rm -rf $(ASSETS)/vendor
 	mkdir -p $(ASSETS)/vendor/pico $(ASSETS)/vendor/chart.js $(ASSETS)/vendor/swagger-ui-dist \
-		$(ASSETS)/vendor/fullcalendar $(ASSETS)/vendor/luxon $(ASSETS)/vendor/event-calendar \
+		$(ASSETS)/vendor/luxon $(ASSETS)/vendor/event-calendar \
 		$(ASSETS)/vendor/js-yaml
 	cp node_modules/@picocss/pico/css/pico.min.css $(ASSETS)/vendor/pico/
 	cp node_modules/chart.js/dist/chart.umd.js $(ASSETS)/vendor/chart.js/
-	cp node_modules/fullcalendar/index.global.min.js $(ASSETS)/vendor/fullcalendar/fullcalendar.min.js
-	cp node_modules/@fullcalendar/luxon3/index.global.min.js $(ASSETS)/vendor/fullcalendar/luxon3.min.js
 	cp node_modules/luxon/build/global/luxon.min.js $(ASSETS)/vendor/luxon/
-	# Event Calendar (core, resource timeline, interaction) as its project builds it for browsers.
+	# Event Calendar (core, time grid, day grid, list, resource timeline, interaction) as its
+	# project builds it for browsers: the calendar page and the timeline.
 	cp node_modules/@event-calendar/build/dist/event-calendar.min.{js,css} $(ASSETS)/vendor/event-calendar/
 	cp node_modules/js-yaml/dist/browser/js-yaml.umd.min.js $(ASSETS)/vendor/js-yaml/
 	cp node_modules/swagger-ui-dist/{swagger-ui-bundle.js,swagger-ui-standalone-preset.js,swagger-ui.css,favicon-32x32.png} \

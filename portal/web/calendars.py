@@ -78,7 +78,7 @@ def _range(request: HttpRequest) -> tuple[datetime, datetime]:
 
 @login_required
 def calendar_events(request: HttpRequest) -> JsonResponse:
-    """Events for FullCalendar: own bookings in full, others' as busy, maintenance windows.
+    """Events for the calendar page: own bookings in full, others' as busy, maintenance windows.
 
     Each event's kind is its class (``calendar-<kind>``), which app.css colours."""
     start, end = _range(request)

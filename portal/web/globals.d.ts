@@ -5,9 +5,8 @@
 
 /** luxon's global build (vendor/luxon/luxon.min.js). */
 declare const luxon: any;
-/** FullCalendar's global build (vendor/fullcalendar/fullcalendar.min.js): the calendar page. */
-declare const FullCalendar: any;
-/** Event Calendar's browser build (vendor/event-calendar/event-calendar.min.js): the timeline. */
+/** Event Calendar's browser build (vendor/event-calendar/event-calendar.min.js): the calendar
+ * and the timeline. */
 declare const EventCalendar: any;
 /** Chart.js's UMD build (vendor/chart.js/chart.umd.js): run, compare, builder and usage pages. */
 declare const Chart: any;
@@ -48,6 +47,14 @@ interface AmazingLocalInstant {
 interface AmazingWallClock {
   localInstant(value: string, zone: string): AmazingLocalInstant;
   typedWindow(startValue: string, endValue: string, zone: string): { start?: string; end?: string; note?: string; error?: string };
+  /** An instant as the testbed's wall-clock time without an offset ("2027-03-29T10:00:00"). */
+  floating(iso: string, zone: string): string;
+  /** An Event Calendar date as the instant (a luxon DateTime) in the testbed's zone. */
+  wall(date: Date, zone: string): any;
+  /** The zone's offset in force now ("+00:00"). */
+  offsetNow(zone: string): string;
+  /** Whether the browser's clock shows the zone's wall-clock time now. */
+  browserShowsZone(zone: string): boolean;
 }
 
 /** live.js: what a page follows, and how. */

@@ -294,7 +294,7 @@ def _visit(
         if name == "calendar":
             # Its hours scroll, with or without a booking to tab to: reachable by keyboard,
             # and opened at the morning.
-            hours = page.locator("#calendar .fc-view-harness")
+            hours = page.locator("#calendar .ec-main")
             expect(hours).to_have_attribute("role", "region")
             expect(hours).to_have_attribute("tabindex", "0")
             assert hours.evaluate("box => box.scrollHeight > box.clientHeight")

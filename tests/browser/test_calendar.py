@@ -18,18 +18,23 @@ pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 
 
 def _drag(page: Page, date: str, from_time: str, to_time: str) -> None:
-    page.locator(f"td.fc-timegrid-slot-lane[data-time='{to_time}']").scroll_into_view_if_needed()
-    column = page.locator(f".fc-timegrid-col[data-date='{date}']").bounding_box()
-    top = page.locator(f"td.fc-timegrid-slot-lane[data-time='{from_time}']").bounding_box()
-    bottom = page.locator(f"td.fc-timegrid-slot-lane[data-time='{to_time}']").bounding_box()
+    """Press just below from_time's line in the day's column, let go just above to_time's.
+
+    The hours' labels (the column on the left) are centred on their lines."""
+    page.locator(f".ec-sidebar time[datetime$='T{to_time}']").scroll_into_view_if_needed()
+    column = page.locator(f".ec-col-head:has(time[datetime='{date}'])").bounding_box()
+    top = page.locator(f".ec-sidebar time[datetime$='T{from_time}']").bounding_box()
+    bottom = page.locator(f".ec-sidebar time[datetime$='T{to_time}']").bounding_box()
     assert column
     assert top
     assert bottom
     x = column["x"] + column["width"] / 2
-    page.mouse.move(x, top["y"] + 3)
+    top_y = top["y"] + top["height"] / 2
+    bottom_y = bottom["y"] + bottom["height"] / 2
+    page.mouse.move(x, top_y + 4)
     page.mouse.down()
-    page.mouse.move(x, (top["y"] + bottom["y"]) / 2, steps=5)
-    page.mouse.move(x, bottom["y"] + bottom["height"] - 3, steps=5)
+    page.mouse.move(x, (top_y + bottom_y) / 2, steps=5)
+    page.mouse.move(x, bottom_y - 4, steps=5)
     page.mouse.up()
 
 
@@ -49,9 +54,9 @@ def test_book_by_dragging_on_the_calendar_then_cancel(browser, live_server):
     login(page, live_server.url, "fran", "correct horse battery")
     page.get_by_role("link", name="Calendar").click()
     expect(page.get_by_test_id("calendar-zone")).to_have_text("Europe/Lisbon")
-    page.locator(".fc-next-button").click()  # next week: every slot is in the future
-    wednesday = page.locator(".fc-timegrid-col[data-date]").nth(2).get_attribute("data-date")
-    _drag(page, wednesday, "10:00:00", "10:30:00")
+    page.locator(".ec-next").click()  # next week: every slot is in the future
+    wednesday = page.locator(".ec-col-head time[datetime]").nth(2).get_attribute("datetime")
+    _drag(page, wednesday, "10:00:00", "11:00:00")
 
     dialog = page.locator("#booking-dialog")
     expect(dialog).to_be_visible()
@@ -66,7 +71,7 @@ def test_book_by_dragging_on_the_calendar_then_cancel(browser, live_server):
     expect(page.locator("#booking-feedback")).to_contain_text("Free, and within your quota")
     dialog.get_by_role("button", name="Confirm booking").click()
     expect(dialog).to_be_hidden()
-    event = page.locator(".fc-event", has_text="loop test")
+    event = page.locator(".ec-event", has_text="loop test")
     expect(event).to_be_visible()
     reservation = Reservation.objects.get()
     assert reservation.run.experiment.title == "loop test"
@@ -75,7 +80,7 @@ def test_book_by_dragging_on_the_calendar_then_cancel(browser, live_server):
     event.click()
     expect(page.locator("#event-dialog")).to_be_visible()
     page.get_by_role("button", name="Cancel booking").click()
-    expect(page.locator(".fc-event", has_text="loop test")).to_have_count(0)
+    expect(page.locator(".ec-event", has_text="loop test")).to_have_count(0)
     reservation.refresh_from_db()
     assert reservation.state == "cancelled"
     assert not errors, errors
@@ -94,9 +99,9 @@ def test_the_calendar_explains_a_refusal_in_the_dialog(browser, live_server):
     page = context.new_page()
     login(page, live_server.url, "gil", "correct horse battery")
     page.goto(f"{live_server.url}/calendar/")
-    page.locator(".fc-next-button").click()
-    day = page.locator(".fc-timegrid-col[data-date]").nth(1).get_attribute("data-date")
-    _drag(page, day, "09:00:00", "09:30:00")
+    page.locator(".ec-next").click()
+    day = page.locator(".ec-col-head time[datetime]").nth(1).get_attribute("datetime")
+    _drag(page, day, "09:00:00", "10:00:00")
     dialog = page.locator("#booking-dialog")
     dialog.get_by_label("resources").select_option(["node-01"])
     expect(page.locator("#booking-feedback")).to_contain_text(

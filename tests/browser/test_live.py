@@ -45,8 +45,8 @@ def _page(browser, stack: Stack, username: str) -> Page:
 
 def _days_shown(calendar: Page) -> list[str]:
     """The dates (ISO) of the columns the week view shows."""
-    return calendar.locator(".fc-col-header-cell[data-date]").evaluate_all(
-        "cells => cells.map((cell) => cell.dataset.date)"
+    return calendar.locator(".ec-col-head time[datetime]").evaluate_all(
+        "cells => cells.map((cell) => cell.getAttribute('datetime'))"
     )
 
 
@@ -154,10 +154,10 @@ def test_the_console_and_the_calendar_show_a_hold_and_new_bookings_without_a_rel
     tomorrow = timezone.localdate() + timedelta(days=1)
     start = datetime.combine(tomorrow, time(10), tzinfo=ZoneInfo(settings.TIME_ZONE))
     if tomorrow.isoformat() not in _days_shown(calendar):
-        calendar.locator(".fc-next-button").click()
-        expect(calendar.locator(f".fc-col-header-cell[data-date='{tomorrow}']")).to_be_attached()
+        calendar.locator(".ec-next").click()
+        expect(calendar.locator(f".ec-col-head time[datetime='{tomorrow}']")).to_be_attached()
         expect(shown).to_have_attribute("data-loading", "false", timeout=15_000)
-    events_before = calendar.locator(".fc-event").count()
+    events_before = calendar.locator("#calendar .ec-event").count()
 
     # Someone else books: the calendar shows it as busy, without a reload.
     node = FixedResourceFactory()
@@ -171,7 +171,7 @@ def test_the_console_and_the_calendar_show_a_hold_and_new_bookings_without_a_rel
         timeout=10,
     )
     assert other.status_code == 201, other.text
-    expect(calendar.locator(".fc-event")).to_have_count(events_before + 1, timeout=10_000)
+    expect(calendar.locator("#calendar .ec-event")).to_have_count(events_before + 1, timeout=10_000)
 
     assert fault_stack.agent2 is not None
     try:

@@ -349,3 +349,33 @@ def test_the_compose_services_run_in_production_mode_and_a_booked_run_completes(
     assert found[("amazing_runs", (("state", "completed"),))] == 1
     assert found[("amazing_scheduler_link_errors_total", ())] == 0
     assert found[("amazing_resource_held", (("resource", "mobile-1"),))] == 0
+
+
+def _vendor_files(text: str, target: str) -> set[str]:
+    """The front-end files (vendor folder / file name) a build recipe copies under ``target``."""
+    files: set[str] = set()
+    for line in text.replace("\\\n", " ").splitlines():
+        words = line.split()
+        if not words or words[0] not in {"cp", "COPY"} or not words[-1].startswith(target):
+            continue
+        folder = words[-1].removeprefix(target).strip("/")
+        for source in words[1:-1]:
+            if source.startswith("--"):
+                continue
+            _, _, rest = source.rpartition("/")
+            # The Makefile's shell reads {a,b} as two names; Docker's COPY takes no such thing.
+            match = re.fullmatch(r"(.*)\{(.+)\}(.*)", rest)
+            names = (
+                [match[1] + part + match[3] for part in match[2].split(",")] if match else [rest]
+            )
+            files |= {f"{folder}/{name}" for name in names}
+    return files
+
+
+def test_the_image_holds_every_front_end_file_make_setup_copies() -> None:
+    """The pages load their libraries from var/assets/vendor: a library the Makefile copies and
+    the Dockerfile forgets is a page that works under ``make run`` and is blank in production."""
+    made = _vendor_files((REPO / "Makefile").read_text(), "$(ASSETS)/vendor/")
+    imaged = _vendor_files((REPO / "Dockerfile").read_text(), "var/assets/vendor/")
+    assert made, "no front-end files found in the Makefile's asset rule"
+    assert imaged == made

@@ -1,9 +1,11 @@
 // @ts-check
-// The booking calendar: FullCalendar in the testbed's time zone, talking to the REST API.
+// The booking calendar: Event Calendar's week, day, month and list views in the testbed's time
+// zone, talking to the REST API. Like the timeline, it is given floating wall-clock times in
+// the testbed's zone and gives them back the same way (wall_clock.js, docs/booking-pages.md).
 (function () {
   "use strict";
   const el = document.getElementById("calendar");
-  if (!el || typeof FullCalendar === "undefined") return;
+  if (!el || typeof EventCalendar === "undefined") return;
   const zone = el.dataset.zone;
   const DateTime = luxon.DateTime;
   const filter = /** @type {HTMLSelectElement} */ (document.getElementById("resource-filter"));
@@ -14,11 +16,11 @@
   let selected = null;
 
   const { api, explain, failure } = window.AmazingApi;
-  const { typedWindow } = window.AmazingWallClock;
+  const { typedWindow, floating, wall, offsetNow } = window.AmazingWallClock;
 
   // datetime-local values are wall-clock times in the testbed's zone, read by the portal's
   // rule for the nights the clocks change (wall_clock.js).
-  const toLocalInput = (date) => DateTime.fromJSDate(date, { zone }).toFormat("yyyy-LL-dd'T'HH:mm");
+  const toLocalInput = (date) => wall(date, zone).toFormat("yyyy-LL-dd'T'HH:mm");
 
   // The booking the dialog holds; `times` says which occurrence a repeated time is, or why a
   // time cannot be booked.
@@ -118,7 +120,8 @@
 
   async function move(info) {
     const id = info.event.extendedProps.reservation;
-    const result = await api("PATCH", `/api/v1/reservations/${id}/`, { start_at: info.event.start.toISOString(), end_at: info.event.end.toISOString() });
+    const times = { start_at: wall(info.event.start, zone).toISO(), end_at: wall(info.event.end, zone).toISO() };
+    const result = await api("PATCH", `/api/v1/reservations/${id}/`, times);
     if (!result.ok) { info.revert(); flash("Not moved: " + explain(result.data)); } else { flash("Moved."); calendar.refetchEvents(); }
   }
 
@@ -128,7 +131,7 @@
     if (props.kind !== "own" && props.kind !== "other") return;
     current = info.event;
     document.getElementById("event-title").textContent = info.event.title;
-    const fmt = (d) => DateTime.fromJSDate(d, { zone }).toFormat("yyyy-LL-dd HH:mm");
+    const fmt = (d) => wall(d, zone).toFormat("yyyy-LL-dd HH:mm");
     document.getElementById("event-when").textContent = `${fmt(info.event.start)} – ${fmt(info.event.end)} (${zone})`;
     document.getElementById("event-state").textContent = "State: " + props.state;
     const run = /** @type {HTMLAnchorElement} */ (document.getElementById("event-run"));
@@ -146,70 +149,78 @@
     else document.getElementById("event-feedback").textContent = explain(result.data);
   });
 
-  // The hours scroll in the view's own box (app.css), not in a scroller inside the grid: an
-  // area that scrolls must be reachable by keyboard (WCAG 2.1.1) even on a day without a
-  // booking to tab to, and a focusable scroller inside the grid would break its rows'
-  // structure. The box opens at the morning, as the calendar's own scrollTime would.
-  function scrollArea() {
-    const box = /** @type {HTMLElement | null} */ (el.querySelector(".fc-view-harness"));
-    if (!box) return;
-    if (!box.hasAttribute("tabindex")) {
-      box.tabIndex = 0;
-      box.setAttribute("role", "region");  // named by the calendar's title (its own label)
-    }
-    window.requestAnimationFrame(() => {
-      const morning = box.querySelector('.fc-timegrid-slot-lane[data-time="08:00:00"]');
-      if (!morning) return;
-      const head = box.querySelector("thead");
-      const above = morning.getBoundingClientRect().top - box.getBoundingClientRect().top;
-      box.scrollTop += above - (head ? head.getBoundingClientRect().height : 0);
+  // Where a booking may be drawn, moved or stretched to, as the portal would allow it on the
+  // shown resources: not over maintenance, not over another's booking; over one's own, yes
+  // (the live check then says which resource collides).
+  const overlaps = (a, b) => a.start < b.end && b.start < a.end;
+  function freeFor(range, moving) {
+    return !calendar.getEvents().some((other) => {
+      if (moving && other.id === moving.id) return false;
+      const kind = other.extendedProps.kind;
+      const blocks = other.display === "background" || kind !== "own" || Boolean(moving);
+      return blocks && overlaps(range, other);
     });
   }
 
+  // The events of the shown range, their times floating in the testbed's zone.
+  async function load(info) {
+    const params = new URLSearchParams({
+      start: DateTime.fromISO(info.startStr, { zone }).toISO(),
+      end: DateTime.fromISO(info.endStr, { zone }).toISO(),
+    });
+    if (filter.value) params.set("resource", filter.value);
+    const result = await api("GET", `${el.dataset.events}?${params}`);
+    if (!result.ok || result.data === null) throw new Error(failure(result));
+    return result.data.map((e) => Object.assign({}, e, { start: floating(e.start, zone), end: floating(e.end, zone) }));
+  }
+
+  // The hours scroll in the view's own box (app.css), which opens at the morning; an area that
+  // scrolls must be reachable by keyboard (WCAG 2.1.1) even on a day without a booking to tab
+  // to, so the box takes the focus itself, named by the calendar's title.
+  function scrollArea() {
+    const box = /** @type {HTMLElement | null} */ (el.querySelector(".ec-main"));
+    if (!box || box.hasAttribute("tabindex")) return;
+    box.tabIndex = 0;
+    box.setAttribute("role", "region");
+    box.setAttribute("aria-label", "Bookings");
+  }
+
   const narrow = window.matchMedia("(max-width: 640px)").matches;
-  const calendar = new FullCalendar.Calendar(el, {
-    timeZone: zone,
-    initialView: narrow ? "timeGridDay" : "timeGridWeek",
+  const calendar = EventCalendar.create(el, {
+    timeZone: offsetNow(zone),
+    view: narrow ? "timeGridDay" : "timeGridWeek",
     headerToolbar: narrow
-      ? { left: "prev,next", center: "title", right: "timeGridDay,listWeek" }
-      : { left: "prev,next today", center: "title", right: "dayGridMonth,timeGridWeek,timeGridDay,listWeek" },
+      ? { start: "prev,next", center: "title", end: "timeGridDay,listWeek" }
+      : { start: "prev,next today", center: "title", end: "dayGridMonth,timeGridWeek,timeGridDay,listWeek" },
+    buttonText: { today: "today", dayGridMonth: "month", timeGridWeek: "week", timeGridDay: "day", listWeek: "list" },
     firstDay: 1,
-    nowIndicator: true,
+    nowIndicator: window.AmazingWallClock.browserShowsZone(zone),
     selectable: true,
-    selectMirror: true,
-    selectOverlap: (event) => event.display === "background" ? false : event.extendedProps.kind === "own",
+    selectConstraint: (info) => freeFor(info, null),
+    dragConstraint: (info) => freeFor(info.event, info.event),
+    resizeConstraint: (info) => freeFor(info.event, info.event),
     editable: false,
-    eventOverlap: false,
     allDaySlot: false,
-    slotDuration: "00:30:00",
-    height: "auto",
-    stickyHeaderDates: true,
+    slotDuration: "00:30",
+    scrollTime: "08:00:00",
+    height: narrow ? "520px" : "640px",
     slotLabelFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     eventTimeFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     dayHeaderFormat: { weekday: "short", day: "numeric", month: "short" },
-    events: (info, success, failed) => {
-      const params = new URLSearchParams({ start: info.startStr, end: info.endStr });
-      if (filter.value) params.set("resource", filter.value);
-      api("GET", `${el.dataset.events}?${params}`).then((result) => {
-        if (result.ok && result.data !== null) success(result.data);
-        else failed(new Error(failure(result)));
-      });
-    },
+    eventSources: [{ events: load }],
     // data-loading="false" once the shown range's bookings are in (tests and assistive
     // technology wait on it).
     loading: (busy) => { el.dataset.loading = busy ? "true" : "false"; el.setAttribute("aria-busy", String(busy)); },
     viewDidMount: scrollArea,
-    datesSet: scrollArea,
+    eventDidMount: (info) => { info.el.dataset.kind = info.event.extendedProps.kind || ""; },
     select: (info) => openBooking(info.start, info.end),
     eventDrop: move,
     eventResize: move,
     eventClick: showEvent,
   });
   filter.addEventListener("change", () => calendar.refetchEvents());
-  calendar.render();
   scrollArea();
-  // The toolbar's arrow icons are drawn as images without a name; their buttons carry one.
-  for (const icon of el.querySelectorAll(".fc-icon")) icon.setAttribute("aria-hidden", "true");
+  el.dataset.ready = "true";
 
   // Robots held by their health check: the reason, as bookings of them would be refused.
   const holds = document.getElementById("robot-holds");

@@ -3,7 +3,8 @@
 // A drag across several rows books them together; the live check answers while dragging.
 //
 // Times: Event Calendar knows UTC offsets only, not zones, so everything it is given and gives
-// back is wall-clock time in the testbed's zone ("floating"), converted with luxon at the edges.
+// back is wall-clock time in the testbed's zone ("floating"), converted at the edges
+// (wall_clock.js), as on the calendar page.
 (function () {
   "use strict";
   const el = document.getElementById("timeline");
@@ -18,18 +19,12 @@
   const dialog = /** @type {HTMLDialogElement} */ (document.getElementById("timeline-dialog"));
   const form = /** @type {BookingForm} */ (document.getElementById("timeline-form"));
   const feedback = document.getElementById("timeline-feedback");
-  const FLOATING = "yyyy-LL-dd'T'HH:mm:ss";
   const SLOT_MIN = 30;
 
   const { api, explain, failure } = window.AmazingApi;
-  const { typedWindow } = window.AmazingWallClock;
-
-  // Event Calendar's dates carry the testbed's wall-clock time in the browser's fields.
-  const wall = (d) => DateTime.fromObject(
-    { year: d.getFullYear(), month: d.getMonth() + 1, day: d.getDate(), hour: d.getHours(), minute: d.getMinutes() },
-    { zone },
-  );
-  const floating = (iso) => DateTime.fromISO(iso, { zone }).toFormat(FLOATING);
+  const { typedWindow, offsetNow } = window.AmazingWallClock;
+  const wall = (d) => window.AmazingWallClock.wall(d, zone);
+  const floating = (iso) => window.AmazingWallClock.floating(iso, zone);
   const toLocalInput = (dt) => dt.toFormat("yyyy-LL-dd'T'HH:mm");
   const shown = (dt) => dt.toFormat("ccc d LLL HH:mm");
 
@@ -241,11 +236,11 @@
   const calendar = EventCalendar.create(el, {
     view: "resourceTimelineDay",
     // The offset in force now; the events' times are floating wall-clock times (see above).
-    timeZone: DateTime.now().setZone(zone).toFormat("ZZ"),
+    timeZone: offsetNow(zone),
     headerToolbar: { start: "prev,next today", center: "title", end: narrow ? "" : "resourceTimelineDay,resourceTimelineWeek" },
     resources: rows,
     firstDay: 1,
-    nowIndicator: true,
+    nowIndicator: window.AmazingWallClock.browserShowsZone(zone),
     selectable: true,
     editable: false,
     slotDuration: { minutes: SLOT_MIN },

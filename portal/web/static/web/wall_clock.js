@@ -68,5 +68,35 @@ window.AmazingWallClock = (function () {
     return { start: start.iso, end: end.iso, note: notes.join(" ") };
   }
 
-  return { localInstant, typedWindow };
+  // Event Calendar knows UTC offsets, not zones: the calendar and the timeline give it
+  // "floating" wall-clock times in the testbed's zone and read its dates back the same way
+  // (docs/booking-pages.md "Times"), converting with luxon here, at the edges.
+  const FLOATING = "yyyy-LL-dd'T'HH:mm:ss";
+
+  // An instant (ISO 8601 with its offset) as the testbed's wall-clock time, without an offset.
+  function floating(iso, zone) {
+    return luxon.DateTime.fromISO(iso, { zone }).toFormat(FLOATING);
+  }
+
+  // An Event Calendar date, which carries the testbed's wall-clock time in the browser's
+  // fields, as the instant in the testbed's zone.
+  function wall(date, zone) {
+    return luxon.DateTime.fromObject({
+      year: date.getFullYear(), month: date.getMonth() + 1, day: date.getDate(),
+      hour: date.getHours(), minute: date.getMinutes(), second: date.getSeconds(),
+    }, { zone });
+  }
+
+  // The offset in force now, which the calendars are told to draw in.
+  function offsetNow(zone) {
+    return luxon.DateTime.now().setZone(zone).toFormat("ZZ");
+  }
+
+  // Event Calendar draws its red "now" line by the browser's clock, not by the offset it is
+  // told: the line is shown only where the two agree, rather than at the wrong hour.
+  function browserShowsZone(zone) {
+    return luxon.DateTime.local().offset === luxon.DateTime.now().setZone(zone).offset;
+  }
+
+  return { localInstant, typedWindow, floating, wall, offsetNow, browserShowsZone };
 })();
