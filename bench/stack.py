@@ -1,6 +1,6 @@
 """The system's real processes, started and stopped: one implementation for the integration
 and browser tests (``tests/integration/stack.py`` makes fixtures of it), the soak
-(``bench/soak.py``) and the whole-system benchmarks.
+(``bench/soak/``) and the whole-system benchmarks.
 
 - :class:`Proc`: a child in its own process group, its output kept (and written to a file
   when asked) to wait on and to show when something fails;

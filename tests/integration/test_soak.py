@@ -3,7 +3,7 @@ Redis, two robots booked back to back (some with a fixed node) while a fault is 
 12 to 20 s, until each kind — the runs worker, the mail worker, beat, Redis, an agent, the web
 server, the stand-in scheduler killed, and PostgreSQL restarted — has occurred once and runs
 went on through one more pause (about 2.5 minutes; at most 3); then every check of
-``bench/soak.py``.
+``bench/soak/``.
 
 The soak runs in a process of its own: it sets Django up on its own cluster, not on the test
 database.
