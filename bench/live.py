@@ -244,7 +244,7 @@ def _measure(stack: Stack, *, program_s: float, open_streams: int, probes: int) 
     from bookings.models import Resource
     from core.accounts.models import User
     from portal.experiments.models import Experiment
-    from portal.runs.services.booking import booking_create
+    from portal.runs.services.reservations import reservation_create
 
     web, agent, token, streams_base = stack.web, stack.agent_url, stack.token, stack.streams
     password = secrets.token_urlsafe(12)
@@ -261,7 +261,7 @@ def _measure(stack: Stack, *, program_s: float, open_streams: int, probes: int) 
     # seconds, and a stream opened after the run has ended sees nothing of it.
     follower, poller = _login(web, "bench", password), _login(web, "bench", password)
     start = timezone.now() + timedelta(seconds=LEAD_S)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=user,
         resource=robot,
         start_at=start,

@@ -137,7 +137,7 @@ def _round(
         worker_process,
     )
     from portal.runs.models import Run, Sample
-    from portal.runs.services.booking import booking_create
+    from portal.runs.services.reservations import reservation_create
 
     python = sys.executable
     round_dir = work / f"n{robots}"
@@ -188,7 +188,7 @@ def _round(
                 title=f"scale bench, robot {k} of {robots}",
                 segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": program_s}],
             )
-            reservation = booking_create(
+            reservation = reservation_create(
                 owner=user,
                 resource=robot,
                 start_at=start,

@@ -21,7 +21,7 @@ moved or cancelled is decided in ``bookings.rules``; these functions raise its f
 from bookings.services.blackouts import blackout_create
 from bookings.services.quota_policies import QUOTA_FIELDS, quota_policy_save
 from bookings.services.reservations import (
-    BookingCheck,
+    ReservationCheck,
     reservation_cancel,
     reservation_check,
     reservation_complete,
@@ -50,7 +50,7 @@ __all__ = [
     "AGENT_NOT_CONFIGURED",
     "QUOTA_FIELDS",
     "AgentLimits",
-    "BookingCheck",
+    "ReservationCheck",
     "TestbedSpec",
     "blackout_create",
     "fixed_node_names_from_scheduler",

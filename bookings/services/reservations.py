@@ -137,7 +137,7 @@ def _check(
 
 
 @dataclass(frozen=True)
-class BookingCheck:
+class ReservationCheck:
     """The live check's answer: every problem, and where the scheduler's leases came from."""
 
     problems: list[Problem]
@@ -165,7 +165,7 @@ def reservation_check(
     now: datetime | None = None,
     exclude_reservation_id: int | None = None,
     program_owner_id: int | None = None,
-) -> BookingCheck:
+) -> ReservationCheck:
     """Everything that would refuse this booking now, all at once (``reservation_create``
     raises the first of the same problems under its locks); nothing is written or locked.
 
@@ -183,7 +183,7 @@ def reservation_check(
         program_owner_id=program_owner_id,
     )
     if any(p.code == "resources" for p in problems):
-        return BookingCheck(problems, needs_approval=False)  # nothing else can be judged
+        return ReservationCheck(problems, needs_approval=False)  # nothing else can be judged
     start_at = aware_utc(start_at, "start_at")
     end_at = aware_utc(end_at, "end_at")
     owned = scheduler_owned(resources)
@@ -205,7 +205,7 @@ def reservation_check(
         scheduler_leases=fresh,
         own_lease_uuid=_lease_uuid_of(exclude_reservation_id),
     )
-    return BookingCheck(
+    return ReservationCheck(
         problems,
         needs_approval=needs_approval(resources=resources, by=by),
         leases_from=leases_from,

@@ -1,11 +1,11 @@
 """Runs and reservations in the Django admin: read-only, changed only by named actions.
 
 Each action calls the same service the rest of the system uses (``run_transition`` through
-``run_give_up``; ``booking_cancel`` and ``booking_decide``, which change a booking and its run
-together), so the transition table, the booking rules and the audit log apply. Reservations
-are here, not in ``bookings/admin.py``, because their actions change their runs: nothing in
-the admin adds, edits or deletes a reservation row (a deleted one would take its run with it,
-behind its agent's back).
+``run_give_up``; ``reservation_cancel`` and ``reservation_decide``, which change a reservation
+and its run together), so the transition table, the booking rules and the audit log apply.
+Reservations are here, not in ``bookings/admin.py``, because their actions change their runs:
+nothing in the admin adds, edits or deletes a reservation row (a deleted one would take its
+run with it, behind its agent's back).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from bookings.choices import Channel
 from bookings.models import Reservation, ReservationItem
 from core.errors import DomainError
 from portal.runs.models import Run, RunEvent
-from portal.runs.services.booking import booking_cancel, booking_decide
+from portal.runs.services.reservations import reservation_cancel, reservation_decide
 from portal.runs.services.transitions import run_give_up
 
 
@@ -99,7 +99,7 @@ class RunAdmin(admin.ModelAdmin):
             return
         for run in queryset.select_related("reservation"):
             try:
-                booking_cancel(
+                reservation_cancel(
                     reservation=run.reservation,
                     by=request.user,  # type: ignore[arg-type]
                     reason=reason,
@@ -137,7 +137,7 @@ class ReservationAdmin(admin.ModelAdmin):
         return False  # booked through the pages, the API or the lease API
 
     def has_delete_permission(self, request: HttpRequest, obj: object = None) -> bool:
-        return False  # cancelled through ``booking_cancel``; the row and its run are kept
+        return False  # cancelled through ``reservation_cancel``; the row and its run are kept
 
     def _each(
         self,
@@ -167,7 +167,7 @@ class ReservationAdmin(admin.ModelAdmin):
         self._each(
             request,
             queryset,
-            lambda reservation: booking_decide(
+            lambda reservation: reservation_decide(
                 reservation=reservation,
                 by=request.user,  # type: ignore[arg-type]
                 approve=approve,
@@ -193,7 +193,7 @@ class ReservationAdmin(admin.ModelAdmin):
         self._each(
             request,
             queryset,
-            lambda reservation: booking_cancel(
+            lambda reservation: reservation_cancel(
                 reservation=reservation,
                 by=request.user,  # type: ignore[arg-type]
                 reason=reason,

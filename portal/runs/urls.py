@@ -16,7 +16,7 @@ urlpatterns = [
     path("reservations/", reservations.ReservationListApi.as_view(), name="api-reservations"),
     path(
         "reservations/check/",
-        reservations.BookingCheckApi.as_view(),
+        reservations.ReservationCheckApi.as_view(),
         name="api-reservations-check",
     ),
     path(

@@ -14,7 +14,7 @@ from core.audit.services import client_ip
 from core.errors import DomainError
 from portal.experiments.selectors import experiments_visible
 from portal.runs.selectors import reservations_with_runs_visible
-from portal.runs.services.booking import booking_attach
+from portal.runs.services.reservations import reservation_attach
 
 
 @login_required
@@ -28,7 +28,7 @@ def reservation_attach_view(request: HttpRequest, pk: int) -> HttpResponse:
             messages.error(request, "Choose one of your experiments.")
         else:
             try:
-                run = booking_attach(
+                run = reservation_attach(
                     reservation=reservation,
                     experiment=experiment,
                     by=user,

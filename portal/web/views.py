@@ -47,13 +47,13 @@ from portal.runs.selectors import (
     run_report,
     runs_visible,
 )
-from portal.runs.services.booking import (
-    booking_cancel,
-    booking_create,
-    booking_decide,
-    booking_repeat,
-)
 from portal.runs.services.collection import missing_described
+from portal.runs.services.reservations import (
+    reservation_cancel,
+    reservation_create,
+    reservation_decide,
+    reservation_repeat,
+)
 from portal.runs.services.robot import HOLD_REPEAT_MS, HOLD_TTL_S
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.builder import builder_context
@@ -144,7 +144,7 @@ def book(request: HttpRequest) -> HttpResponse:
         form = BookingForm(request.POST, user=user)
         if form.is_valid():
             try:
-                reservation = booking_create(
+                reservation = reservation_create(
                     owner=user, ip=client_ip(request), via=Channel.WEB, **form.cleaned_data
                 )
             except DomainError as exc:
@@ -180,7 +180,7 @@ def reservation_cancel_view(request: HttpRequest, pk: int) -> HttpResponse:
     reservation = get_object_or_404(reservations_with_runs_visible(user=_user(request)), pk=pk)
     if request.method == "POST":
         try:
-            booking_cancel(
+            reservation_cancel(
                 reservation=reservation,
                 by=_user(request),
                 reason=request.POST.get("reason", ""),
@@ -260,7 +260,7 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
     user = _user(request)
     run = _visible_run(request, pk, "experiment")
     try:
-        reservation = booking_repeat(run=run, by=user, ip=client_ip(request), via=Channel.WEB)
+        reservation = reservation_repeat(run=run, by=user, ip=client_ip(request), via=Channel.WEB)
     except DomainError as exc:
         messages.error(request, f"Not booked again: {exc.message}")
         return redirect("run", pk=pk)
@@ -388,7 +388,7 @@ def approvals(request: HttpRequest) -> HttpResponse:
     if request.method == "POST":
         reservation = get_object_or_404(Reservation, pk=request.POST.get("reservation"))
         try:
-            booking_decide(
+            reservation_decide(
                 reservation=reservation,
                 by=_user(request),
                 approve=request.POST.get("decision") == "approve",

@@ -28,7 +28,7 @@ import pytest
 from django.utils import timezone
 
 from bench.stack import REPO, free_port
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from tests.api.contract_hooks import DATA_DEPENDENT_FIELDS
 from tests.factories import (
     ExperimentFactory,
@@ -64,7 +64,7 @@ def world(*, agent_url: str) -> dict:
     FixedResourceFactory(name="node-02", requires_approval=True)
     run = completed_run(erin, mobile, [(0.5, "cw", 2.0), (0.8, "ccw", 2.0)])
     start = timezone.now() + timedelta(days=3)
-    booking_create(
+    reservation_create(
         owner=erin,
         resource=mobile,
         start_at=start,

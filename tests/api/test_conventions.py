@@ -12,7 +12,7 @@ from django.utils import timezone
 from rest_framework.test import APIClient
 
 from core.audit.services import audit_record
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from tests.factories import ExperimentFactory, api_token
 
 pytestmark = pytest.mark.django_db
@@ -266,7 +266,7 @@ def test_me_says_who_the_token_belongs_to(api, client_for, admin_user):
 
 def test_a_reservation_is_cancelled_with_its_reason_in_the_query(api, owner, mobile):
     start = timezone.now() + timedelta(hours=2)
-    booked = booking_create(
+    booked = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -280,7 +280,7 @@ def test_a_reservation_is_cancelled_with_its_reason_in_the_query(api, owner, mob
 
 def test_moving_only_the_end_keeps_the_start(api, owner, mobile):
     start = timezone.now() + timedelta(hours=2)
-    booked = booking_create(
+    booked = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

@@ -8,7 +8,7 @@ import pytest
 from django.utils import timezone
 
 from bookings.models import Reservation
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from tests.factories import FixedResourceFactory
 
 pytestmark = pytest.mark.django_db
@@ -17,7 +17,7 @@ pytestmark = pytest.mark.django_db
 @pytest.fixture
 def booked(owner, mobile, experiment):
     start = timezone.now() + timedelta(hours=2)
-    return booking_create(
+    return reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -135,7 +135,7 @@ def world(owner, other, admin_user, booked):
 
     node = FixedResourceFactory(name="node-05", requires_approval=True)
     start = timezone.now() + timedelta(days=2)
-    pending = booking_create(
+    pending = reservation_create(
         owner=owner, resource=node, start_at=start, end_at=start + timedelta(hours=1)
     )
     policy = QuotaPolicy.objects.create(name="p", period="week", max_hours=100)

@@ -16,11 +16,11 @@ from bookings.services import blackout_create
 from bookings.tasks import reservations_remind
 from core.audit.models import AuditEvent
 from core.errors import Conflict, InvalidInput, NotAllowed
-from portal.runs.services.booking import (
-    booking_cancel,
-    booking_create,
-    booking_decide,
-    booking_reschedule,
+from portal.runs.services.reservations import (
+    reservation_cancel,
+    reservation_create,
+    reservation_decide,
+    reservation_reschedule,
 )
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
@@ -40,14 +40,14 @@ def test_a_resource_needing_approval_holds_the_slot_until_an_admin_decides(
     mobile.save()
     start, end = _slot()
     with django_capture_on_commit_callbacks(execute=True):
-        reservation = booking_create(
+        reservation = reservation_create(
             owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
         )
     assert reservation.state == ReservationState.REQUESTED
     assert {m.subject.split(":")[0] for m in mail.outbox} == {"Booking request received"}
     assert "charlie@example.org" in mail.outbox[0].to  # admins learn of pending requests
     with pytest.raises(Conflict, match="already booked"):
-        booking_create(
+        reservation_create(
             owner=other,
             resource=mobile,
             start_at=start,
@@ -55,16 +55,16 @@ def test_a_resource_needing_approval_holds_the_slot_until_an_admin_decides(
             experiment=ExperimentFactory(owner=other),
         )
     with pytest.raises(NotAllowed):
-        booking_decide(reservation=reservation, by=other, approve=True)
+        reservation_decide(reservation=reservation, by=other, approve=True)
     mail.outbox.clear()
     with django_capture_on_commit_callbacks(execute=True):
-        booking_decide(reservation=reservation, by=admin_user, approve=True, reason="ok")
+        reservation_decide(reservation=reservation, by=admin_user, approve=True, reason="ok")
     reservation.refresh_from_db()
     assert reservation.state == ReservationState.CONFIRMED
     assert mail.outbox[0].subject.startswith("Booking approved")
     assert mail.outbox[0].to == ["alice@example.org"]
     with pytest.raises(Conflict, match="not awaiting approval"):
-        booking_decide(reservation=reservation, by=admin_user, approve=False, reason="x")
+        reservation_decide(reservation=reservation, by=admin_user, approve=False, reason="x")
 
 
 def test_a_rejection_needs_a_reason_frees_the_slot_and_cancels_the_run(
@@ -73,24 +73,28 @@ def test_a_rejection_needs_a_reason_frees_the_slot_and_cancels_the_run(
     mobile.requires_approval = True
     mobile.save()
     start, end = _slot()
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
     )
     with pytest.raises(InvalidInput, match="Say why"):
-        booking_decide(reservation=reservation, by=admin_user, approve=False)
+        reservation_decide(reservation=reservation, by=admin_user, approve=False)
     with django_capture_on_commit_callbacks(execute=True):
-        booking_decide(reservation=reservation, by=admin_user, approve=False, reason="roof closed")
+        reservation_decide(
+            reservation=reservation, by=admin_user, approve=False, reason="roof closed"
+        )
     reservation.refresh_from_db()
     assert reservation.state == ReservationState.REJECTED
     assert reservation.run.state == RunState.CANCELLED
     assert "roof closed" in mail.outbox[-1].body
-    booking_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+    reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
 
 
 def test_admins_book_without_waiting_for_approval(admin_user):
     node = FixedResourceFactory(requires_approval=True)
     start, end = _slot()
-    reservation = booking_create(owner=admin_user, resource=node, start_at=start, end_at=end)
+    reservation = reservation_create(owner=admin_user, resource=node, start_at=start, end_at=end)
     assert reservation.state == ReservationState.CONFIRMED
 
 
@@ -99,7 +103,7 @@ def test_a_blackout_blocks_new_bookings_and_flags_existing_ones(
 ):
     node = FixedResourceFactory()
     start, end = _slot()
-    existing = booking_create(owner=owner, resource=node, start_at=start, end_at=end)
+    existing = reservation_create(owner=owner, resource=node, start_at=start, end_at=end)
     with pytest.raises(NotAllowed):
         blackout_create(by=owner, start_at=start, end_at=end, reason="x", resources=[node])
     with django_capture_on_commit_callbacks(execute=True):
@@ -118,9 +122,13 @@ def test_a_blackout_blocks_new_bookings_and_flags_existing_ones(
     assert message.subject.startswith("Maintenance overlaps a booking")
     assert set(message.to) == {"alice@example.org", "charlie@example.org"}
     with pytest.raises(Conflict, match="Maintenance “antenna replacement”"):
-        booking_create(owner=owner, resource=node, start_at=end, end_at=end + timedelta(hours=1))
+        reservation_create(
+            owner=owner, resource=node, start_at=end, end_at=end + timedelta(hours=1)
+        )
     other_node = FixedResourceFactory()
-    booking_create(owner=owner, resource=other_node, start_at=end, end_at=end + timedelta(hours=1))
+    reservation_create(
+        owner=owner, resource=other_node, start_at=end, end_at=end + timedelta(hours=1)
+    )
     blackout_create(
         by=admin_user,
         start_at=end + timedelta(days=1),
@@ -129,7 +137,7 @@ def test_a_blackout_blocks_new_bookings_and_flags_existing_ones(
         all_resources=True,
     )
     with pytest.raises(Conflict, match="roof works"):
-        booking_create(
+        reservation_create(
             owner=owner,
             resource=other_node,
             start_at=end + timedelta(days=1, hours=1),
@@ -141,11 +149,11 @@ def test_an_admin_cancelling_someone_elses_booking_tells_them_why(
     owner, admin_user, eager_tasks, django_capture_on_commit_callbacks
 ):
     start, end = _slot()
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner, resource=FixedResourceFactory(), start_at=start, end_at=end
     )
     with django_capture_on_commit_callbacks(execute=True):
-        booking_cancel(reservation=reservation, by=admin_user, reason="storm warning")
+        reservation_cancel(reservation=reservation, by=admin_user, reason="storm warning")
     assert mail.outbox[-1].subject.startswith("Your booking was cancelled by charlie (an admin)")
     assert "charlie (an admin) cancelled your booking" in mail.outbox[-1].body
     assert "storm warning" in mail.outbox[-1].body
@@ -153,10 +161,10 @@ def test_an_admin_cancelling_someone_elses_booking_tells_them_why(
 
 def test_reminders_go_out_once(owner, eager_tasks, django_capture_on_commit_callbacks):
     start, end = _slot(hours_ahead=0.5)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner, resource=FixedResourceFactory(), start_at=start, end_at=end
     )
-    booking_create(
+    reservation_create(
         owner=owner,
         resource=FixedResourceFactory(),
         start_at=start + timedelta(hours=5),
@@ -172,14 +180,14 @@ def test_reminders_go_out_once(owner, eager_tasks, django_capture_on_commit_call
 def test_rescheduling_checks_everything_again(owner, other):
     node = FixedResourceFactory()
     start, end = _slot()
-    mine = booking_create(owner=owner, resource=node, start_at=start, end_at=end)
-    booking_create(
+    mine = reservation_create(owner=owner, resource=node, start_at=start, end_at=end)
+    reservation_create(
         owner=other,
         resource=node,
         start_at=end + timedelta(hours=1),
         end_at=end + timedelta(hours=2),
     )
-    moved = booking_reschedule(
+    moved = reservation_reschedule(
         reservation=mine,
         by=owner,
         start_at=start + timedelta(minutes=30),
@@ -187,14 +195,14 @@ def test_rescheduling_checks_everything_again(owner, other):
     )
     assert moved.items.get().start_at == start + timedelta(minutes=30)
     with pytest.raises(Conflict, match="already booked"):
-        booking_reschedule(
+        reservation_reschedule(
             reservation=mine,
             by=owner,
             start_at=end + timedelta(minutes=30),
             end_at=end + timedelta(hours=1, minutes=30),
         )
     with pytest.raises(NotAllowed):
-        booking_reschedule(reservation=mine, by=other, start_at=start, end_at=end)
+        reservation_reschedule(reservation=mine, by=other, start_at=start, end_at=end)
 
 
 def test_every_change_is_in_the_append_only_audit_log(owner, admin_user, client_for):
@@ -208,7 +216,7 @@ def test_every_change_is_in_the_append_only_audit_log(owner, admin_user, client_
     )
     assert response.status_code == 201
     reservation = Reservation.objects.get()
-    booking_cancel(reservation=reservation, by=admin_user, reason="storm", ip="192.0.2.9")
+    reservation_cancel(reservation=reservation, by=admin_user, reason="storm", ip="192.0.2.9")
     events = list(
         AuditEvent.objects.order_by("pk").values_list("action", "actor_name", "ip", "reason")
     )
@@ -264,7 +272,7 @@ def test_a_concurrent_duplicate_with_the_same_key_gets_409(owner, client_for):
 def test_availability_lists_the_free_intervals(owner, admin_user, client_for):
     node = FixedResourceFactory(name="node-03")
     day = timezone.now().replace(microsecond=0) + timedelta(days=3)
-    booking_create(
+    reservation_create(
         owner=owner,
         resource=node,
         start_at=day + timedelta(hours=2),
@@ -298,7 +306,7 @@ def test_availability_lists_the_free_intervals(owner, admin_user, client_for):
 def test_others_bookings_show_only_as_busy(owner, other, client_for):
     node = FixedResourceFactory()
     start, end = _slot()
-    booking_create(owner=owner, resource=node, start_at=start, end_at=end, title="secret plan")
+    reservation_create(owner=owner, resource=node, start_at=start, end_at=end, title="secret plan")
     busy = client_for(other).get(
         "/api/v1/reservations/busy/", {"start": start.isoformat(), "end": end.isoformat()}
     )
@@ -345,14 +353,14 @@ def test_the_quota_endpoints_show_usage_and_check_a_booking(owner, admin_user, c
 def test_a_reservation_can_hold_several_resources(owner):
     nodes = [FixedResourceFactory() for _ in range(3)]
     start, end = _slot()
-    reservation = booking_create(owner=owner, resources=nodes, start_at=start, end_at=end)
+    reservation = reservation_create(owner=owner, resources=nodes, start_at=start, end_at=end)
     assert reservation.items.count() == 3
     with pytest.raises(Conflict):
-        booking_create(
+        reservation_create(
             owner=UserFactory(username="zed"), resources=[nodes[2]], start_at=start, end_at=end
         )
     with pytest.raises(InvalidInput, match="listed twice"):
-        booking_create(
+        reservation_create(
             owner=owner,
             resources=[nodes[0], nodes[0]],
             start_at=end,

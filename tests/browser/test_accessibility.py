@@ -27,7 +27,7 @@ from playwright.sync_api import Browser, Page, Request, expect
 from basestation.dryrun import dry_run
 from core.accounts.models import User
 from portal.runs.models import DryRun, Run
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.browser.conftest import EVERY_PAGE_PHOTOGRAPHED, SCREENSHOTS, login
 from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
@@ -241,7 +241,7 @@ def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
     soon = timezone.now() + timedelta(minutes=20)
     for n, node in enumerate(nodes):
         start = soon + timedelta(minutes=25 * n)
-        booking_create(
+        reservation_create(
             owner=ines.user, resource=node, start_at=start, end_at=start + timedelta(minutes=40)
         )
     tried, waiting = _dry_runs(ines.user)

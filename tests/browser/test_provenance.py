@@ -12,7 +12,7 @@ from django.utils import timezone
 from playwright.sync_api import expect
 
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 from tests.runs.driving import completed_run
@@ -39,7 +39,7 @@ def test_run_again_books_the_next_free_slot_and_links_the_two_runs(browser, live
     )
     # The robot is booked from 1 to 3 minutes from now: the repeat's slot is after that.
     start = timezone.now().replace(microsecond=0) + timedelta(minutes=1)
-    busy = booking_create(
+    busy = reservation_create(
         owner=fay,
         resource=robot,
         start_at=start,

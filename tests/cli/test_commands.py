@@ -27,7 +27,7 @@ from bookings.models import Reservation, Resource
 from core.accounts.models import ApiToken
 from core.audit.models import AuditEvent
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from tests.cli.schema_paths import undocumented
 from tests.factories import (
     ExperimentFactory,
@@ -315,7 +315,7 @@ def test_a_slot_in_the_past_is_refused_by_the_portal_with_exit_code_2(portal):
 def test_another_users_run_is_not_found(portal):
     other = UserFactory(username="bob")
     start = timezone.now() + timedelta(hours=2)
-    theirs = booking_create(
+    theirs = reservation_create(
         owner=other,
         resource=MobileResourceFactory(),
         start_at=start,

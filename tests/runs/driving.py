@@ -10,8 +10,8 @@ from django.utils import timezone
 
 from portal.runs.analysis import SampleRow
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
+from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory
 
@@ -88,7 +88,7 @@ def completed_run(
     """A booked run of ``program`` on ``mobile``, its samples stored, marked completed."""
     experiment = ExperimentFactory(owner=owner, segments=segments(program))
     start = timezone.now() + timedelta(hours=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

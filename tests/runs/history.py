@@ -8,7 +8,7 @@ from typing import Any
 from django.utils import timezone
 
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory
 from tests.runs.driving import RAIL_M, ingest, segments
@@ -34,7 +34,7 @@ def past_run(
     # An hour apart: each run's own slot, whatever times they are moved to afterwards.
     booked = Run.objects.filter(resource=mobile).count()
     start = timezone.now() + timedelta(hours=1 + booked)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

@@ -13,10 +13,10 @@ from django.utils import timezone
 from bookings.choices import BookedVia, Channel, ReservationState
 from bookings.models import Reservation
 from bookings.notifications import reservation_message
-from bookings.services import reservation_cancel, reservation_create
+from bookings.services import reservations as without_run
 from core.audit.models import AuditEvent
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_attach, booking_create
+from portal.runs.services.reservations import reservation_attach, reservation_create
 from portal.runs.services.staging import run_stage
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, UserFactory
@@ -35,7 +35,7 @@ def scheduler_account():
 def leased(owner, mobile, scheduler_account) -> Reservation:
     """The robot held for ``owner`` through the lease API, without a program (30 min)."""
     start = timezone.now().replace(microsecond=0) + timedelta(hours=2)
-    return reservation_create(
+    return without_run.reservation_create(
         owner=owner,
         resources=[mobile],
         start_at=start,
@@ -123,7 +123,7 @@ def test_refusals_say_why_and_attach_nothing(client_for, owner, mobile, leased):
     assert "experiment" in bad.json()["fields"]
     # A booking made in the portal comes with its experiment: nothing to attach.
     start = leased.end_at + timedelta(hours=1)
-    portal = booking_create(
+    portal = reservation_create(
         owner=owner,
         resources=[mobile],
         start_at=start,
@@ -143,7 +143,7 @@ def test_a_booking_that_has_started_takes_no_experiment(client_for, owner, lease
     assert answer.status_code == 409
     assert "before the booking starts" in answer.json()["detail"]
     leased.refresh_from_db()
-    reservation_cancel(reservation=leased, by=owner)
+    without_run.reservation_cancel(reservation=leased, by=owner)
     Reservation.objects.filter(pk=leased.pk).update(start_at=timezone.now() + timedelta(minutes=5))
     answer = _attach(client_for(owner), leased, experiment.pk)
     assert answer.status_code == 409
@@ -182,8 +182,8 @@ def test_the_attach_page_attaches_and_the_home_page_links_to_it(client, owner, l
 def test_a_run_whose_lease_was_cancelled_is_not_staged(
     owner, leased, experiment, scheduler_account
 ):
-    run = booking_attach(reservation=leased, experiment=experiment, by=owner)
-    reservation_cancel(
+    run = reservation_attach(reservation=leased, experiment=experiment, by=owner)
+    without_run.reservation_cancel(
         reservation=leased,
         by=scheduler_account,
         reason="cancelled by the scheduler",
@@ -204,7 +204,7 @@ def test_the_cancellation_mail_says_who_cancelled_and_through_what(
     django_capture_on_commit_callbacks,
 ):
     with django_capture_on_commit_callbacks(execute=True):
-        reservation_cancel(
+        without_run.reservation_cancel(
             reservation=leased,
             by=scheduler_account,
             reason="cancelled by the scheduler",
@@ -224,7 +224,7 @@ def test_the_cancellation_mail_says_who_cancelled_and_through_what(
 
     mail.outbox.clear()
     start = leased.end_at + timedelta(hours=1)
-    other_booking = booking_create(
+    other_booking = reservation_create(
         owner=owner,
         resources=[mobile],
         start_at=start,
@@ -232,7 +232,7 @@ def test_the_cancellation_mail_says_who_cancelled_and_through_what(
         experiment=ExperimentFactory(owner=owner),
     )
     with django_capture_on_commit_callbacks(execute=True):
-        reservation_cancel(
+        without_run.reservation_cancel(
             reservation=other_booking, by=admin_user, reason="robot repairs", via=Channel.WEB
         )
     [message] = mail.outbox
@@ -245,7 +245,7 @@ def test_the_owner_cancelling_their_own_booking_gets_no_mail(
     owner, leased, eager_tasks, django_capture_on_commit_callbacks
 ):
     with django_capture_on_commit_callbacks(execute=True):
-        reservation_cancel(reservation=leased, by=owner, via=Channel.API)
+        without_run.reservation_cancel(reservation=leased, by=owner, via=Channel.API)
     assert leased.__class__.objects.get(pk=leased.pk).state == ReservationState.CANCELLED
     assert mail.outbox == []
 

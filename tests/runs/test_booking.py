@@ -9,7 +9,7 @@ from bookings.choices import ReservationState
 from bookings.models import Reservation
 from core.errors import Conflict, InvalidInput, NotAllowed
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_cancel, booking_create
+from portal.runs.services.reservations import reservation_cancel, reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, FixedResourceFactory
 
@@ -25,7 +25,7 @@ def test_booking_the_mobile_node_schedules_a_run_with_a_copy_of_the_program(
     owner, mobile, experiment
 ):
     start, end = _window()
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
     )
     run = Run.objects.get(reservation=reservation)
@@ -40,10 +40,12 @@ def test_booking_the_mobile_node_schedules_a_run_with_a_copy_of_the_program(
 
 def test_it_rejects_overlapping_reservation(owner, other, mobile, experiment):
     start, end = _window()
-    booking_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+    reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
     theirs = ExperimentFactory(owner=other)
     with pytest.raises(Conflict, match="already booked"):
-        booking_create(
+        reservation_create(
             owner=other,
             resource=mobile,
             start_at=start + timedelta(minutes=29),
@@ -55,8 +57,10 @@ def test_it_rejects_overlapping_reservation(owner, other, mobile, experiment):
 
 def test_back_to_back_reservations_do_not_overlap(owner, mobile, experiment):
     start, end = _window()
-    booking_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
-    booking_create(
+    reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
+    reservation_create(
         owner=owner,
         resource=mobile,
         start_at=end,
@@ -68,12 +72,14 @@ def test_back_to_back_reservations_do_not_overlap(owner, mobile, experiment):
 
 def test_a_cancelled_reservation_frees_its_slot(owner, mobile, experiment):
     start, end = _window()
-    first = booking_create(
+    first = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
     )
-    booking_cancel(reservation=first, by=owner)
+    reservation_cancel(reservation=first, by=owner)
     assert Run.objects.get(reservation=first).state == RunState.CANCELLED
-    booking_create(owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment)
+    reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
 
 
 @pytest.mark.parametrize(
@@ -91,7 +97,7 @@ def test_it_rejects_bad_windows(owner, mobile, experiment, change, field, messag
     if "end_at" in change:
         end = start + timedelta(seconds=change["end_at"])
     with pytest.raises(InvalidInput) as excinfo:
-        booking_create(
+        reservation_create(
             owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
         )
     assert message in excinfo.value.fields[field][0]
@@ -104,7 +110,7 @@ def test_the_program_must_fit_in_the_reservation(owner, mobile):
     )
     start = timezone.now() + timedelta(minutes=5)
     with pytest.raises(InvalidInput, match="lasts 600 s but the reservation only 300 s"):
-        booking_create(
+        reservation_create(
             owner=owner,
             resource=mobile,
             start_at=start,
@@ -116,19 +122,19 @@ def test_the_program_must_fit_in_the_reservation(owner, mobile):
 def test_the_mobile_node_needs_an_experiment_and_fixed_nodes_refuse_one(owner, mobile, experiment):
     start, end = _window()
     with pytest.raises(InvalidInput, match="Choose the experiment"):
-        booking_create(owner=owner, resource=mobile, start_at=start, end_at=end)
+        reservation_create(owner=owner, resource=mobile, start_at=start, end_at=end)
     fixed = FixedResourceFactory()
     with pytest.raises(InvalidInput, match="Only mobile nodes"):
-        booking_create(
+        reservation_create(
             owner=owner, resource=fixed, start_at=start, end_at=end, experiment=experiment
         )
-    assert booking_create(owner=owner, resource=fixed, start_at=start, end_at=end).pk
+    assert reservation_create(owner=owner, resource=fixed, start_at=start, end_at=end).pk
 
 
 def test_someone_elses_experiment_cannot_be_booked(other, mobile, experiment):
     start, end = _window()
     with pytest.raises(NotAllowed):
-        booking_create(
+        reservation_create(
             owner=other, resource=mobile, start_at=start, end_at=end, experiment=experiment
         )
 
@@ -138,22 +144,22 @@ def test_a_resource_out_of_service_cannot_be_booked(owner, mobile, experiment):
     mobile.save()
     start, end = _window()
     with pytest.raises(InvalidInput, match="out of service"):
-        booking_create(
+        reservation_create(
             owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
         )
 
 
 def test_only_owner_or_admin_cancels(owner, other, admin_user, mobile, experiment):
     start, end = _window()
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
     )
     with pytest.raises(NotAllowed):
-        booking_cancel(reservation=reservation, by=other)
+        reservation_cancel(reservation=reservation, by=other)
     with pytest.raises(InvalidInput, match="Say why"):
-        booking_cancel(reservation=reservation, by=admin_user)
-    booking_cancel(reservation=reservation, by=admin_user, reason="roof inspection")
+        reservation_cancel(reservation=reservation, by=admin_user)
+    reservation_cancel(reservation=reservation, by=admin_user, reason="roof inspection")
     reservation.refresh_from_db()
     assert reservation.state == ReservationState.CANCELLED
     with pytest.raises(Conflict, match="already cancelled"):
-        booking_cancel(reservation=reservation, by=owner)
+        reservation_cancel(reservation=reservation, by=owner)

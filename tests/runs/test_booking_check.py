@@ -31,12 +31,12 @@ from core.accounts.models import User
 from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 from portal.experiments.models import Experiment
 from portal.runs.models import Run
-from portal.runs.services.booking import (
-    booking_cancel,
-    booking_check,
-    booking_create,
-    booking_decide,
-    booking_reschedule,
+from portal.runs.services.reservations import (
+    reservation_cancel,
+    reservation_check,
+    reservation_create,
+    reservation_decide,
+    reservation_reschedule,
 )
 from portal.runs.states import RunState
 from tests.factories import (
@@ -167,7 +167,7 @@ def maintenance(owner) -> Case:
 
 def already_booked(owner) -> Case:
     node = FixedResourceFactory()
-    booking_create(
+    reservation_create(
         owner=UserFactory(username="zed"),
         resource=node,
         start_at=START + timedelta(minutes=10),
@@ -223,13 +223,13 @@ def test_the_live_check_and_booking_agree(setup, code, error, field, owner):
         "override_reason": case.override_reason,
         "now": NOW,
     }
-    check = booking_check(**asked)
+    check = reservation_check(**asked)
     problems = check.problems
     before = Reservation.objects.count()
     if code is None:
         assert problems == []
         assert check.fits
-        booking_create(**asked)
+        reservation_create(**asked)
         assert Reservation.objects.count() == before + 1
         return
     assert problems, "the live check found nothing wrong"
@@ -237,7 +237,7 @@ def test_the_live_check_and_booking_agree(setup, code, error, field, owner):
     first = problems[0]
     assert (first.code, first.field) == (code, field)
     with pytest.raises(error) as refused:
-        booking_create(**asked)
+        reservation_create(**asked)
     assert type(refused.value) is error
     assert refused.value.message == first.message
     if field:
@@ -250,7 +250,7 @@ def test_the_live_check_and_booking_agree(setup, code, error, field, owner):
 def test_a_program_is_refused_at_booking_by_the_agents_stricter_limit_naming_it(owner):
     robot = MobileResourceFactory(max_velocity_mps=2.0, agent_max_velocity_mps=1.5)
     with pytest.raises(InvalidInput) as refused:
-        booking_create(
+        reservation_create(
             owner=owner,
             resources=[robot],
             start_at=START,
@@ -266,7 +266,7 @@ def test_a_program_is_refused_at_booking_by_the_agents_stricter_limit_naming_it(
 
 def test_the_portals_stricter_limit_is_named_when_it_decides(owner):
     robot = MobileResourceFactory(max_velocity_mps=1.2, agent_max_velocity_mps=1.5)
-    problems = booking_check(
+    problems = reservation_check(
         owner=owner,
         resources=[robot],
         start_at=START,
@@ -284,7 +284,7 @@ def test_the_live_check_lists_every_problem_at_once(owner):
     node = FixedResourceFactory(enabled=False)
     Blackout.objects.create(start_at=START, end_at=END, reason="roof works", all_resources=True)
     QuotaPolicy.objects.create(name="short", max_length_s=600)
-    check = booking_check(
+    check = reservation_check(
         owner=owner, resources=[node], start_at=START, end_at=END, experiment=None, now=NOW
     )
     assert [p.code for p in check.problems] == ["out_of_service", "blackout", "quota"]
@@ -339,14 +339,14 @@ def test_the_deprecated_check_path_still_answers_the_same_and_says_it_is_depreca
 
 def test_a_booking_that_needs_approval_says_so_and_waits_unless_an_admin_books(owner, admin_user):
     node = FixedResourceFactory(requires_approval=True)
-    check = booking_check(
+    check = reservation_check(
         owner=owner, resources=[node], start_at=START, end_at=END, experiment=None, now=NOW
     )
     assert check.fits
     assert check.needs_approval
-    booked = booking_create(owner=owner, resource=node, start_at=START, end_at=END, now=NOW)
+    booked = reservation_create(owner=owner, resource=node, start_at=START, end_at=END, now=NOW)
     assert booked.state == ReservationState.REQUESTED
-    by_admin = booking_check(
+    by_admin = reservation_check(
         owner=owner,
         by=admin_user,
         resources=[node],
@@ -357,7 +357,7 @@ def test_a_booking_that_needs_approval_says_so_and_waits_unless_an_admin_books(o
     )
     assert by_admin.fits
     assert not by_admin.needs_approval
-    booked = booking_create(
+    booked = reservation_create(
         owner=owner,
         by=admin_user,
         resource=node,
@@ -383,7 +383,7 @@ class Change:
 
 def _booked(owner, *, robot: bool = False, **extra) -> Reservation:
     if robot:
-        return booking_create(
+        return reservation_create(
             owner=owner,
             resource=MobileResourceFactory(),
             experiment=_program(owner, 1.0),
@@ -392,7 +392,7 @@ def _booked(owner, *, robot: bool = False, **extra) -> Reservation:
             now=NOW,
             **extra,
         )
-    return booking_create(
+    return reservation_create(
         owner=owner, resource=FixedResourceFactory(), start_at=START, end_at=END, now=NOW, **extra
     )
 
@@ -403,7 +403,7 @@ def _move(reservation: Reservation, by: User, *, now: datetime = NOW, run_starte
         reservation,
         by,
         lambda: move_problems(reservation=reservation, by=by, now=now, run_started=run_started),
-        lambda: booking_reschedule(
+        lambda: reservation_reschedule(
             reservation=reservation, by=by, start_at=later[0], end_at=later[1], now=now
         ),
     )
@@ -414,7 +414,7 @@ def _cancel(reservation: Reservation, by: User, reason: str = "") -> Change:
         reservation,
         by,
         lambda: cancel_problems(reservation=reservation, by=by, reason=reason),
-        lambda: booking_cancel(reservation=reservation, by=by, reason=reason),
+        lambda: reservation_cancel(reservation=reservation, by=by, reason=reason),
     )
 
 
@@ -423,7 +423,7 @@ def _decide(reservation: Reservation, by: User, *, approve: bool, reason: str = 
         reservation,
         by,
         lambda: decision_problems(reservation=reservation, by=by, approve=approve, reason=reason),
-        lambda: booking_decide(reservation=reservation, by=by, approve=approve, reason=reason),
+        lambda: reservation_decide(reservation=reservation, by=by, approve=approve, reason=reason),
     )
 
 
@@ -443,7 +443,7 @@ def move_once_it_began(owner, admin) -> Change:
 
 def move_a_cancelled_one(owner, admin) -> Change:
     reservation = _booked(owner)
-    booking_cancel(reservation=reservation, by=owner)
+    reservation_cancel(reservation=reservation, by=owner)
     reservation.refresh_from_db()
     return _move(reservation, owner)
 
@@ -454,7 +454,7 @@ def cancel_someone_elses(owner, admin) -> Change:
 
 def cancel_twice(owner, admin) -> Change:
     reservation = _booked(owner)
-    booking_cancel(reservation=reservation, by=owner)
+    reservation_cancel(reservation=reservation, by=owner)
     reservation.refresh_from_db()
     return _cancel(reservation, owner)
 
@@ -465,13 +465,17 @@ def cancel_someone_elses_without_saying_why(owner, admin) -> Change:
 
 def decide_as_a_user(owner, admin) -> Change:
     node = FixedResourceFactory(requires_approval=True)
-    reservation = booking_create(owner=owner, resource=node, start_at=START, end_at=END, now=NOW)
+    reservation = reservation_create(
+        owner=owner, resource=node, start_at=START, end_at=END, now=NOW
+    )
     return _decide(reservation, owner, approve=True)
 
 
 def reject_without_saying_why(owner, admin) -> Change:
     node = FixedResourceFactory(requires_approval=True)
-    reservation = booking_create(owner=owner, resource=node, start_at=START, end_at=END, now=NOW)
+    reservation = reservation_create(
+        owner=owner, resource=node, start_at=START, end_at=END, now=NOW
+    )
     return _decide(reservation, admin, approve=False)
 
 

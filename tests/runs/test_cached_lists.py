@@ -13,8 +13,8 @@ from django.utils import timezone
 
 from bookings.models import QuotaPolicy
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
+from portal.runs.services.reservations import reservation_create
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import Cause, RunState
 from tests.factories import ExperimentFactory
@@ -26,7 +26,7 @@ JSON = {"HTTP_ACCEPT": "application/json"}
 
 def _book(owner, mobile, experiment, *, hours: int = 1):
     start = timezone.now().replace(microsecond=0) + timedelta(hours=hours)
-    return booking_create(
+    return reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

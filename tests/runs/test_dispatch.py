@@ -16,7 +16,7 @@ from bookings.choices import ReservationState
 from portal.runs import tasks
 from portal.runs.models import Run, Sample
 from portal.runs.services import collection, staging
-from portal.runs.services.booking import booking_cancel, booking_create
+from portal.runs.services.reservations import reservation_cancel, reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory
 
@@ -37,7 +37,7 @@ def booked(agent, owner, mobile):
         ],
     )
     start = timezone.now() + timedelta(minutes=2)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -140,7 +140,7 @@ def test_a_missing_or_unusable_rail_length_is_left_unset(agent, booked, monkeypa
 
 def test_cancelling_a_staged_run_withdraws_it_from_the_agent(agent, booked, owner):
     staging.run_stage(run_id=booked.pk)
-    booking_cancel(reservation=booked.reservation, by=owner)
+    reservation_cancel(reservation=booked.reservation, by=owner)
     staging.run_unstage(run_id=booked.pk)  # what the task queued on commit does
     assert _state(booked) == RunState.CANCELLED
     assert agent.client.get_run(booked.agent_run_id)["state"] == "cancelled"
@@ -151,7 +151,7 @@ def test_cancelling_a_running_run_aborts_it_and_keeps_the_data(agent, booked, ow
     start_s = booked.start_at.timestamp()
     agent.run_clock(start_s, start_s + 1.0)
     collection.run_collect(run_id=booked.pk)
-    booking_cancel(reservation=booked.reservation, by=owner)
+    reservation_cancel(reservation=booked.reservation, by=owner)
     staging.run_unstage(run_id=booked.pk)
     assert _state(booked) == RunState.RUNNING  # still to be collected
     agent.run_clock(start_s + 1.0 + TICK_S, start_s + 2.0)
@@ -178,7 +178,7 @@ def _cancel(run: Run, owner, capture, *, hooks_run: bool) -> None:
     """Cancel the booking as the API does; its commit hooks run, or are lost with the task
     they queue (a worker or broker that went down)."""
     with capture(execute=hooks_run):
-        booking_cancel(reservation=run.reservation, by=owner)
+        reservation_cancel(reservation=run.reservation, by=owner)
     run.reservation.refresh_from_db()
     assert run.reservation.state == ReservationState.CANCELLED
 

@@ -18,8 +18,8 @@ from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS
 from portal.runs.downloads import accepts_gzip
 from portal.runs.models import Run
 from portal.runs.selectors import run_report
-from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
+from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 
 pytestmark = pytest.mark.django_db
@@ -43,7 +43,7 @@ def _samples() -> list[dict]:
 @pytest.fixture
 def run(owner, mobile, experiment):
     start = timezone.now() + timedelta(hours=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=5),
         experiment=experiment,
     )  # fmt: skip
@@ -81,7 +81,7 @@ def test_the_json_download_is_whole_across_chunks_and_for_a_run_without_samples(
     assert document["samples"] == _expected()
 
     start = timezone.now() + timedelta(hours=2)
-    empty = booking_create(
+    empty = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=5),
         experiment=experiment,
     ).run  # fmt: skip

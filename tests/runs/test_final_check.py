@@ -17,8 +17,8 @@ from django.utils import timezone
 from basestation.client import AgentError
 from portal.runs.models import Run, Sample
 from portal.runs.services import collection, staging
-from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import MissingRange, missing_described
+from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory
 from tests.sqlite import run_on_sqlite
@@ -41,7 +41,7 @@ def staged(agent, owner, mobile):
         ],
     )
     start = timezone.now() + timedelta(minutes=2)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -219,7 +219,7 @@ from django.utils import timezone
 from bookings.models import Resource
 from core.accounts.models import User
 from portal.experiments.models import Experiment
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from portal.runs.services.collection import samples_ingest, run_missing_ranges
 from tests.runs.driving import drive, segments
 
@@ -229,7 +229,7 @@ robot = Resource.objects.create(name="mobile-1", kind="mobile", agent_url="http:
                                 max_velocity_mps=2.0, max_accel_mps2=1.0)
 experiment = Experiment.objects.create(owner=alice, title="gaps", segments=segments(program))
 start = timezone.now() + timedelta(hours=1)
-run = booking_create(owner=alice, resource=robot, start_at=start,
+run = reservation_create(owner=alice, resource=robot, start_at=start,
                      end_at=start + timedelta(seconds=10), experiment=experiment).run
 rows = drive(program, skip=frozenset({1, 2, 10, 11, 12}))
 samples_ingest(run=run, samples=[{**{k: v for k, v in r._asdict().items() if k != "t_s"},

@@ -19,12 +19,12 @@ from bookings.selectors import resource_free_intervals
 from bookings.services import resource_set_service
 from core.audit.models import AuditEvent
 from core.errors import InvalidInput, NotAllowed
-from portal.runs.services.booking import booking_check, booking_create
 from portal.runs.services.health import (
     robot_health_cached,
     robot_health_check,
     robot_health_problems,
 )
+from portal.runs.services.reservations import reservation_check, reservation_create
 from tests.factories import ExperimentFactory
 
 pytestmark = pytest.mark.django_db
@@ -39,7 +39,7 @@ def robot(agent, mobile) -> Resource:
 
 def _book(owner, resource: Resource):
     start = timezone.now() + timedelta(hours=2)
-    return booking_create(
+    return reservation_create(
         owner=owner,
         resource=resource,
         start_at=start,
@@ -66,7 +66,7 @@ def test_a_latched_estop_takes_the_robot_out_of_booking_with_the_reason(agent, r
     assert refused.value.message == f"mobile-1 is out of service: {reason}."
     # The calendar's live check says the same; no free time is offered.
     start = timezone.now() + timedelta(hours=2)
-    problems = booking_check(
+    problems = reservation_check(
         owner=owner,
         resources=[robot],
         start_at=start,

@@ -17,8 +17,8 @@ from basestation.contract import SAMPLE_COLUMNS, SAMPLE_FIELDS
 from core import live
 from portal.runs.models import Sample
 from portal.runs.services import collection
-from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
+from portal.runs.services.reservations import reservation_create
 
 pytestmark = pytest.mark.django_db
 
@@ -36,7 +36,7 @@ def _page(first: int, last: int) -> list[dict]:
 @pytest.fixture
 def run(owner, mobile, experiment):
     start = timezone.now() + timedelta(hours=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner, resource=mobile, start_at=start, end_at=start + timedelta(minutes=5),
         experiment=experiment,
     )  # fmt: skip

@@ -25,8 +25,8 @@ from bookings.models import Resource
 from core.errors import InvalidInput
 from portal.runs.models import Run
 from portal.runs.services import staging
-from portal.runs.services.booking import booking_create
 from portal.runs.services.health import robot_health_check
+from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.conftest import sign_in_with_second_factor
 from tests.factories import ExperimentFactory
@@ -70,7 +70,7 @@ def robot(agent_url, mobile) -> Resource:
 
 def _book(owner, robot: Resource, velocity_mps: float):
     start = timezone.now() + timedelta(hours=2)
-    return booking_create(
+    return reservation_create(
         owner=owner,
         resource=robot,
         start_at=start,

@@ -21,8 +21,8 @@ from bookings.services import resource_hold
 from core.audit.counters import event_count
 from portal.runs.models import Run
 from portal.runs.services import staging
-from portal.runs.services.booking import booking_create
 from portal.runs.services.health import RobotHealth, _cache_key
+from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 from tests.runs.driving import completed_run
@@ -99,7 +99,7 @@ def _booked_run(owner, robot) -> Run:
         owner=owner, segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 2.0}]
     )
     start = timezone.now() + timedelta(minutes=2)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=robot,
         start_at=start,

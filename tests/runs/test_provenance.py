@@ -11,7 +11,7 @@ from django.utils import timezone
 from portal.runs.models import Run
 from portal.runs.provenance import PORTAL_VERSION, provenance_at_collection
 from portal.runs.services import collection, staging
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from tests.factories import ExperimentFactory
 
 pytestmark = pytest.mark.django_db
@@ -25,7 +25,7 @@ def booked(agent, owner, mobile):
         owner=owner, segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 2.0}]
     )
     start = timezone.now() + timedelta(minutes=2)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -112,7 +112,7 @@ def test_the_run_page_says_how_the_run_was_made(agent, booked, client, owner):
 
 def _booked_at(owner, mobile, hours: int) -> Run:
     start = timezone.now() + timedelta(hours=hours)
-    return booking_create(
+    return reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

@@ -1,5 +1,5 @@
 """Run again: the same program with the same limits in the robot's next free slot, linked to
-the run it repeats (``portal/runs/services/booking.py`` ``booking_repeat``)."""
+the run it repeats (``portal/runs/services/reservations.py`` ``reservation_repeat``)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from django.utils import timezone
 
 from core.errors import DomainError
 from portal.runs.models import Run
-from portal.runs.services import booking as booking_services
-from portal.runs.services.booking import booking_create, booking_repeat
+from portal.runs.services import reservations as with_run
+from portal.runs.services.reservations import reservation_create, reservation_repeat
 from tests.factories import ExperimentFactory
 
 pytestmark = pytest.mark.django_db
@@ -23,7 +23,7 @@ def original(owner, mobile):
         owner=owner, segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 20.0}]
     )
     start = timezone.now() + timedelta(hours=1)
-    run = booking_create(
+    run = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -41,7 +41,7 @@ def original(owner, mobile):
 
 
 def _book(owner, mobile, start, seconds):
-    return booking_create(
+    return reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -61,7 +61,7 @@ def test_it_books_the_same_program_and_limits_in_the_next_free_slot(
     original.experiment.segments = [{"velocity_mps": 0.9, "direction": "ccw", "duration_s": 5}]
     original.experiment.save()
 
-    again = booking_repeat(run=original, by=owner, now=now).run
+    again = reservation_repeat(run=original, by=owner, now=now).run
     assert again.repeat_of_id == original.pk
     assert again.segments == original.segments
     assert again.title == original.title
@@ -78,7 +78,7 @@ def test_a_slot_taken_between_the_look_and_the_booking_is_looked_for_again(
     now = timezone.now().replace(microsecond=0)
     taken = _book(owner, mobile, now + timedelta(minutes=5), 40)
     looks = []
-    real = booking_services.resource_first_free
+    real = with_run.resource_first_free
 
     def stale_first(**kwargs):
         looks.append(kwargs["earliest"])
@@ -86,8 +86,8 @@ def test_a_slot_taken_between_the_look_and_the_booking_is_looked_for_again(
             return taken.start_at, taken.end_at
         return real(**kwargs)
 
-    monkeypatch.setattr(booking_services, "resource_first_free", stale_first)
-    again = booking_repeat(run=original, by=owner, now=now).run
+    monkeypatch.setattr(with_run, "resource_first_free", stale_first)
+    again = reservation_repeat(run=original, by=owner, now=now).run
     assert len(looks) == 2
     assert again.start_at != taken.start_at
 
@@ -96,7 +96,7 @@ def test_a_robot_out_of_service_is_refused_with_the_reason(owner, mobile, origin
     mobile.hold_reason = "emergency stop latched"
     mobile.save()
     with pytest.raises(DomainError) as caught:
-        booking_repeat(run=original, by=owner)
+        reservation_repeat(run=original, by=owner)
     assert "is out of service: emergency stop latched" in caught.value.message
     assert Run.objects.count() == 1
 

@@ -125,11 +125,11 @@ def test_an_unreachable_base_station_is_a_clear_503_and_still_audited(
 
 def test_the_daily_log_comes_from_the_base_station(robot, agent, admin_user, owner, client_for):
     from portal.runs.services import staging
-    from portal.runs.services.booking import booking_create
+    from portal.runs.services.reservations import reservation_create
     from tests.factories import ExperimentFactory
 
     start = timezone.now() + timedelta(minutes=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=robot,
         start_at=start,
@@ -153,7 +153,7 @@ def test_taking_the_robot_out_of_service_stops_bookings(
     robot, admin_user, owner, experiment, client_for
 ):
     from core.errors import InvalidInput
-    from portal.runs.services.booking import booking_create
+    from portal.runs.services.reservations import reservation_create
 
     client = client_for(admin_user)
     response = client.post(
@@ -165,7 +165,7 @@ def test_taking_the_robot_out_of_service_stops_bookings(
     assert response.json()["enabled"] is False
     start = timezone.now() + timedelta(hours=1)
     with pytest.raises(InvalidInput, match="out of service"):
-        booking_create(
+        reservation_create(
             owner=owner,
             resource=robot,
             start_at=start,

@@ -16,7 +16,7 @@ import json
 from datetime import timedelta
 from django.utils import timezone
 from bookings.models import Resource
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from core.accounts.models import User
 from portal.experiments.models import Experiment
 from portal.runs.models import Run
@@ -33,7 +33,7 @@ robot = Resource.objects.create(name="mobile-1", kind="mobile", agent_url="http:
 experiment = Experiment.objects.create(owner=alice, title="there and back",
                                        segments=segments(program))
 start = timezone.now() + timedelta(hours=1)
-reservation = booking_create(owner=alice, resource=robot, start_at=start,
+reservation = reservation_create(owner=alice, resource=robot, start_at=start,
                                  end_at=start + timedelta(minutes=3), experiment=experiment)
 run = reservation.run
 samples = [{**{k: v for k, v in r._asdict().items() if k != "t_s"},

@@ -24,7 +24,7 @@ from portal.celery import app as celery_app
 from portal.runs import notifications, tasks
 from portal.runs.models import DryRun, Run, RunEvent, Sample
 from portal.runs.services import dry_run, staging
-from portal.runs.services.booking import booking_cancel, booking_create
+from portal.runs.services.reservations import reservation_cancel, reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
 
@@ -66,7 +66,7 @@ def run(agent, owner, mobile) -> Run:
     mobile.agent_url = agent.url
     mobile.save()
     start = timezone.now() + timedelta(minutes=2)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -90,7 +90,7 @@ def test_staging_twice_stages_once(agent, run):
 
 def test_withdrawing_twice_withdraws_once(agent, run, owner):
     staging.run_stage(run_id=run.pk)
-    booking_cancel(reservation=run.reservation, by=owner)
+    reservation_cancel(reservation=run.reservation, by=owner)
     twice(tasks.run_unstage, run.pk)
     assert _events(run) == ["scheduled", "staged", "cancelled"]
     assert agent.client.get_run(run.agent_run_id)["state"] == "cancelled"
@@ -126,7 +126,7 @@ def test_a_run_its_owner_cancelled_is_not_told_about(agent, run, owner):
     start_s = run.start_at.timestamp()
     agent.run_clock(start_s, start_s + 1.0)
     tasks.run_collect.apply(args=(run.pk,))  # running here too
-    booking_cancel(reservation=run.reservation, by=owner)
+    reservation_cancel(reservation=run.reservation, by=owner)
     staging.run_unstage(run_id=run.pk)  # aborted on the robot, then collected
     agent.run_clock(start_s + 1.05, start_s + 2.0)
     tasks.run_collect.apply(args=(run.pk,))
@@ -196,7 +196,7 @@ def test_a_dry_run_delivered_twice_runs_once(owner, mobile, monkeypatch):
 
 def test_a_booking_mail_delivered_twice_is_sent_once(owner):
     start = timezone.now() + timedelta(days=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=FixedResourceFactory(),
         start_at=start,
@@ -212,7 +212,7 @@ def test_a_booking_mail_delivered_twice_is_sent_once(owner):
 
 def test_reminding_twice_reminds_once(owner, eager_tasks):
     start = timezone.now() + timedelta(minutes=30)
-    booking_create(
+    reservation_create(
         owner=owner,
         resource=FixedResourceFactory(),
         start_at=start,

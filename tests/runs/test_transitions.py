@@ -15,7 +15,7 @@ from core.audit.models import AuditEvent
 from core.errors import Conflict
 from portal.runs.admin import RunAdmin
 from portal.runs.models import Run, RunEvent
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from portal.runs.services.transitions import (
     TransitionNotAllowed,
     run_give_up,
@@ -31,7 +31,7 @@ README = Path(__file__).resolve().parents[2] / "README.md"
 @pytest.fixture
 def run(owner, mobile, experiment) -> Run:
     start = timezone.now() + timedelta(hours=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

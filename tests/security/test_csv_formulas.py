@@ -28,10 +28,10 @@ from django.utils import timezone
 
 from basestation.contract import CsvWriter, csv_cell
 from bookings.models import Resource
-from bookings.services import reservation_create
+from bookings.services import reservations as without_run
 from core.accounts.models import User
-from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
+from portal.runs.services.reservations import reservation_create
 from tests.basestation.conftest import run_body
 from tests.conftest import sign_in_with_second_factor
 from tests.factories import FixedResourceFactory, UserFactory
@@ -71,7 +71,7 @@ SHORT_FORMULAS = ("=1+1", "+1", "@SUM(A1)", "\t=1", "-2+3", "\r=1")  # grid_id h
 def run_with_formulas(owner, mobile, experiment):
     """A run whose agent sent a formula in its one free-text sample column (``grid_id``)."""
     start = timezone.now() + timedelta(hours=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -155,7 +155,7 @@ def test_the_usage_report_escapes_user_and_group_names(client, admin_user):
         person = cast(User, UserFactory(username=text))
         person.groups.add(Group.objects.create(name=text))
         at = start + timedelta(hours=2 * index)
-        reservation_create(
+        without_run.reservation_create(
             owner=person,
             resource=cast(Resource, FixedResourceFactory()),
             start_at=at,

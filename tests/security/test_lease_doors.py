@@ -21,7 +21,7 @@ from bookings.models import Reservation
 from core.audit.models import AuditEvent
 from portal.runs import tasks
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_create
+from portal.runs.services.reservations import reservation_create
 from portal.runs.services.staging import run_stage, runs_due_for_staging
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory, UserFactory, api_token
@@ -138,7 +138,7 @@ def test_a_lease_cancelled_withdraws_its_run(scheduler, leased_run):
 def due_run(owner, mobile) -> Run:
     """A confirmed booking with its run, starting within the staging lead."""
     start = timezone.now() + timedelta(minutes=2)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

@@ -17,8 +17,8 @@ from bookings.models import Resource
 from core import live
 from core.accounts.staff import has_staff_role
 from portal.runs.models import Run
-from portal.runs.services.booking import booking_create
 from portal.runs.services.collection import samples_ingest
+from portal.runs.services.reservations import reservation_create
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import Cause, RunState
 from portal.web.live import KEEPALIVE_S
@@ -86,7 +86,7 @@ def _follow(user: Any, url: str, then: Callable[[], Any], count: int) -> list[st
 @pytest.fixture
 def run(owner, mobile) -> Run:
     start = timezone.now() + timedelta(hours=1)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,
@@ -152,7 +152,7 @@ def test_the_calendar_stream_hears_bookings_made_anywhere(owner, other):
 
     def book() -> None:
         start = timezone.now() + timedelta(days=1)
-        booking_create(
+        reservation_create(
             owner=other,
             resource=node,
             start_at=start,

@@ -17,7 +17,7 @@ from core.openapi import errors
 from portal.experiments.selectors import experiments_visible
 from portal.runs.apis.reservations import ReservationOutput, request_door
 from portal.runs.selectors import reservations_with_runs_visible
-from portal.runs.services import booking
+from portal.runs.services import reservations as with_run
 
 
 class AttachInput(serializers.Serializer):
@@ -54,7 +54,7 @@ class ReservationAttachApi(APIView):
         reservation = get_object_or_404(reservations_with_runs_visible(user=user), pk=pk)
         data = valid_input(AttachInput, request.data)
         experiment = get_object_or_404(experiments_visible(user=user), pk=data["experiment"])
-        booking.booking_attach(
+        with_run.reservation_attach(
             reservation=reservation,
             experiment=experiment,
             by=user,

@@ -4,7 +4,7 @@ The vocabulary (parsing, lease documents, the broker's envelope, authentication)
 bookings layer's (``bookings/inbound.py``); this view lives with runs because a lease may hold
 a run (an experiment attached to it in the portal), and a lease moved or cancelled must move
 or withdraw that run with it. It changes bookings only through
-``portal/runs/services/booking.py``, as every other door does.
+``portal/runs/services/reservations.py``, as every other door does.
 """
 
 from __future__ import annotations
@@ -35,7 +35,11 @@ from bookings.inbound import (
 from bookings.rules import ProgramRefused
 from core.api import request_user
 from core.audit.services import client_ip
-from portal.runs.services.booking import booking_cancel, booking_create, booking_reschedule
+from portal.runs.services.reservations import (
+    reservation_cancel,
+    reservation_create,
+    reservation_reschedule,
+)
 
 
 @extend_schema(exclude=True)
@@ -62,7 +66,7 @@ class InboundLeasesApi(InboundApi):
         name = body_text(data, "name")
         start_at, end_at = body_time(data, "valid_from"), body_time(data, "valid_until")
         self._resources = body_components(data)
-        reservation = booking_create(
+        reservation = reservation_create(
             owner=body_account(data),
             by=request_user(request),
             resources=self._resources,
@@ -81,7 +85,7 @@ class InboundLeasesApi(InboundApi):
         self._resources = [i.resource for i in found.items.all()]
         start_at, end_at = body_time(data, "valid_from"), body_time(data, "valid_until")
         try:
-            moved = booking_reschedule(
+            moved = reservation_reschedule(
                 reservation=found,
                 by=request_user(request),
                 start_at=start_at,
@@ -106,7 +110,7 @@ class InboundLeasesApi(InboundApi):
         found = lease_find(data)
         if lease_status(found, timezone.now()) not in ("past", "cancelled"):
             # Its run, if one was attached, is withdrawn with it.
-            booking_cancel(
+            reservation_cancel(
                 reservation=found,
                 by=request_user(request),
                 reason="cancelled by the scheduler",

@@ -1,7 +1,7 @@
 """Reservations through the API: booking, moving, cancelling, deciding, checking.
 
 They live with runs because a booking of a mobile node is a reservation and its run, changed
-together (``portal/runs/services/booking.py``).
+together (``portal/runs/services/reservations.py``).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
 from portal.runs.models import RUNS
 from portal.runs.selectors import reservations_with_runs_visible, runs_visible
-from portal.runs.services import booking
+from portal.runs.services import reservations as with_run
 from portal.runs.states import RunState
 
 BOOKING_CONFLICT = (
@@ -208,7 +208,7 @@ class ReservationListApi(APIView):
         owner = data.pop("owner", None) or user
         experiment = _experiment(request, data.pop("experiment", None))
         # The new booking holds its items and their resources: the answer asks nothing more.
-        reservation = booking.booking_create(
+        reservation = with_run.reservation_create(
             owner=owner,
             by=user,
             experiment=experiment,
@@ -258,7 +258,7 @@ class RunAgainApi(APIView):
     def post(self, request: Request, pk: int) -> Response:
         user = request_user(request)
         run = get_object_or_404(runs_visible(user=user).select_related("experiment"), pk=pk)
-        reservation = booking.booking_repeat(
+        reservation = with_run.reservation_repeat(
             run=run, by=user, ip=client_ip(request), via=request_door(request)
         )
         return Response(ReservationOutput(reservation).data, status=status.HTTP_201_CREATED)
@@ -290,7 +290,7 @@ class ReservationDetailApi(APIView):
         current = self._get(request, pk)
         # A field left out keeps its value: moving only the end lengthens or shortens it.
         data = valid_input(RescheduleInput, request.data, partial=True)
-        reservation = booking.booking_reschedule(
+        reservation = with_run.reservation_reschedule(
             reservation=current,
             by=request_user(request),
             ip=client_ip(request),
@@ -323,7 +323,7 @@ class ReservationDetailApi(APIView):
             data = valid_input(CancelInput, request.data)
         else:
             data = valid_query(CancelInput, request.query_params)
-        reservation = booking.booking_cancel(
+        reservation = with_run.reservation_cancel(
             reservation=self._get(request, pk),
             by=request_user(request),
             reason=data["reason"],
@@ -350,7 +350,7 @@ class ReservationDecisionApi(APIView):
     )
     def post(self, request: Request, pk: int) -> Response:
         data = valid_input(DecisionInput, request.data)
-        reservation = booking.booking_decide(
+        reservation = with_run.reservation_decide(
             reservation=get_object_or_404(Reservation, pk=pk),
             by=request_user(request),
             ip=client_ip(request),
@@ -360,7 +360,7 @@ class ReservationDecisionApi(APIView):
         return Response(ReservationOutput(reservation).data)
 
 
-class BookingCheckInput(serializers.Serializer):
+class ReservationCheckInput(serializers.Serializer):
     resources = serializers.SlugRelatedField(
         many=True, slug_field="name", queryset=Resource.objects.all()
     )
@@ -379,7 +379,7 @@ class ProblemOutput(serializers.Serializer):
     message = serializers.CharField()
 
 
-class BookingCheckOutput(serializers.Serializer):
+class ReservationCheckOutput(serializers.Serializer):
     fits = serializers.BooleanField()
     problems = ProblemOutput(many=True)
     needs_approval = serializers.BooleanField(
@@ -400,7 +400,7 @@ class BookingCheckOutput(serializers.Serializer):
 
 
 CHECK_RESPONSES: dict[Any, Any] = {
-    200: BookingCheckOutput,
+    200: ReservationCheckOutput,
     **errors(
         404,
         502,
@@ -410,17 +410,17 @@ CHECK_RESPONSES: dict[Any, Any] = {
 }
 
 
-class BookingCheckApi(APIView):
+class ReservationCheckApi(APIView):
     """Would this booking be made? Every reason it would not; changes nothing.
 
     The rules are the ones booking applies (``bookings/rules.py``), and the testbed's scheduler
     is asked as booking asks it.
     """
 
-    @extend_schema(request=BookingCheckInput, responses=CHECK_RESPONSES)
+    @extend_schema(request=ReservationCheckInput, responses=CHECK_RESPONSES)
     def post(self, request: Request) -> Response:
-        data = valid_input(BookingCheckInput, request.data)
-        check = booking.booking_check(
+        data = valid_input(ReservationCheckInput, request.data)
+        check = with_run.reservation_check(
             owner=request_user(request),
             resources=data["resources"],
             start_at=data["start_at"],
@@ -442,10 +442,10 @@ class BookingCheckApi(APIView):
         )
 
 
-class QuotaCheckApi(BookingCheckApi):
+class QuotaCheckApi(ReservationCheckApi):
     """The live check's first name, kept for one release: use `POST /api/v1/reservations/check/`."""
 
-    @extend_schema(request=BookingCheckInput, responses=CHECK_RESPONSES, deprecated=True)
+    @extend_schema(request=ReservationCheckInput, responses=CHECK_RESPONSES, deprecated=True)
     def post(self, request: Request) -> Response:
         response = super().post(request)
         response["Deprecation"] = "true"

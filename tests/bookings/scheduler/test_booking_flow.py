@@ -23,20 +23,17 @@ from bookings.choices import ReservationState
 from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import LeaseStatus
 from bookings.selectors import resource_free_intervals
-from bookings.services import (
-    fixed_node_names_from_scheduler,
-    reservation_complete,
-    reservation_create,
-)
+from bookings.services import fixed_node_names_from_scheduler, reservation_complete
+from bookings.services import reservations as without_run
 from bookings.tasks import lease_cancel, scheduler_sweep
 from core.errors import Conflict, NotAllowed
 from portal.runs.models import Run
-from portal.runs.services.booking import (
-    booking_cancel,
-    booking_check,
-    booking_create,
-    booking_decide,
-    booking_reschedule,
+from portal.runs.services.reservations import (
+    reservation_cancel,
+    reservation_check,
+    reservation_create,
+    reservation_decide,
+    reservation_reschedule,
 )
 from tests.bookings.scheduler.conftest import Standin
 from tests.conftest import sign_in_with_second_factor
@@ -79,7 +76,7 @@ def test_a_booking_of_the_robot_and_four_nodes_holds_one_lease_of_the_four(
     linked, owner, mobile, slot
 ):
     experiment = ExperimentFactory(owner=owner)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resources=[mobile, *_nodes(1, 2, 3, 4)],
         start_at=slot[0],
@@ -99,7 +96,7 @@ def test_a_booking_without_scheduler_owned_nodes_asks_the_scheduler_nothing(
     linked, owner, mobile, slot
 ):
     linked.faults(unavailable=True)  # would fail any booking that asked it
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=slot[0],
@@ -120,7 +117,9 @@ def test_a_lease_made_elsewhere_refuses_the_booking_naming_it(linked, owner, slo
     with pytest.raises(
         Conflict, match="node-02 is leased on the testbed scheduler by someone"
     ) as e:
-        reservation_create(owner=owner, resources=_nodes(1, 2), start_at=slot[0], end_at=slot[1])
+        without_run.reservation_create(
+            owner=owner, resources=_nodes(1, 2), start_at=slot[0], end_at=slot[1]
+        )
     assert "r2lab-campaign" in e.value.message
     assert not Reservation.objects.exists()
     assert len(_live(linked)) == 1  # only theirs
@@ -179,7 +178,9 @@ def test_a_failure_after_the_lease_cancels_it_at_once(linked, owner, slot, monke
 
     monkeypatch.setattr("bookings.services.reservations.lease_record", broken)
     with pytest.raises(RuntimeError, match="disk full"):
-        reservation_create(owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1])
+        without_run.reservation_create(
+            owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
+        )
     assert not Reservation.objects.exists()
     [lease] = _broker_leases(linked)
     assert lease.status == LeaseStatus.CANCELLED
@@ -191,9 +192,9 @@ def test_a_failure_of_the_run_after_the_booking_gives_the_lease_back(
     def broken(**kwargs):
         raise RuntimeError("no run")
 
-    monkeypatch.setattr("portal.runs.services.booking.run_create", broken)
+    monkeypatch.setattr("portal.runs.services.reservations.run_create", broken)
     with pytest.raises(RuntimeError, match="no run"):
-        booking_create(
+        reservation_create(
             owner=owner,
             resources=[mobile, *_nodes(1)],
             start_at=slot[0],
@@ -248,8 +249,10 @@ def test_the_sweep_leaves_the_lease_of_a_booking_whose_run_completed_before_its_
     """Found by the soak: a run that completed early marks its booking completed, and the
     sweep took that booking's lease for an orphan and cancelled it — the fixed nodes given
     away in the middle of the researcher's slot."""
-    kept = reservation_create(owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1])
-    withdrawn = reservation_create(
+    kept = without_run.reservation_create(
+        owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
+    )
+    withdrawn = without_run.reservation_create(
         owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
     )
     assert reservation_complete(reservation_id=kept.pk)
@@ -364,16 +367,20 @@ def test_a_booking_cancels_the_portals_own_orphan_in_its_way_but_no_other_lease(
     thread.start()
     try:
         assert booking.wait(10)
-        reservation = reservation_create(
+        reservation = without_run.reservation_create(
             owner=owner, resources=_nodes(5), start_at=slot[0], end_at=slot[1]
         )
         with pytest.raises(Conflict, match="node-06 is leased on the testbed scheduler"):
-            reservation_create(owner=owner, resources=_nodes(6), start_at=slot[0], end_at=slot[1])
+            without_run.reservation_create(
+                owner=owner, resources=_nodes(6), start_at=slot[0], end_at=slot[1]
+            )
     finally:
         release.set()
         thread.join()
     with pytest.raises(Conflict, match="node-04 is leased on the testbed scheduler by someone"):
-        reservation_create(owner=owner, resources=_nodes(4), start_at=slot[0], end_at=slot[1])
+        without_run.reservation_create(
+            owner=owner, resources=_nodes(4), start_at=slot[0], end_at=slot[1]
+        )
     by_name = {lease.name: lease for lease in _broker_leases(linked)}
     assert by_name[leases.lease_name_for(orphan)].status == LeaseStatus.CANCELLED
     assert by_name[leases.lease_name_for(being_booked)].holds_nodes
@@ -388,7 +395,7 @@ from datetime import timedelta
 from django.utils import timezone
 from bookings import leases
 from bookings.models import Resource
-from bookings.services import reservation_create
+from bookings.services import without_run.reservation_create
 from core.accounts.models import User
 
 node = Resource.objects.create(name="node-05", kind="fixed")
@@ -400,7 +407,7 @@ with leases.scheduler_client() as scheduler:
         name=leases.lease_name_for(uuid.uuid4()), valid_from=start, valid_until=end,
         component_names=["node-05"],
     )
-booked = reservation_create(owner=alice, resource=node, start_at=start, end_at=end)
+booked = without_run.reservation_create(owner=alice, resource=node, start_at=start, end_at=end)
 with leases.scheduler_client() as scheduler:
     for lease in scheduler.list_leases(window_start=start, window_end=end, statuses=("cancelled",)):
         print("cancelled:", lease.uuid == orphan.uuid)
@@ -438,7 +445,7 @@ def test_leases_made_elsewhere_show_as_busy_and_block_the_live_check(linked, own
     ]
     free = resource_free_intervals(resource=node, start_at=slot[0], end_at=slot[1])
     assert free == [(slot[0] + timedelta(minutes=10), slot[1])]
-    check = booking_check(
+    check = reservation_check(
         owner=owner, resources=[node], start_at=slot[0], end_at=slot[1], experiment=None
     )
     assert [p.code for p in check.problems] == ["lease"]
@@ -447,7 +454,9 @@ def test_leases_made_elsewhere_show_as_busy_and_block_the_live_check(linked, own
 
 def test_the_live_check_asks_the_scheduler_as_booking_does(linked, owner, other, slot):
     # A portal booking of node-06, which holds a lease of its own.
-    reservation_create(owner=other, resources=_nodes(6), start_at=slot[0], end_at=slot[1])
+    without_run.reservation_create(
+        owner=other, resources=_nodes(6), start_at=slot[0], end_at=slot[1]
+    )
     # A lease made elsewhere a moment ago: nothing has mirrored it yet.
     linked.seed(
         name="just-now",
@@ -456,7 +465,7 @@ def test_the_live_check_asks_the_scheduler_as_booking_does(linked, owner, other,
         components=[{"name": "node-05"}],
         account_attributes={"name": "fit"},
     )
-    check = booking_check(
+    check = reservation_check(
         owner=owner, resources=_nodes(5, 6), start_at=slot[0], end_at=slot[1], experiment=None
     )
     assert (check.leases_from, check.notice) == ("scheduler", "")
@@ -469,7 +478,9 @@ def test_the_live_check_asks_the_scheduler_as_booking_does(linked, owner, other,
     assert not SchedulerLease.objects.filter(name="just-now").exists()  # a check writes nothing
     # Booking says the same first problem.
     with pytest.raises(Conflict) as refused:
-        reservation_create(owner=owner, resources=_nodes(5, 6), start_at=slot[0], end_at=slot[1])
+        without_run.reservation_create(
+            owner=owner, resources=_nodes(5, 6), start_at=slot[0], end_at=slot[1]
+        )
     assert refused.value.message == check.problems[0].message
 
 
@@ -511,7 +522,7 @@ def test_when_the_scheduler_cannot_be_reached_the_check_reads_the_mirror_and_say
 def test_a_late_lease_over_a_booking_is_flagged_and_its_owner_and_the_admins_told(
     linked, owner, admin_user, slot, eager_tasks
 ):
-    reservation = reservation_create(
+    reservation = without_run.reservation_create(
         owner=owner, resources=_nodes(3), start_at=slot[0], end_at=slot[1]
     )
     mail.outbox.clear()
@@ -534,7 +545,7 @@ def test_a_late_lease_over_a_booking_is_flagged_and_its_owner_and_the_admins_tol
 
 
 def test_a_booking_whose_lease_vanished_is_flagged(linked, owner, slot, eager_tasks):
-    reservation = reservation_create(
+    reservation = without_run.reservation_create(
         owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
     )
     with linked.scheduler() as scheduler:
@@ -554,7 +565,7 @@ def test_a_sweep_whose_listing_is_older_than_a_booking_does_not_call_its_lease_g
     began = timezone.now()
     with linked.scheduler() as scheduler:
         before = scheduler.list_leases(statuses=leases.ALL_STATUSES)
-    reservation = reservation_create(
+    reservation = without_run.reservation_create(
         owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
     )
     assert reservation.lease_uuid not in {lease.uuid for lease in before}
@@ -573,16 +584,18 @@ def test_a_sweep_whose_listing_is_older_than_a_booking_does_not_call_its_lease_g
 
 
 def test_moving_a_booking_moves_its_lease_or_changes_neither(linked, owner, other, slot):
-    reservation = reservation_create(
+    reservation = without_run.reservation_create(
         owner=owner, resources=_nodes(1, 2), start_at=slot[0], end_at=slot[1]
     )
     later = (slot[0] + timedelta(hours=2), slot[1] + timedelta(hours=2))
-    booking_reschedule(reservation=reservation, by=owner, start_at=later[0], end_at=later[1])
+    reservation_reschedule(reservation=reservation, by=owner, start_at=later[0], end_at=later[1])
     [lease] = _live(linked)
     assert (lease.valid_from, lease.valid_until) == later
-    reservation_create(owner=other, resources=_nodes(2), start_at=slot[0], end_at=slot[1])
+    without_run.reservation_create(
+        owner=other, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
+    )
     with pytest.raises(Conflict):
-        booking_reschedule(reservation=reservation, by=owner, start_at=slot[0], end_at=slot[1])
+        reservation_reschedule(reservation=reservation, by=owner, start_at=slot[0], end_at=slot[1])
     reservation.refresh_from_db()
     assert (reservation.start_at, reservation.end_at) == later
     ours = next(lease for lease in _live(linked) if lease.uuid == reservation.lease_uuid)
@@ -592,11 +605,11 @@ def test_moving_a_booking_moves_its_lease_or_changes_neither(linked, owner, othe
 def test_cancelling_a_booking_cancels_its_lease(
     linked, owner, slot, eager_tasks, django_capture_on_commit_callbacks
 ):
-    reservation = reservation_create(
+    reservation = without_run.reservation_create(
         owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
     )
     with django_capture_on_commit_callbacks(execute=True):
-        booking_cancel(reservation=reservation, by=owner)
+        reservation_cancel(reservation=reservation, by=owner)
     assert _live(linked) == []
 
 
@@ -606,13 +619,15 @@ def test_a_booking_awaiting_approval_holds_its_lease_until_rejected(
     [node] = _nodes(6)
     node.requires_approval = True
     node.save()
-    reservation = reservation_create(
+    reservation = without_run.reservation_create(
         owner=owner, resources=[node], start_at=slot[0], end_at=slot[1]
     )
     assert reservation.state == ReservationState.REQUESTED
     assert len(_live(linked)) == 1  # the slot is held while an admin decides
     with django_capture_on_commit_callbacks(execute=True):
-        booking_decide(reservation=reservation, by=admin_user, approve=False, reason="roof closed")
+        reservation_decide(
+            reservation=reservation, by=admin_user, approve=False, reason="roof closed"
+        )
     assert _live(linked) == []
 
 
@@ -644,7 +659,7 @@ def test_the_fixed_nodes_come_from_the_scheduler(linked):
 
 def test_only_admins_and_the_scheduler_account_book_for_others(linked, owner, other, slot):
     with pytest.raises(NotAllowed):
-        reservation_create(
+        without_run.reservation_create(
             owner=owner, by=other, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
         )
     assert _live(linked) == []
@@ -653,7 +668,9 @@ def test_only_admins_and_the_scheduler_account_book_for_others(linked, owner, ot
 def test_the_sweep_twice_cancels_an_orphan_and_tells_an_owner_once(
     linked, owner, slot, eager_tasks
 ):
-    booked = reservation_create(owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1])
+    booked = without_run.reservation_create(
+        owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
+    )
     linked.seed(
         name="sneaky",
         valid_from=slot[0].isoformat(),
@@ -677,7 +694,7 @@ def test_the_sweep_twice_cancels_an_orphan_and_tells_an_owner_once(
 
 
 def test_cancelling_a_lease_twice_cancels_it_once(linked, owner, slot):
-    reservation = reservation_create(
+    reservation = without_run.reservation_create(
         owner=owner, resources=_nodes(1), start_at=slot[0], end_at=slot[1]
     )
     twice(lease_cancel, reservation.lease_uuid)

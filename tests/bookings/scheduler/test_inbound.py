@@ -18,8 +18,8 @@ from django.utils import timezone
 
 from bookings.choices import BookedVia
 from bookings.models import Blackout, QuotaPolicy, Reservation
-from bookings.services import reservation_create
-from portal.runs.services.booking import booking_create
+from bookings.services import reservations as without_run
+from portal.runs.services.reservations import reservation_create
 from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory, api_token
 
 pytestmark = pytest.mark.django_db(transaction=True)
@@ -130,7 +130,7 @@ def test_a_lease_on_the_robot_books_it_for_the_account_and_is_listed(
 def test_refusals_come_back_in_the_brokers_envelope(
     broker_client, service_token, lease_body, owner, mobile
 ):
-    reservation_create(
+    without_run.reservation_create(
         owner=UserFactory(username="zed"),
         resource=mobile,
         start_at=timezone.now() + timedelta(days=1, hours=-1),
@@ -193,7 +193,7 @@ def test_a_booking_made_in_the_portal_is_listed_but_not_changed_through_leases(
     broker_client, service_token, owner, mobile
 ):
     start = timezone.now() + timedelta(days=2)
-    reservation = booking_create(
+    reservation = reservation_create(
         owner=owner,
         resource=mobile,
         start_at=start,

@@ -1,10 +1,12 @@
-"""Booking with a robot program: a reservation and its run change together, or not at all.
+"""Reservations with a robot program: a reservation and its run change together, or not at all.
 
-Each function here opens one transaction and, inside it, calls the booking service of
-``bookings/services/reservations.py`` (which takes the booking locks and asks
-``bookings.rules`` whether the booking can be made) and then does the run's part. Bookings
-know nothing of runs: what only this layer knows (who wrote the experiment, whether the run
-has left the schedule) is passed in.
+Each function here opens one transaction and, inside it, calls its namesake in
+``bookings/services/reservations.py`` (imported as ``without_run``: it takes the booking locks
+and asks ``bookings.rules`` whether the reservation can be made) and then does the run's part.
+The bookings layer knows nothing of runs: what only this layer knows (who wrote the
+experiment, whether the run has left the schedule) is passed in. The two layers use one word,
+*reservation*, as the model, the tables and the REST API (``/api/v1/reservations/``) do;
+"booking" is the act, in the rules' names and on the pages.
 
 This is the one door for a booking that holds or may hold a run: the pages, the REST API (and
 the ``amazing`` command through it), the Django admin's actions and the testbed scheduler's
@@ -27,15 +29,8 @@ from bookings.choices import BookedVia, Channel
 from bookings.leases import lease_release
 from bookings.models import Reservation, Resource
 from bookings.selectors import resource_first_free
-from bookings.services import (
-    BookingCheck,
-    reservation_cancel,
-    reservation_check,
-    reservation_create,
-    reservation_decide,
-    reservation_program_attach,
-    reservation_reschedule,
-)
+from bookings.services import ReservationCheck
+from bookings.services import reservations as without_run
 from core.accounts.models import User
 from core.errors import Conflict
 from portal.experiments.models import Experiment
@@ -47,7 +42,7 @@ from portal.runs.tasks import run_unstage
 logger = logging.getLogger(__name__)
 
 
-def booking_create(
+def reservation_create(
     *,
     owner: User,
     resources: Sequence[Resource] | None = None,
@@ -66,11 +61,11 @@ def booking_create(
     """Book resources; on a mobile node, also schedule the run of ``experiment`` there.
 
     A booking made through the lease API (``booked_via``) may hold its robot without an
-    experiment; one is attached later (``booking_attach``)."""
+    experiment; one is attached later (``reservation_attach``)."""
     chosen = list(resources or ([resource] if resource is not None else []))
     mobile = next((r for r in chosen if r.is_mobile), None)
     book = partial(
-        reservation_create,
+        without_run.reservation_create,
         owner=owner,
         resources=chosen,
         start_at=start_at,
@@ -110,7 +105,7 @@ REPEAT_HORIZON = timedelta(days=62)
 REPEAT_ATTEMPTS = 3
 
 
-def booking_repeat(
+def reservation_repeat(
     *,
     run: Run,
     by: User,
@@ -165,7 +160,7 @@ def _book_repeat(
     reservation: Reservation | None = None
     try:
         with transaction.atomic():
-            reservation = reservation_create(
+            reservation = without_run.reservation_create(
                 owner=owner,
                 resources=[run.resource],
                 start_at=slot[0],
@@ -192,7 +187,7 @@ def _book_repeat(
     return reservation
 
 
-def booking_attach(
+def reservation_attach(
     *,
     reservation: Reservation,
     experiment: Experiment,
@@ -206,7 +201,7 @@ def booking_attach(
     with transaction.atomic():
         # Reservation first, then run: the order every path that takes both locks uses.
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
-        attached = reservation_program_attach(
+        attached = without_run.reservation_program_attach(
             reservation=locked,
             by=by,
             program=experiment,
@@ -220,7 +215,7 @@ def booking_attach(
         return run_create(reservation=attached, resource=mobile, experiment=experiment, by=by)
 
 
-def booking_reschedule(
+def reservation_reschedule(
     *,
     reservation: Reservation,
     by: User,
@@ -236,7 +231,7 @@ def booking_reschedule(
         # Reservation first, then run: the order every path that takes both locks uses.
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
         run = Run.objects.select_for_update().filter(reservation=locked).first()
-        moved = reservation_reschedule(
+        moved = without_run.reservation_reschedule(
             reservation=locked,
             by=by,
             start_at=start_at,
@@ -271,7 +266,7 @@ def _withdraw_run(reservation: Reservation, *, reason: str, by: User) -> None:
         transaction.on_commit(partial(run_unstage.delay, run.pk))
 
 
-def booking_cancel(
+def reservation_cancel(
     *,
     reservation: Reservation,
     by: User,
@@ -281,14 +276,14 @@ def booking_cancel(
 ) -> Reservation:
     """Cancel a booking and withdraw its run (``via``: where it was cancelled, for its owner)."""
     with transaction.atomic():
-        cancelled = reservation_cancel(
+        cancelled = without_run.reservation_cancel(
             reservation=reservation, by=by, reason=reason, ip=ip, via=via
         )
         _withdraw_run(cancelled, reason=reason or f"cancelled by {by.get_username()}", by=by)
     return cancelled
 
 
-def booking_decide(
+def reservation_decide(
     *,
     reservation: Reservation,
     by: User,
@@ -299,7 +294,7 @@ def booking_decide(
 ) -> Reservation:
     """An admin approves or rejects a requested booking; a rejected one's run is withdrawn."""
     with transaction.atomic():
-        decided = reservation_decide(
+        decided = without_run.reservation_decide(
             reservation=reservation, by=by, approve=approve, reason=reason, ip=ip, via=via
         )
         if not approve:
@@ -307,7 +302,7 @@ def booking_decide(
     return decided
 
 
-def booking_check(
+def reservation_check(
     *,
     owner: User,
     resources: Sequence[Resource],
@@ -318,14 +313,15 @@ def booking_check(
     override_reason: str = "",
     exclude_reservation_id: int | None = None,
     now: datetime | None = None,
-) -> BookingCheck:
+) -> ReservationCheck:
     """Everything that would refuse this booking now, for the calendar's live check.
 
-    The same rules ``booking_create`` applies under its locks (``bookings.rules``), all of
-    them at once and without locking, the testbed scheduler asked as booking asks it; nothing
-    is written. ``by``: who would book (an admin, for ``owner``; default ``owner``).
+    The same rules ``without_run.reservation_create`` applies under its locks
+    (``bookings.rules``), all of them at once and without locking, the testbed scheduler asked
+    as booking asks it; nothing is written. ``by``: who would book (an admin, for ``owner``;
+    default ``owner``).
     """
-    return reservation_check(
+    return without_run.reservation_check(
         owner=owner,
         resources=resources,
         start_at=start_at,
