@@ -37,6 +37,7 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "samples_json": ("GET", "/api/v1/runs/{id}/samples.json"),
     "run_package": ("GET", "/api/v1/runs/{id}/package.zip"),
     "run_again": ("POST", "/api/v1/runs/{id}/again/"),
+    "events": ("GET", "/api/v1/events/"),
     "schema": ("GET", "/api/schema/"),
 }
 

@@ -15,7 +15,7 @@ from typing import Annotated
 
 import typer
 
-from amazing_cli.commands import account, bookings, experiments, resources, runs
+from amazing_cli.commands import account, bookings, events, experiments, resources, runs
 from amazing_cli.errors import OK
 
 app = typer.Typer(
@@ -61,6 +61,7 @@ app.command()(bookings.attach)
 app.command()(runs.runs)
 app.command()(runs.watch)
 app.command()(runs.download)
+app.command()(events.events)
 experiment_app.command("create")(experiments.experiment_create)
 experiment_app.command("list")(experiments.experiment_list)
 

@@ -48,7 +48,9 @@ from bookings.scheduler import (
 )
 from core import sql
 from core.audit.counters import event_count
+from core.audit.text import storable_text
 from core.errors import Conflict, DomainError
+from core.events.services import event_record
 
 logger = logging.getLogger(__name__)
 
@@ -495,22 +497,44 @@ def scheduler_sweep(*, now: datetime | None = None) -> SweepResult | None:
                 )
                 logger.warning("orphan lease %s (%s) cancelled", lease.uuid, lease.name)
     except SchedulerError as exc:
+        was_down = _link_down(link)
         link.last_error = exc.message
         link.last_error_at = now
-        link.save()
+        with transaction.atomic():
+            link.save()
+            if not was_down:
+                since = {"since": link.last_success_at.isoformat()} if link.last_success_at else {}
+                _link_event("scheduler.link_down", error=storable_text(exc.message), **since)
         event_count("scheduler_link_errors")
         logger.warning("scheduler sweep failed: %s", exc)
         return None
     with transaction.atomic():
         live = [lease for lease in leases if lease.uuid not in {o.uuid for o in orphans}]
         notices = _flag_late_conflicts(live, now=now) + _flag_vanished(live, now=now, window=window)
+    was_down = _link_down(link)
     link.last_success_at = now
     link.last_sweep_s = time.monotonic() - started_s
     link.leases_seen = len(leases)
     link.orphans_cancelled += len(orphans)
     link.bookings_flagged += len(notices)
-    link.save()
+    with transaction.atomic():
+        link.save()
+        if was_down:
+            _link_event("scheduler.link_up", error="")
     return SweepResult(len(leases), len(orphans), tuple(notices))
+
+
+def _link_down(link: SchedulerLink) -> bool:
+    """The link's last sweep failed (its error is newer than its last success)."""
+    return link.last_error_at is not None and (
+        link.last_success_at is None or link.last_error_at > link.last_success_at
+    )
+
+
+def _link_event(type: str, **payload: str) -> None:
+    """The link going down or coming back, for staff (``core.events``): once per change,
+    in the transaction that records it (sweeps run one at a time, from beat)."""
+    event_record(subject="scheduler", type=type, owner_id=None, payload=payload)
 
 
 def scheduler_link_status(*, now: datetime | None = None) -> dict[str, object]:

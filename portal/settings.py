@@ -134,6 +134,7 @@ INSTALLED_APPS = [
     "portal.experiments",
     "portal.runs",
     "core.audit",
+    "core.events",
     "bookings",
     "allauth",
     "allauth.account",

@@ -39,6 +39,7 @@ from bookings.services.resources import (
     resource_hold_lift,
     resource_record_agent_limits,
     resource_set_service,
+    robot_event,
 )
 from bookings.services.setup import (
     TestbedSpec,
@@ -68,5 +69,6 @@ __all__ = [
     "resource_hold_lift",
     "resource_record_agent_limits",
     "resource_set_service",
+    "robot_event",
     "testbed_resources_ensure",
 ]

@@ -57,6 +57,7 @@ from bookings.tasks import lease_cancel
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import Conflict, DomainError
+from core.events.services import event_record
 
 logger = logging.getLogger(__name__)
 
@@ -71,6 +72,40 @@ def _release_lease_after_commit(reservation: Reservation) -> None:
 def _door(via: Channel | None) -> str:
     """The door a change came through, as its audit row records it ("" when not said)."""
     return via.value if via is not None else ""
+
+
+def _event(
+    type: str,
+    reservation: Reservation,
+    *,
+    by: User | None,
+    via: Channel | None,
+    resources: Sequence[str] | None = None,
+) -> None:
+    """The change's event, in its transaction (``core.events``): the reservation as it is
+    now, who changed it and through which door."""
+    names = (
+        list(resources)
+        if resources is not None
+        else list(
+            reservation.items.order_by("resource__name").values_list("resource__name", flat=True)
+        )
+    )
+    event_record(
+        subject=f"reservation:{reservation.pk}",
+        type=type,
+        owner_id=reservation.owner_id,
+        payload={
+            "reservation": reservation.pk,
+            "state": str(reservation.state),
+            "resources": names,
+            "start_at": reservation.start_at.isoformat(),
+            "end_at": reservation.end_at.isoformat(),
+            "title": reservation.title,
+            "via": _door(via),
+            "by": by.get_username() if by is not None else None,
+        },
+    )
 
 
 def _hold_items(reservation: Reservation, items: list[ReservationItem]) -> None:
@@ -446,6 +481,13 @@ def _create_write(
     if lease is not None:
         lease_record(lease=lease, reservation=reservation, resources=booking.owned)
     _create_audit(booking, reservation, lease=lease, overridden=overridden, ip=ip, via=via)
+    _event(
+        "reservation.created",
+        reservation,
+        by=booking.by,
+        via=via,
+        resources=sorted(r.name for r in booking.resources),
+    )
     _notify("requested" if booking.waits else "confirmed", reservation.pk)
     return reservation
 
@@ -596,6 +638,7 @@ def _reschedule_write(
         after=(start_at.isoformat(), end_at.isoformat()),
         via=_door(via),
     )
+    _event("reservation.moved", locked, by=by, via=via)
 
 
 def _lease_move_back(lease_uuid: str, start_at: datetime, end_at: datetime) -> None:
@@ -683,6 +726,7 @@ def reservation_cancel(
             reason=reason,
             via=_door(via),
         )
+        _event("reservation.cancelled", locked, by=by, via=via)
         if by_admin:
             _notify("cancelled", locked.pk, via=via.value if via is not None else "")
     logger.info("reservation %s cancelled by %s", reservation.pk, by.get_username())
@@ -723,6 +767,9 @@ def reservation_decide(
             ip=ip,
             reason=reason,
             via=_door(via),
+        )
+        _event(
+            "reservation.approved" if approve else "reservation.rejected", locked, by=by, via=via
         )
         _notify("approved" if approve else "rejected", locked.pk)
     return locked

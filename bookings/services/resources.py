@@ -17,7 +17,23 @@ from bookings.models import HOLD_REASON_MAX_CHARS, Resource
 from core.accounts.models import User
 from core.audit.counters import event_count
 from core.audit.services import audit_record
+from core.audit.text import storable_text
 from core.errors import InvalidInput, NotAllowed
+from core.events.services import event_record
+
+
+def robot_event(type: str, resource: Resource, *, reason: str, by: User | None) -> None:
+    """A robot's change as an event for staff (``core.events``), in the change's transaction."""
+    event_record(
+        subject=f"robot:{resource.name}",
+        type=type,
+        owner_id=None,
+        payload={
+            "resource": resource.name,
+            "reason": storable_text(reason),
+            "by": by.get_username() if by is not None else None,
+        },
+    )
 
 
 def resource_set_service(
@@ -48,6 +64,8 @@ def resource_set_service(
             reason=reason,
             **({"lifted_hold": lifted} if lifted else {}),
         )
+        if lifted:
+            robot_event("robot.released", locked, reason=reason, by=by)
     return locked
 
 
@@ -66,6 +84,7 @@ def resource_hold(*, resource_id: int, reason: str) -> bool:
         if held:
             resource = Resource.objects.get(pk=resource_id)
             audit_record(actor=None, action="resource.hold", target=resource, reason=reason)
+            robot_event("robot.held", resource, reason=reason, by=None)
             event_count("robot_holds", resource=resource.name)
     return bool(held)
 
@@ -89,6 +108,7 @@ def resource_hold_lift(*, resource_id: int, reason_prefix: str, why: str) -> boo
         audit_record(
             actor=None, action="resource.hold_lifted", target=locked, reason=why, lifted_hold=lifted
         )
+        robot_event("robot.released", locked, reason=why, by=None)
     return True
 
 

@@ -8,9 +8,11 @@ test database. Every request it makes is recorded, and each must be an operation
 from __future__ import annotations
 
 import json
+import queue
 import stat
 import subprocess
 import sys
+import threading
 import zipfile
 from datetime import timedelta
 from pathlib import Path
@@ -386,3 +388,42 @@ def test_download_zip_writes_the_package_and_checks_it(portal, tmp_path):
     assert f"Wrote amazing-run-{run.pk}.zip: 40 samples" in downloaded.stdout
     with zipfile.ZipFile(tmp_path / f"amazing-run-{run.pk}.zip") as package:
         assert sorted(package.namelist()) == ["README.md", "datapackage.json", "samples.csv"]
+
+
+def test_events_follow_prints_a_runs_events_as_it_runs_and_stops_at_its_end(portal):
+    """`amazing events --follow --run N`, a process of its own, prints each state the moment
+    the portal commits it (a long poll), and exits once the run has ended."""
+    from portal.runs.services.transitions import run_transition
+    from portal.runs.states import Cause, RunState
+
+    erin = portal["erin"]
+    start = timezone.now().replace(microsecond=0) + timedelta(hours=1)
+    reservation = reservation_create(
+        owner=erin,
+        resource=Resource.objects.get(name="mobile-1"),
+        start_at=start,
+        end_at=start + timedelta(minutes=10),
+        experiment=ExperimentFactory(owner=erin, title="followed"),
+    )
+    run = Run.objects.get(reservation=reservation)
+    script = Path(sys.executable).parent / "amazing"
+    follower = subprocess.Popen(
+        [str(script), "events", "--follow", "--run", str(run.pk)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: queue.Queue[str] = queue.Queue()
+    reader = threading.Thread(target=lambda: [lines.put(line) for line in follower.stdout])
+    reader.start()
+    try:
+        assert "run.scheduled" in lines.get(timeout=30)
+        for state in (RunState.STAGED, RunState.RUNNING, RunState.COLLECTING, RunState.COMPLETED):
+            assert run_transition(run_id=run.pk, to_state=state, cause=Cause.DISPATCH)
+            line = lines.get(timeout=30)
+            assert f"run.{state} run:{run.pk}" in line, line
+        assert follower.wait(timeout=30) == 0, follower.stderr.read()
+    finally:
+        follower.kill()
+        reader.join(10)
+    assert lines.empty()  # the reservation's own events were not the run's

@@ -10,11 +10,13 @@ from datetime import date
 from typing import Any
 
 from django.core.cache import cache
+from django.db import transaction
 
 from basestation.client import AgentConflict, AgentError, AgentRejected
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
 from bookings.rules import velocity_problem
+from bookings.services import robot_event
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.audit.text import storable_text
@@ -57,10 +59,12 @@ def _call(
     fn: Any,
     *,
     audit_success: bool = True,
+    event: str | None = None,
     **data: Any,
 ) -> dict[str, Any]:
     """Run one agent call and audit it, whatever the agent answered (a success only when
-    ``audit_success``: the repeats of a held command are one action)."""
+    ``audit_success``: the repeats of a held command are one action); a success is the
+    ``event`` too, if named (``core.events``), in the audit row's transaction."""
     try:
         result: dict[str, Any] = fn()
     except AgentError as exc:
@@ -79,7 +83,10 @@ def _call(
             f"The base station of {resource.name} did not answer: {exc.message}"
         ) from exc
     if audit_success:
-        audit_record(actor=by, action=action, target=resource, ip=ip, reason=reason, **data)
+        with transaction.atomic():
+            audit_record(actor=by, action=action, target=resource, ip=ip, reason=reason, **data)
+            if event is not None:
+                robot_event(event, resource, reason=reason, by=by)
     return result
 
 
@@ -135,6 +142,7 @@ def robot_drive(
     repeat = hold and _hold_repeats(
         resource=resource, by=by, velocity_mps=velocity_mps, direction=direction
     )
+    held: dict[str, Any] = {"hold": True} if hold else {}
     return _call(
         "robot.control",
         resource,
@@ -153,7 +161,7 @@ def robot_drive(
         direction=direction,
         ttl_s=ttl_s,
         force=force,
-        **({"hold": True} if hold else {}),
+        **held,
     )
 
 
@@ -180,6 +188,7 @@ def robot_stop(
         ip,
         reason,
         lambda: client.stop(user=by.get_username(), reason=reason.strip() or "emergency stop"),
+        event="robot.estopped",
         **extra,
     )
 
@@ -199,6 +208,7 @@ def robot_release(
         ip,
         reason,
         lambda: client.release_stop(user=by.get_username()),
+        event="robot.estop_released",
     )
 
 

@@ -12,6 +12,7 @@ from bookings.models import Reservation, Resource
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import Conflict, InvalidInput, NotAllowed
+from core.events.services import event_record
 from core.live import publish_on_commit, run_channel
 from portal.experiments.models import Experiment
 from portal.runs.models import Run, RunEvent
@@ -22,6 +23,35 @@ logger = logging.getLogger(__name__)
 
 class TransitionNotAllowed(ValueError):
     """A change of state the table does not allow for this cause: a programming error."""
+
+
+def _run_event(
+    *,
+    run_id: int,
+    reservation_id: int,
+    owner_id: int,
+    resource: str,
+    from_state: str,
+    to_state: str,
+    reason: str,
+    cause: str,
+) -> None:
+    """The run's new state as an event for its owner (``core.events``), in the transition's
+    transaction, beside its ``RunEvent`` (the run's own history, shown on its page)."""
+    event_record(
+        subject=f"run:{run_id}",
+        type=f"run.{to_state}",
+        owner_id=owner_id,
+        payload={
+            "run": run_id,
+            "reservation": reservation_id,
+            "resource": resource,
+            "state": str(to_state),
+            "from_state": str(from_state) or None,
+            "reason": reason,
+            "cause": str(cause),
+        },
+    )
 
 
 def run_create(
@@ -59,6 +89,16 @@ def run_create(
         reason="booked",
         cause=Cause.BOOKING,
         by=by,
+    )
+    _run_event(
+        run_id=run.pk,
+        reservation_id=reservation.pk,
+        owner_id=reservation.owner_id,
+        resource=resource.name,
+        from_state="",
+        to_state=RunState.SCHEDULED,
+        reason="booked",
+        cause=Cause.BOOKING,
     )
     return run
 
@@ -102,14 +142,15 @@ def run_transition(
                 f"{cause} may not move a run from {', '.join(refused)} to {to_state}"
             )
     with transaction.atomic():
-        current = (
-            Run.objects.select_for_update()
+        found = (
+            Run.objects.select_for_update(of=("self",))
             .filter(pk=run_id, state__in=wanted)
-            .values_list("state", flat=True)
+            .values_list("state", "reservation_id", "reservation__owner_id", "resource__name")
             .first()
         )
-        if current is None:
+        if found is None:
             return False
+        current, reservation_id, owner_id, resource = found
         Run.objects.filter(pk=run_id).update(
             state=to_state, reason=reason, updated_at=timezone.now()
         )
@@ -120,6 +161,16 @@ def run_transition(
             reason=reason,
             cause=cause,
             by=by,
+        )
+        _run_event(
+            run_id=run_id,
+            reservation_id=reservation_id,
+            owner_id=owner_id,
+            resource=resource,
+            from_state=current,
+            to_state=to_state,
+            reason=reason,
+            cause=cause,
         )
         publish_on_commit(
             run_channel(run_id),

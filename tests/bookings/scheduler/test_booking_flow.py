@@ -22,6 +22,7 @@ from bookings.calendar import calendar_entries
 from bookings.choices import ReservationState
 from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import LeaseStatus
+from bookings.scheduler import config as scheduler_config
 from bookings.selectors import resource_free_intervals
 from bookings.services import fixed_node_names_from_scheduler, reservation_complete
 from bookings.services import reservations as without_run
@@ -700,3 +701,20 @@ def test_cancelling_a_lease_twice_cancels_it_once(linked, owner, slot):
     twice(lease_cancel, reservation.lease_uuid)
     [lease] = _broker_leases(linked)
     assert lease.status == LeaseStatus.CANCELLED
+
+
+def test_the_link_coming_back_after_failing_is_one_event_for_staff(linked, settings):
+    from core.events.models import Event
+    from core.events.services import events_sequence
+
+    reachable = settings.SCHEDULER
+    settings.SCHEDULER = scheduler_config.from_env({"SCHEDULER_URL": "http://127.0.0.1:9"})
+    assert leases.scheduler_sweep() is None
+    settings.SCHEDULER = reachable
+    assert leases.scheduler_sweep() is not None
+    assert leases.scheduler_sweep() is not None  # up, and still up: said once
+    events_sequence()
+    assert [(e.type, e.owner_id) for e in Event.objects.order_by("position")] == [
+        ("scheduler.link_down", None),
+        ("scheduler.link_up", None),
+    ]

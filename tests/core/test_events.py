@@ -1,0 +1,331 @@
+"""The outbox (``core.events``): an event exists exactly when its change committed, is numbered
+in commit order, each subject counted from 1, and read back by its owner alone, in order."""
+
+from __future__ import annotations
+
+import threading
+import time
+from datetime import timedelta
+
+import jsonschema
+import pytest
+from django.db import connection, transaction
+from django.utils import timezone
+
+from bookings.choices import Channel
+from bookings.leases import scheduler_sweep
+from bookings.models import SchedulerLink
+from bookings.scheduler import config as scheduler_config
+from bookings.services import resource_hold, resource_set_service
+from core.errors import Conflict
+from core.events.catalogue import EVENT_TYPES
+from core.events.models import Event
+from core.events.services import event_record, events_sequence
+from portal.runs.models import Run
+from portal.runs.services.reservations import (
+    reservation_cancel,
+    reservation_create,
+    reservation_decide,
+    reservation_reschedule,
+)
+from portal.runs.services.transitions import run_transition
+from portal.runs.states import Cause, RunState
+from tests.factories import ExperimentFactory, FixedResourceFactory
+
+pytestmark = pytest.mark.django_db
+
+
+def _window(hours_ahead: int = 2):
+    start = (timezone.now() + timedelta(hours=hours_ahead)).replace(microsecond=0)
+    return start, start + timedelta(minutes=30)
+
+
+def _numbered() -> list[Event]:
+    events_sequence()
+    return list(Event.objects.order_by("position"))
+
+
+def _held_to_the_catalogue(events: list[Event]) -> None:
+    for event in events:
+        kind = EVENT_TYPES[event.type]
+        assert event.version == kind.version
+        jsonschema.validate(event.payload, kind.payload)
+
+
+def test_a_booked_run_and_its_life_are_events_of_its_owner_in_order(owner, mobile, experiment):
+    start, end = _window()
+    reservation = reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
+    run = Run.objects.get(reservation=reservation)
+    for state, cause in [
+        (RunState.STAGED, Cause.DISPATCH),
+        (RunState.RUNNING, Cause.DISPATCH),
+        (RunState.COLLECTING, Cause.DISPATCH),
+        (RunState.COMPLETED, Cause.DISPATCH),
+    ]:
+        assert run_transition(run_id=run.pk, to_state=state, cause=cause)
+    events = _numbered()
+    assert [e.type for e in events] == [
+        "reservation.created",
+        "run.scheduled",
+        "run.staged",
+        "run.running",
+        "run.collecting",
+        "run.completed",
+    ]
+    assert [e.position for e in events] == list(range(1, 7))
+    assert {e.owner_id for e in events} == {owner.pk}
+    run_events = [e for e in events if e.subject == f"run:{run.pk}"]
+    assert [e.seq for e in run_events] == [1, 2, 3, 4, 5]
+    assert [e.payload["from_state"] for e in run_events] == [
+        None,
+        "scheduled",
+        "staged",
+        "running",
+        "collecting",
+    ]
+    created = events[0]
+    assert created.subject == f"reservation:{reservation.pk}"
+    assert created.seq == 1
+    assert created.payload["resources"] == [mobile.name]
+    assert created.payload["by"] == owner.get_username()
+    _held_to_the_catalogue(events)
+
+
+def test_moves_decisions_and_cancels_say_who_and_through_which_door(owner, admin_user):
+    node = FixedResourceFactory(requires_approval=True)
+    start, end = _window()
+    reservation = reservation_create(
+        owner=owner, resource=node, start_at=start, end_at=end, via=Channel.CLI
+    )
+    reservation_decide(reservation=reservation, by=admin_user, approve=True, via=Channel.ADMIN)
+    reservation_reschedule(
+        reservation=reservation,
+        by=owner,
+        start_at=start + timedelta(hours=1),
+        end_at=end + timedelta(hours=1),
+        via=Channel.API,
+    )
+    reservation_cancel(reservation=reservation, by=owner, via=Channel.WEB)
+    events = _numbered()
+    assert [(e.type, e.payload["via"], e.payload["by"], e.seq) for e in events] == [
+        ("reservation.created", "cli", "alice", 1),
+        ("reservation.approved", "admin", "charlie", 2),
+        ("reservation.moved", "api", "alice", 3),
+        ("reservation.cancelled", "web", "alice", 4),
+    ]
+    assert events[0].payload["state"] == "requested"
+    assert events[2].payload["start_at"] == (start + timedelta(hours=1)).isoformat()
+    _held_to_the_catalogue(events)
+
+
+def test_a_change_refused_or_rolled_back_leaves_no_event(owner, other, mobile, experiment):
+    start, end = _window()
+    reservation_create(
+        owner=owner, resource=mobile, start_at=start, end_at=end, experiment=experiment
+    )
+    before = Event.objects.count()
+    with pytest.raises(Conflict):
+        reservation_create(
+            owner=other,
+            resource=mobile,
+            start_at=start,
+            end_at=end,
+            experiment=ExperimentFactory(owner=other),
+        )
+    node = FixedResourceFactory()
+
+    def book_then_fail() -> None:
+        with transaction.atomic():
+            reservation_create(
+                owner=owner, resource=node, start_at=end, end_at=end + timedelta(hours=1)
+            )
+            raise RuntimeError("rolled back")
+
+    with pytest.raises(RuntimeError, match="rolled back"):
+        book_then_fail()
+    assert Event.objects.count() == before
+
+
+def test_an_event_of_no_known_type_is_refused(owner):
+    with pytest.raises(ValueError, match="not an event type"), transaction.atomic():
+        event_record(subject="x:1", type="x.happened", payload={}, owner_id=owner.pk)
+    assert not Event.objects.exists()
+
+
+@pytest.mark.django_db(transaction=True)
+def test_an_event_outside_the_transaction_of_its_change_is_refused(owner):
+    with pytest.raises(RuntimeError, match="inside the transaction"):
+        event_record(subject="run:1", type="run.running", payload={}, owner_id=owner.pk)
+    assert not Event.objects.exists()
+
+
+@pytest.mark.django_db(transaction=True)
+def test_an_event_committed_late_is_numbered_after_those_read_before_it(owner):
+    """The row written first but committed last must not fall behind a reader's position."""
+    written = threading.Event()
+    commit = threading.Event()
+
+    def slow_writer() -> None:
+        try:
+            with transaction.atomic():
+                event_record(subject="run:1", type="run.running", payload={}, owner_id=owner.pk)
+                written.set()
+                assert commit.wait(30)
+        finally:
+            connection.close()
+
+    writer = threading.Thread(target=slow_writer)
+    writer.start()
+    assert written.wait(30)
+    with transaction.atomic():
+        quick = event_record(subject="run:2", type="run.running", payload={}, owner_id=owner.pk)
+    events_sequence()
+    seen = list(Event.objects.filter(position__isnull=False))
+    assert [e.pk for e in seen] == [quick.pk]  # the slow one, uncommitted, is not numbered
+    commit.set()
+    writer.join(30)
+    assert not writer.is_alive()
+    events_sequence()
+    late = Event.objects.exclude(pk=quick.pk).get()
+    assert late.pk < quick.pk  # written first
+    assert late.position == 2  # numbered after what a reader may already have seen
+    assert late.seq == 1
+
+
+def test_the_sequencer_numbers_a_backlog_in_passes_and_then_nothing(owner, monkeypatch):
+    monkeypatch.setattr("core.events.services.SEQUENCE_BATCH", 3)
+    with transaction.atomic():
+        for n in range(7):
+            event_record(subject=f"run:{n % 2}", type="run.running", payload={}, owner_id=owner.pk)
+    assert events_sequence() == 7
+    assert events_sequence() == 0
+    events = list(Event.objects.order_by("id"))
+    assert [e.position for e in events] == list(range(1, 8))
+    assert [e.seq for e in events] == [1, 1, 2, 2, 3, 3, 4]
+
+
+# --- GET /api/v1/events/ ------------------------------------------------------------------------
+
+
+def _book(owner, **kwargs):
+    start, end = _window(**kwargs)
+    return reservation_create(
+        owner=owner, resource=FixedResourceFactory(), start_at=start, end_at=end
+    )
+
+
+def test_a_user_reads_their_own_events_after_a_position_and_no_one_elses(
+    owner, other, api, client_for
+):
+    mine = _book(owner)
+    _book(other, hours_ahead=3)
+    reservation_cancel(reservation=mine, by=owner)
+    answer = api.get("/api/v1/events/")
+    assert answer.status_code == 200, answer.content
+    body = answer.json()
+    assert [(e["type"], e["subject"]) for e in body["events"]] == [
+        ("reservation.created", f"reservation:{mine.pk}"),
+        ("reservation.cancelled", f"reservation:{mine.pk}"),
+    ]
+    first, second = body["events"]
+    assert body["last"] == second["id"] > first["id"]
+    assert first["data"]["reservation"] == mine.pk
+    assert (first["seq"], second["seq"], first["version"]) == (1, 2, 1)
+    after = api.get("/api/v1/events/", {"after": first["id"]}).json()
+    assert [e["id"] for e in after["events"]] == [second["id"]]
+    nothing = api.get("/api/v1/events/", {"after": body["last"]}).json()
+    assert nothing == {"events": [], "last": body["last"]}
+    only = api.get("/api/v1/events/", {"type": "reservation.cancelled"}).json()
+    assert [e["type"] for e in only["events"]] == ["reservation.cancelled"]
+    theirs = client_for(other).get("/api/v1/events/").json()
+    assert {e["data"]["by"] for e in theirs["events"]} == {"bob"}
+
+
+@pytest.mark.parametrize(
+    "query",
+    [{"after": "-1"}, {"after": "x"}, {"wait": "21"}, {"limit": "0"}, {"type": "run.exploded"}],
+)
+def test_a_bad_question_is_answered_400_and_says_which_parameter(api, query):
+    answer = api.get("/api/v1/events/", query)
+    assert answer.status_code == 400, answer.content
+    assert set(answer.json()["fields"]) == set(query)
+
+
+def test_events_need_a_signed_in_user(client_for):
+    assert client_for(None).get("/api/v1/events/").status_code in (401, 403)
+
+
+@pytest.mark.django_db(transaction=True)
+def test_a_long_poll_answers_as_soon_as_an_event_commits(owner, api, monkeypatch):
+    answers: list = []
+    waiting = threading.Event()
+
+    class Clock:
+        """The selector's clock, telling the test when the poll found nothing and waits."""
+
+        monotonic = staticmethod(time.monotonic)
+
+        @staticmethod
+        def sleep(seconds: float) -> None:
+            waiting.set()
+            time.sleep(seconds)
+
+    monkeypatch.setattr("core.events.selectors.time", Clock)
+
+    def poll() -> None:
+        try:
+            answers.append(api.get("/api/v1/events/", {"wait": "20"}))
+        finally:
+            connection.close()
+
+    poller = threading.Thread(target=poll)
+    poller.start()
+    assert waiting.wait(20), "the poll never waited"
+    mine = _book(owner)
+    poller.join(25)
+    assert not poller.is_alive()
+    [answer] = answers
+    assert answer.status_code == 200
+    assert [e["data"]["reservation"] for e in answer.json()["events"]] == [mine.pk]
+
+
+# --- A robot's and the scheduler link's events: staff's ------------------------------------------
+
+
+def test_a_robot_held_and_released_is_an_event_for_staff_only(
+    mobile, admin_user, api, staff_verified_client
+):
+    assert resource_hold(resource_id=mobile.pk, reason="emergency stop latched on the roof")
+    assert not resource_hold(resource_id=mobile.pk, reason="again")  # held already: no event
+    resource_set_service(resource=mobile, by=admin_user, enabled=True, reason="checked it")
+    events = _numbered()
+    assert [(e.type, e.subject, e.owner_id, e.payload["by"]) for e in events] == [
+        ("robot.held", f"robot:{mobile.name}", None, None),
+        ("robot.released", f"robot:{mobile.name}", None, "charlie"),
+    ]
+    assert events[0].payload["reason"] == "emergency stop latched on the roof"
+    _held_to_the_catalogue(events)
+    assert api.get("/api/v1/events/").json()["events"] == []
+    staff = staff_verified_client.get("/api/v1/events/").json()["events"]
+    assert [e["type"] for e in staff] == ["robot.held", "robot.released"]
+
+
+def test_the_scheduler_link_going_down_and_up_is_one_event_each(settings, owner):
+    settings.SCHEDULER = scheduler_config.from_env({"SCHEDULER_URL": "http://127.0.0.1:9"})
+    assert scheduler_sweep() is None
+    assert scheduler_sweep() is None  # still down: said once
+    link = SchedulerLink.objects.get()
+    link.last_error_at = None  # as if the failures were before the last success
+    link.last_success_at = timezone.now()
+    link.save()
+    assert scheduler_sweep() is None
+    events = _numbered()
+    assert [(e.type, e.subject, e.seq) for e in events] == [
+        ("scheduler.link_down", "scheduler", 1),
+        ("scheduler.link_down", "scheduler", 2),
+    ]
+    assert "since" not in events[0].payload
+    assert events[1].payload["since"] == link.last_success_at.isoformat()
+    _held_to_the_catalogue(events)
