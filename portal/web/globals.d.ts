@@ -57,6 +57,12 @@ interface AmazingWallClock {
   browserShowsZone(zone: string): boolean;
 }
 
+/** event_calendar.js: what the calendar and the timeline do alike to Event Calendar. */
+interface AmazingEventCalendar {
+  /** Keep Event Calendar's drawing in `el` free of table roles it does not fill. */
+  keepPlain(el: HTMLElement): void;
+}
+
 /** live.js: what a page follows, and how. */
 interface LiveFollowOptions {
   events?: Record<string, (data: any) => void>;
@@ -73,6 +79,7 @@ interface LiveFollow {
 interface Window {
   AmazingApi: AmazingApi;
   AmazingWallClock: AmazingWallClock;
+  AmazingEventCalendar: AmazingEventCalendar;
   liveFollow: (url: string, options: LiveFollowOptions) => LiveFollow;
 }
 

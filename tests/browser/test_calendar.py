@@ -54,7 +54,7 @@ def test_book_by_dragging_on_the_calendar_then_cancel(browser, live_server):
     login(page, live_server.url, "fran", "correct horse battery")
     page.get_by_role("link", name="Calendar").click()
     expect(page.get_by_test_id("calendar-zone")).to_have_text("Europe/Lisbon")
-    page.locator(".ec-next").click()  # next week: every slot is in the future
+    page.get_by_role("button", name="Next week").click()  # next week: every slot is in the future
     wednesday = page.locator(".ec-col-head time[datetime]").nth(2).get_attribute("datetime")
     _drag(page, wednesday, "10:00:00", "11:00:00")
 
@@ -99,7 +99,7 @@ def test_the_calendar_explains_a_refusal_in_the_dialog(browser, live_server):
     page = context.new_page()
     login(page, live_server.url, "gil", "correct horse battery")
     page.goto(f"{live_server.url}/calendar/")
-    page.locator(".ec-next").click()
+    page.get_by_role("button", name="Next week").click()
     day = page.locator(".ec-col-head time[datetime]").nth(1).get_attribute("datetime")
     _drag(page, day, "09:00:00", "10:00:00")
     dialog = page.locator("#booking-dialog")

@@ -154,7 +154,7 @@ def test_the_console_and_the_calendar_show_a_hold_and_new_bookings_without_a_rel
     tomorrow = timezone.localdate() + timedelta(days=1)
     start = datetime.combine(tomorrow, time(10), tzinfo=ZoneInfo(settings.TIME_ZONE))
     if tomorrow.isoformat() not in _days_shown(calendar):
-        calendar.locator(".ec-next").click()
+        calendar.get_by_role("button", name="Next week").click()
         expect(calendar.locator(f".ec-col-head time[datetime='{tomorrow}']")).to_be_attached()
         expect(shown).to_have_attribute("data-loading", "false", timeout=15_000)
     events_before = calendar.locator("#calendar .ec-event").count()

@@ -407,23 +407,28 @@ def test_events_follow_prints_a_runs_events_as_it_runs_and_stops_at_its_end(port
     )
     run = Run.objects.get(reservation=reservation)
     script = Path(sys.executable).parent / "amazing"
-    follower = subprocess.Popen(
+    lines: queue.Queue[str] = queue.Queue()
+    with subprocess.Popen(
         [str(script), "events", "--follow", "--run", str(run.pk)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-    )
-    lines: queue.Queue[str] = queue.Queue()
-    reader = threading.Thread(target=lambda: [lines.put(line) for line in follower.stdout])
-    reader.start()
-    try:
-        assert "run.scheduled" in lines.get(timeout=30)
-        for state in (RunState.STAGED, RunState.RUNNING, RunState.COLLECTING, RunState.COMPLETED):
-            assert run_transition(run_id=run.pk, to_state=state, cause=Cause.DISPATCH)
-            line = lines.get(timeout=30)
-            assert f"run.{state} run:{run.pk}" in line, line
-        assert follower.wait(timeout=30) == 0, follower.stderr.read()
-    finally:
-        follower.kill()
-        reader.join(10)
+    ) as follower:
+        reader = threading.Thread(target=lambda: [lines.put(line) for line in follower.stdout])
+        reader.start()
+        try:
+            assert "run.scheduled" in lines.get(timeout=30)
+            for state in (
+                RunState.STAGED,
+                RunState.RUNNING,
+                RunState.COLLECTING,
+                RunState.COMPLETED,
+            ):
+                assert run_transition(run_id=run.pk, to_state=state, cause=Cause.DISPATCH)
+                line = lines.get(timeout=30)
+                assert f"run.{state} run:{run.pk}" in line, line
+            assert follower.wait(timeout=30) == 0, follower.stderr.read()
+        finally:
+            follower.kill()
+            reader.join(10)
     assert lines.empty()  # the reservation's own events were not the run's

@@ -11,6 +11,7 @@ import jsonschema
 import pytest
 from django.db import connection, transaction
 from django.utils import timezone
+from rest_framework.test import APIClient
 
 from bookings.choices import Channel
 from bookings.leases import scheduler_sweep
@@ -30,7 +31,7 @@ from portal.runs.services.reservations import (
 )
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import Cause, RunState
-from tests.factories import ExperimentFactory, FixedResourceFactory
+from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
 
 pytestmark = pytest.mark.django_db
 
@@ -310,6 +311,10 @@ def test_a_robot_held_and_released_is_an_event_for_staff_only(
     assert api.get("/api/v1/events/").json()["events"] == []
     staff = staff_verified_client.get("/api/v1/events/").json()["events"]
     assert [e["type"] for e in staff] == ["robot.held", "robot.released"]
+    # Staff whose session has not passed its second factor read as the plain user they are.
+    unverified = APIClient()
+    unverified.force_authenticate(user=UserFactory(username="dora", is_staff=True))
+    assert unverified.get("/api/v1/events/").json()["events"] == []
 
 
 def test_the_scheduler_link_going_down_and_up_is_one_event_each(settings, owner):

@@ -57,7 +57,7 @@ NOT_STAFF = {
     "api-run-package", "api-reservations", "api-reservations-check", "api-reservation",
     "api-reservation-attach", "api-quota-check", "api-rail", "api-resources",
     "api-resource-availability", "api-reservations-busy", "api-quota", "api-blackouts",
-    "api-me", "api-token",
+    "api-me", "api-token", "api-events",
     "home", "experiment-new", "experiment-edit", "dry-run-start", "dry-run", "dry-run-data",
     "book", "reservation-cancel", "reservation-attach", "my-runs", "runs-package",
     "runs-compare", "run", "run-data", "run-csv", "run-json", "run-package", "run-again",

@@ -115,6 +115,22 @@ def run_limits_as_made(run: Run) -> dict[str, float | None] | None:
     return run.limits
 
 
+def _states_left(
+    to_state: RunState, cause: Cause, from_states: Iterable[RunState] | None
+) -> tuple[str, ...]:
+    """The states ``run_transition`` may move a run out of: ``from_states``, each allowed by
+    the table for ``cause``, or every state the table lets ``cause`` leave for ``to_state``."""
+    if from_states is None:
+        return sources(to_state, cause)
+    wanted = tuple(str(s) for s in from_states)
+    refused = [s for s in wanted if not allowed(s, to_state, cause)]
+    if refused:
+        raise TransitionNotAllowed(
+            f"{cause} may not move a run from {', '.join(refused)} to {to_state}"
+        )
+    return wanted
+
+
 def run_transition(
     *,
     run_id: int,
@@ -131,16 +147,7 @@ def run_transition(
     under a row lock, so two workers racing on the same run change it once, and a task that
     finds the run already past its step does nothing.
     """
-    allowed_from = sources(to_state, cause)
-    if from_states is None:
-        wanted = allowed_from
-    else:
-        wanted = tuple(from_states)
-        refused = [s for s in wanted if not allowed(s, to_state, cause)]
-        if refused:
-            raise TransitionNotAllowed(
-                f"{cause} may not move a run from {', '.join(refused)} to {to_state}"
-            )
+    wanted = _states_left(to_state, cause, from_states)
     with transaction.atomic():
         found = (
             Run.objects.select_for_update(of=("self",))

@@ -396,7 +396,7 @@ from datetime import timedelta
 from django.utils import timezone
 from bookings import leases
 from bookings.models import Resource
-from bookings.services import without_run.reservation_create
+from bookings.services import reservation_create
 from core.accounts.models import User
 
 node = Resource.objects.create(name="node-05", kind="fixed")
@@ -408,7 +408,7 @@ with leases.scheduler_client() as scheduler:
         name=leases.lease_name_for(uuid.uuid4()), valid_from=start, valid_until=end,
         component_names=["node-05"],
     )
-booked = without_run.reservation_create(owner=alice, resource=node, start_at=start, end_at=end)
+booked = reservation_create(owner=alice, resource=node, start_at=start, end_at=end)
 with leases.scheduler_client() as scheduler:
     for lease in scheduler.list_leases(window_start=start, window_end=end, statuses=("cancelled",)):
         print("cancelled:", lease.uuid == orphan.uuid)

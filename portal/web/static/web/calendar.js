@@ -192,7 +192,8 @@
     headerToolbar: narrow
       ? { start: "prev,next", center: "title", end: "timeGridDay,listWeek" }
       : { start: "prev,next today", center: "title", end: "dayGridMonth,timeGridWeek,timeGridDay,listWeek" },
-    buttonText: { today: "today", dayGridMonth: "month", timeGridWeek: "week", timeGridDay: "day", listWeek: "list" },
+    // Event Calendar names both the week's grid and its list "week": the list is "list" here.
+    buttonText: (text) => ({ ...text, listWeek: "list" }),
     firstDay: 1,
     nowIndicator: window.AmazingWallClock.browserShowsZone(zone),
     selectable: true,
@@ -220,6 +221,7 @@
   });
   filter.addEventListener("change", () => calendar.refetchEvents());
   scrollArea();
+  window.AmazingEventCalendar.keepPlain(el);
   el.dataset.ready = "true";
 
   // Robots held by their health check: the reason, as bookings of them would be refused.

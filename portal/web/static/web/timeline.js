@@ -276,21 +276,8 @@
       openBooking(resources, wall(info.start), wall(info.end));
     },
   });
-  // Event Calendar marks its timeline up as a grid without the rows a grid needs, which
-  // misleads screen readers; the drawing is shown as plain content instead (its rows are
-  // named in text, its bookings are links and buttons; the Book page is the form-based way).
-  const GRID_ROLES = new Set(["grid", "treegrid", "table", "rowgroup", "row", "rowheader", "columnheader", "gridcell", "cell"]);
-  const GRID_ATTRS = ["aria-colindex", "aria-rowindex", "aria-colcount", "aria-rowcount", "aria-colspan", "aria-rowspan", "aria-selected", "aria-readonly"];
-  function plainRoles() {
-    for (const node of [el, ...el.querySelectorAll("[role]")]) {
-      if (GRID_ROLES.has(node.getAttribute("role"))) node.removeAttribute("role");
-    }
-    for (const name of GRID_ATTRS) {
-      for (const node of el.querySelectorAll(`[${name}]`)) node.removeAttribute(name);
-    }
-  }
-  plainRoles();
-  new MutationObserver(plainRoles).observe(el, { childList: true, subtree: true });
+  // Its grid roles go (event_calendar.js): the rows are named in text, the bookings are links.
+  window.AmazingEventCalendar.keepPlain(el);
   el.dataset.ready = "true";
 
   // Holds and others' bookings appear without a reload (several changes in a burst cause one read).
