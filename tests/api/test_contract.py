@@ -90,6 +90,13 @@ def config(world: dict, *, role: str, auth_file: Path) -> str:
         # Every check, each with its defaults; the exceptions follow per operation.
         "[checks]",
         "enabled = true",
+        # A long poll (GET /api/v1/events/, the only operation with a ``wait``) waits up to
+        # ``wait`` seconds for an event that a fuzzer never makes: asked without waiting, so
+        # that the run does not sleep. The wait itself is held by tests/core/test_events.py (an
+        # answer the moment an event commits). A project-wide value: on the operation's own
+        # ``[[operations]]`` entry, schemathesis 4.32 did not apply it.
+        "[parameters]",
+        '"query.wait" = 0',
         "[auth.wfc]",
         f"path = {_toml(str(auth_file))}",
         f"user = {_toml(user)}",
@@ -115,16 +122,6 @@ def config(world: dict, *, role: str, auth_file: Path) -> str:
         'include-path = "/api/v1/auth/token/"',
         'include-method = "DELETE"',
         "enabled = false",
-    ]
-    # A long poll waits up to ``wait`` seconds for an event that a fuzzer never makes: asked
-    # without waiting, so that the run does not sleep. The wait itself is held by
-    # tests/core/test_events.py (an answer the moment an event commits).
-    lines += [
-        "[[operations]]",
-        'include-path = "/api/v1/events/"',
-        'include-method = "GET"',
-        "[operations.parameters]",
-        "wait = 0",
     ]
     for method, path in sorted(DATA_DEPENDENT_FIELDS):
         lines += [
