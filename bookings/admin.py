@@ -37,7 +37,6 @@ class ResourceForm(forms.ModelForm):
             "requires_approval",
             "hold_reason",
             "held_at",
-            "hold_notified_at",
         ]
 
     def clean(self) -> dict[str, object]:

@@ -108,8 +108,6 @@ class Resource(models.Model):
     # A database default too: rows written by the previous release during an upgrade.
     hold_reason = models.CharField(max_length=HOLD_REASON_MAX_CHARS, blank=True, db_default="")
     held_at = models.DateTimeField(null=True, blank=True)
-    # When the admins were e-mailed about the hold (once per hold).
-    hold_notified_at = models.DateTimeField(null=True, blank=True)
     # Since when the robot's agent has not answered the health check, over a row of failed
     # checks; None while it answers. Here, not in the cache, so that a restarted cache does
     # not start the count again (and an agent out of reach for good is still held).

@@ -358,8 +358,8 @@ CELERY_BROKER_TRANSPORT_OPTIONS["visibility_timeout"] = CELERY_VISIBILITY_TIMEOU
 CELERY_TASK_DEFAULT_QUEUE = RUNS_QUEUE
 CELERY_TASK_ROUTES = {
     "bookings.tasks.reservation_notify": {"queue": MAIL_QUEUE},
-    "portal.runs.tasks.run_notify": {"queue": MAIL_QUEUE},
-    "portal.runs.tasks.robot_hold_notify": {"queue": MAIL_QUEUE},
+    # The reactions to events, e-mails among them (core/events/dispatch.py).
+    "core.events.tasks.events_dispatch_all": {"queue": MAIL_QUEUE},
 }
 CELERY_TIMEZONE = "UTC"
 # The testbed's own timings and limits: portal/conf.py says what each means, its default and
@@ -398,6 +398,11 @@ CELERY_BEAT_SCHEDULE = {
         "schedule": HEALTH_POLL_INTERVAL_S,
     },
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
+    # Kicked after every commit that wrote events; this pass catches what a lost kick left.
+    "events-dispatch": {
+        "task": "core.events.tasks.events_dispatch_all",
+        "schedule": RUN_SWEEP_INTERVAL_S,
+    },
     "dry-runs-delete-expired": {
         "task": "portal.runs.tasks.dry_runs_delete_expired",
         "schedule": 3600.0,

@@ -54,8 +54,8 @@ def resource_set_service(
         lifted = locked.hold_reason if enabled else ""
         locked.enabled = enabled
         if enabled:
-            locked.hold_reason, locked.held_at, locked.hold_notified_at = "", None, None
-        locked.save(update_fields=["enabled", "hold_reason", "held_at", "hold_notified_at"])
+            locked.hold_reason, locked.held_at = "", None
+        locked.save(update_fields=["enabled", "hold_reason", "held_at"])
         audit_record(
             actor=by,
             action="resource.in_service" if enabled else "resource.out_of_service",
@@ -79,7 +79,6 @@ def resource_hold(*, resource_id: int, reason: str) -> bool:
         held = Resource.objects.filter(pk=resource_id, enabled=True, hold_reason="").update(
             hold_reason=reason[:HOLD_REASON_MAX_CHARS],
             held_at=timezone.now(),
-            hold_notified_at=None,
         )
         if held:
             resource = Resource.objects.get(pk=resource_id)
@@ -103,8 +102,8 @@ def resource_hold_lift(*, resource_id: int, reason_prefix: str, why: str) -> boo
         if locked is None or not locked.hold_reason.startswith(reason_prefix):
             return False
         lifted = locked.hold_reason
-        locked.hold_reason, locked.held_at, locked.hold_notified_at = "", None, None
-        locked.save(update_fields=["hold_reason", "held_at", "hold_notified_at"])
+        locked.hold_reason, locked.held_at = "", None
+        locked.save(update_fields=["hold_reason", "held_at"])
         audit_record(
             actor=None, action="resource.hold_lifted", target=locked, reason=why, lifted_hold=lifted
         )

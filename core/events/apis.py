@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers
 from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from core.api import request_user, valid_query
-from core.events.catalogue import EVENT_TYPES
+from core.events.catalogue import EVENT_TYPES, PAYLOADS
 from core.events.selectors import LIMIT_MAX, WAIT_MAX_S, events_wait
 
 
@@ -31,6 +31,16 @@ class EventQuery(serializers.Serializer):
     )
 
 
+@extend_schema_field(
+    {
+        "oneOf": [{"$ref": f"#/components/schemas/{name}"} for name in PAYLOADS],
+        "description": "The payload, shaped by the event's type and version.",
+    }
+)
+class EventData(serializers.DictField):
+    """An event's payload: one of the catalogue's shapes (core/events/catalogue.py)."""
+
+
 class EventOutput(serializers.Serializer):
     id = serializers.IntegerField(
         source="position", help_text="Its place in the order of all events."
@@ -45,9 +55,7 @@ class EventOutput(serializers.Serializer):
         fields = super().get_fields()
         # "data", as Standard Webhooks' envelope names it; a class attribute of that name would
         # hide the serializer's own ``data``.
-        fields["data"] = serializers.DictField(
-            source="payload", help_text="The payload, shaped by type and version."
-        )
+        fields["data"] = EventData(source="payload")
         return fields
 
 

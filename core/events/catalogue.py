@@ -90,6 +90,8 @@ class EventType:
     version: int
     description: str
     payload: dict[str, Any]
+    # The payload's schema as the OpenAPI description names it (core/openapi.py).
+    component: str
 
 
 _RESERVATION_TYPES = {
@@ -113,13 +115,16 @@ _SCHEDULER_TYPES = {
     "scheduler.link_up": "The portal reaches the testbed scheduler again.",
 }
 
+# Each payload shape and version, as a component of the OpenAPI description, with its types.
+PAYLOADS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
+    "ReservationEventV1": (RESERVATION_V1, _RESERVATION_TYPES),
+    "RunEventV1": (RUN_V1, _RUN_TYPES),
+    "RobotEventV1": (ROBOT_V1, _ROBOT_TYPES),
+    "SchedulerLinkEventV1": (SCHEDULER_LINK_V1, _SCHEDULER_TYPES),
+}
+
 EVENT_TYPES: dict[str, EventType] = {
-    name: EventType(name, 1, text, payload)
-    for types, payload in [
-        (_RESERVATION_TYPES, RESERVATION_V1),
-        (_RUN_TYPES, RUN_V1),
-        (_ROBOT_TYPES, ROBOT_V1),
-        (_SCHEDULER_TYPES, SCHEDULER_LINK_V1),
-    ]
+    name: EventType(name, 1, text, payload, component)
+    for component, (payload, types) in PAYLOADS.items()
     for name, text in types.items()
 }

@@ -47,3 +47,15 @@ class Event(models.Model):
 
     def __str__(self) -> str:
         return f"{self.position or '-'} {self.type} {self.subject}"
+
+
+class EventCursor(models.Model):
+    """How far one handler has read the events (``core.events.dispatch``): the position of
+    the last event it has handled. A handler new to a database starts at the first event."""
+
+    handler = models.CharField(max_length=64, primary_key=True)
+    position = models.BigIntegerField(default=0)
+    updated_at = models.DateTimeField(auto_now=True)
+
+    def __str__(self) -> str:
+        return f"{self.handler} @ {self.position}"

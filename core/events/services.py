@@ -51,10 +51,14 @@ def event_record(
 
 
 def _sequence_quietly() -> None:
-    # After the change committed: a failure here loses nothing (the next reader numbers the
-    # row), so it is logged, never raised into the request that made the change.
+    # After the change committed: number it and wake the handlers (core.events.dispatch). A
+    # failure here loses nothing (the next reader or beat's pass does both), so it is logged,
+    # never raised into the request that made the change.
+    from core.events.tasks import events_dispatch_all
+
     try:
-        events_sequence()
+        if events_sequence():
+            events_dispatch_all.delay()
     except Exception:
         logger.exception("numbering events failed; the next reader numbers them")
 

@@ -43,8 +43,6 @@ class Run(models.Model):
     # gaps in the sequence numbers, and the part of the program never recorded.
     # (A database default too: rows written by the previous release during an upgrade.)
     missing = models.JSONField(default=list, blank=True, db_default=Value([], models.JSONField()))
-    # When the owner was e-mailed that the run failed or was interrupted (once).
-    owner_told_at = models.DateTimeField(null=True, blank=True)
     # How the run was made: the agent, its robot's firmware, the clock, the link, the portal,
     # recorded at staging and at collection (``portal/runs/provenance.py``).
     provenance = models.JSONField(

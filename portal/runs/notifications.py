@@ -1,10 +1,9 @@
 """E-mails about runs and robots: a run that failed or was interrupted (to its owner), a robot
-the health check took out of booking (to the admins). Each is sent once.
+the health check took out of booking (to the admins).
 
-Who still has to be told is in the database (``Run.owner_told_at``,
-``Resource.hold_notified_at`` empty): the sweep queues a mail for each, and the mail marks it
-told in the transaction that sends it. A lost task is queued again by the next sweep; a
-task delivered twice finds it told already.
+Each is a reaction to an event (``portal/runs/handlers.py``: ``run.failed``,
+``run.interrupted``, ``robot.held``), handed to it once the change committed, at least once
+(``core.events.dispatch``): a mail server that fails leaves the event to be handed again.
 """
 
 from __future__ import annotations
@@ -13,7 +12,6 @@ import logging
 
 from django.conf import settings
 from django.core.mail import send_mail
-from django.db import transaction
 from django.db.models import QuerySet
 from django.utils import timezone
 
@@ -28,10 +26,10 @@ logger = logging.getLogger(__name__)
 TOLD_STATES = (RunState.FAILED, RunState.INTERRUPTED)
 
 
-def runs_owner_untold() -> QuerySet[Run]:
-    """Runs that failed or were interrupted, whose owner has not been told. A run whose
-    booking was cancelled or rejected is left out: whoever ended it said so already."""
-    return Run.objects.filter(state__in=TOLD_STATES, owner_told_at__isnull=True).exclude(
+def runs_to_tell() -> QuerySet[Run]:
+    """Runs that failed or were interrupted. A run whose booking was cancelled or rejected is
+    left out: whoever ended it said so already."""
+    return Run.objects.filter(state__in=TOLD_STATES).exclude(
         reservation__state__in=[ReservationState.CANCELLED, ReservationState.REJECTED]
     )
 
@@ -52,25 +50,16 @@ def run_message(run: Run) -> tuple[str, str]:
 
 
 def run_owner_notify(*, run_id: int) -> int:
-    """E-mail the owner of a failed or interrupted run, once; how many were sent."""
-    with transaction.atomic():
-        run = (
-            runs_owner_untold()
-            .select_for_update(of=("self",))
-            .select_related("resource", "reservation__owner")
-            .filter(pk=run_id)
-            .first()
-        )
-        if run is None:
-            return 0  # told already (a repeated task), or not an end to tell
-        Run.objects.filter(pk=run.pk).update(owner_told_at=timezone.now())
-        address = run.reservation.owner.email
-        if not address:
-            logger.warning("run %s: its owner has no address to tell", run.pk)
-            return 0
-        subject, body = run_message(run)
-        # Sent inside the transaction: a failure rolls "told" back and the task retries.
-        return send_mail(subject, body, settings.DEFAULT_FROM_EMAIL, [address])
+    """E-mail the owner of a failed or interrupted run; how many were sent."""
+    run = runs_to_tell().select_related("resource", "reservation__owner").filter(pk=run_id).first()
+    if run is None:
+        return 0  # not an end to tell
+    address = run.reservation.owner.email
+    if not address:
+        logger.warning("run %s: its owner has no address to tell", run.pk)
+        return 0
+    subject, body = run_message(run)
+    return send_mail(subject, body, settings.DEFAULT_FROM_EMAIL, [address])
 
 
 def robot_hold_message(resource: Resource) -> tuple[str, str]:
@@ -91,27 +80,20 @@ def robot_hold_message(resource: Resource) -> tuple[str, str]:
     return f"{resource.name} out of booking: {resource.hold_reason}", body
 
 
-def robot_hold_notify(*, resource_id: int) -> int:
-    """E-mail the admins about a robot's hold, once per hold; how many were sent."""
-    with transaction.atomic():
-        resource = (
-            Resource.objects.select_for_update()
-            .exclude(hold_reason="")
-            .filter(pk=resource_id, hold_notified_at__isnull=True)
-            .first()
+def robot_hold_notify(*, resource_name: str) -> int:
+    """E-mail the admins about a robot's hold, if it is still held; how many were sent."""
+    resource = Resource.objects.exclude(hold_reason="").filter(name=resource_name).first()
+    if resource is None:
+        return 0  # lifted already: nothing to tell
+    admins = sorted(
+        set(
+            User.objects.filter(is_staff=True, is_active=True)
+            .exclude(email="")
+            .values_list("email", flat=True)
         )
-        if resource is None:
-            return 0
-        Resource.objects.filter(pk=resource.pk).update(hold_notified_at=timezone.now())
-        admins = sorted(
-            set(
-                User.objects.filter(is_staff=True, is_active=True)
-                .exclude(email="")
-                .values_list("email", flat=True)
-            )
-        )
-        if not admins:
-            logger.warning("%s held, but no admin has an e-mail address", resource.name)
-            return 0
-        subject, body = robot_hold_message(resource)
-        return send_mail(subject, body, settings.DEFAULT_FROM_EMAIL, admins)
+    )
+    if not admins:
+        logger.warning("%s held, but no admin has an e-mail address", resource.name)
+        return 0
+    subject, body = robot_hold_message(resource)
+    return send_mail(subject, body, settings.DEFAULT_FROM_EMAIL, admins)

@@ -16,7 +16,6 @@ from django.utils import timezone
 
 from basestation.client import AgentError
 from core.health import SWEEP, heartbeat_record
-from portal.runs import notifications
 from portal.runs.services import collection, dry_run, health, staging
 
 logger = logging.getLogger(__name__)
@@ -27,8 +26,7 @@ MAX_RETRIES = 5
 @shared_task(time_limit=30, soft_time_limit=25)
 def runs_sweep() -> None:
     """Find runs due for staging, withdrawal or collection, runs due whose booking does not
-    hold them (held: ``run_hold``), and owners still to be told of a run's end, and queue one
-    task each.
+    hold them (held: ``run_hold``), and queue one task each.
 
     Queued tasks expire after two sweeps: a backlog never turns into a pile of duplicates,
     and the next sweep queues whatever is still due.
@@ -43,8 +41,6 @@ def runs_sweep() -> None:
         run_unstage.apply_async((run_id,), expires=expires_s)
     for run_id in collection.runs_due_for_collection(now=now).values_list("pk", flat=True):
         run_collect.apply_async((run_id,), expires=expires_s)
-    for run_id in notifications.runs_owner_untold().values_list("pk", flat=True):
-        run_notify.apply_async((run_id,), expires=expires_s)
     for dry_run_id in dry_run.dry_runs_next():
         dry_run_execute.apply_async((dry_run_id,), expires=expires_s)
     heartbeat_record(SWEEP)
@@ -98,21 +94,12 @@ def run_collect(run_id: int) -> None:
         logger.warning("run %s: collection deferred: %s", run_id, exc)
 
 
-@shared_task(time_limit=60, soft_time_limit=50)
-def run_notify(run_id: int) -> None:
-    """Tell a run's owner that it failed or was interrupted (mail queue). A mail server
-    that fails leaves the owner untold, and the next sweep queues this again."""
-    notifications.run_owner_notify(run_id=run_id)
-
-
 @shared_task(time_limit=30, soft_time_limit=25)
 def robots_health_sweep() -> None:
-    """Queue a health check of every robot, and the admins' mail about new holds."""
+    """Queue a health check of every robot."""
     expires_s = 2 * settings.HEALTH_POLL_INTERVAL_S
     for resource_id in health.robots_to_check().values_list("pk", flat=True):
         robot_health_check.apply_async((resource_id,), expires=expires_s)
-    for resource_id in health.robots_hold_unnotified().values_list("pk", flat=True):
-        robot_hold_notify.apply_async((resource_id,), expires=expires_s)
 
 
 @shared_task(time_limit=300, soft_time_limit=280)
@@ -124,10 +111,3 @@ def dry_runs_delete_expired() -> int:
 @shared_task(time_limit=30, soft_time_limit=25)
 def robot_health_check(resource_id: int) -> None:
     health.robot_health_check(resource_id=resource_id)
-
-
-@shared_task(time_limit=60, soft_time_limit=50)
-def robot_hold_notify(resource_id: int) -> None:
-    """Tell the admins that a robot was taken out of booking (mail queue); retried by the
-    next health sweep if the mail server fails."""
-    notifications.robot_hold_notify(resource_id=resource_id)

@@ -19,9 +19,11 @@ from bookings.models import SchedulerLink
 from bookings.scheduler import config as scheduler_config
 from bookings.services import resource_hold, resource_set_service
 from core.errors import Conflict
-from core.events.catalogue import EVENT_TYPES
-from core.events.models import Event
+from core.events import dispatch
+from core.events.catalogue import EVENT_TYPES, PAYLOADS
+from core.events.models import Event, EventCursor
 from core.events.services import event_record, events_sequence
+from core.openapi import oas30
 from portal.runs.models import Run
 from portal.runs.services.reservations import (
     reservation_cancel,
@@ -334,3 +336,104 @@ def test_the_scheduler_link_going_down_and_up_is_one_event_each(settings, owner)
     assert "since" not in events[0].payload
     assert events[1].payload["since"] == link.last_success_at.isoformat()
     _held_to_the_catalogue(events)
+
+
+def test_the_api_schema_documents_each_payload_as_the_catalogue_states_it(api):
+    """The OpenAPI description's payload components are the catalogue's schemas (which every
+    event written is held to, above), and an event's ``data`` is one of them."""
+    schema = api.get("/api/schema/", HTTP_ACCEPT="application/json").json()
+    components = schema["components"]["schemas"]
+    for name, (payload, types) in PAYLOADS.items():
+        documented = components[name]
+        assert documented["properties"] == oas30(payload)["properties"], name
+        assert documented["required"] == payload["required"], name
+        assert all(f"`{t}`" in documented["description"] for t in types)
+    data = components["Event"]["properties"]["data"]  # EventOutput, as the schema names it
+    assert data["oneOf"] == [{"$ref": f"#/components/schemas/{name}"} for name in PAYLOADS]
+    assert set(EVENT_TYPES) == {t for _, types in PAYLOADS.values() for t in types}
+
+
+# --- Reactions: core.events.dispatch -------------------------------------------------------------
+
+
+@pytest.fixture
+def seen(monkeypatch):
+    """A handler of run.running and run.failed that records what it is handed, and fails once
+    on the event numbered in ``fail_on``."""
+    handled: list[int] = []
+    fail_on: set[int] = set()
+
+    def record(event: Event) -> None:
+        handled.append(event.payload["run"])
+        if event.payload["run"] in fail_on:
+            fail_on.discard(event.payload["run"])
+            raise OSError("mail server down")
+
+    monkeypatch.setattr(dispatch, "_HANDLERS", {})
+    dispatch.handler("recorder", types=["run.running", "run.failed"])(record)
+    return handled, fail_on
+
+
+def _write(owner, *pairs: tuple[str, int]) -> None:
+    with transaction.atomic():
+        for type_, run in pairs:
+            event_record(subject=f"run:{run}", type=type_, payload={"run": run}, owner_id=owner.pk)
+
+
+def test_a_handler_is_handed_its_types_in_order_and_again_after_it_failed(owner, seen):
+    handled, fail_on = seen
+    _write(owner, ("run.running", 1), ("run.staged", 2), ("run.failed", 3), ("run.running", 4))
+    fail_on.add(3)
+    with pytest.raises(OSError, match="mail server down"):
+        dispatch.events_dispatch(name="recorder")
+    assert handled == [1, 3]  # the staged event is not its type; 3 failed
+    assert dispatch.events_dispatch(name="recorder") == 2
+    assert handled == [1, 3, 3, 4]  # 3 again, then on
+    assert dispatch.events_dispatch(name="recorder") == 0
+    assert EventCursor.objects.get(handler="recorder").position == 4
+
+
+def test_one_failing_handler_does_not_stop_the_others(owner, seen, monkeypatch):
+    handled, fail_on = seen
+    others: list[str] = []
+    dispatch.handler("other", types=["run.failed"])(lambda event: others.append(event.type))
+    _write(owner, ("run.failed", 7))
+    fail_on.add(7)
+    assert dispatch.events_dispatch_all() == {"other": 1, "recorder": 0}
+    assert dispatch.events_dispatch_all() == {"other": 0, "recorder": 1}
+    assert others == ["run.failed"]
+    assert handled == [7, 7]
+
+
+@pytest.mark.django_db(transaction=True)
+def test_two_passes_of_one_handler_never_overlap(owner, seen):
+    handled, _ = seen
+    _write(owner, ("run.running", 1))
+    EventCursor.objects.create(handler="recorder")
+    holding = threading.Event()
+    release = threading.Event()
+
+    def other_pass() -> None:
+        try:
+            with transaction.atomic():
+                EventCursor.objects.select_for_update().get(handler="recorder")
+                holding.set()
+                assert release.wait(30)
+        finally:
+            connection.close()
+
+    thread = threading.Thread(target=other_pass)
+    thread.start()
+    try:
+        assert holding.wait(30)
+        assert dispatch.events_dispatch(name="recorder") == 0  # it leaves at once
+    finally:
+        release.set()
+        thread.join(30)
+    assert handled == []
+    assert dispatch.events_dispatch(name="recorder") == 1
+
+
+def test_a_handler_of_no_known_type_is_refused():
+    with pytest.raises(ValueError, match="not event types"):
+        dispatch.handler("typo", types=["run.finished"])

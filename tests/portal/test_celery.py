@@ -14,8 +14,7 @@ from portal.runs.tasks import MAX_RETRIES
 REPO = Path(__file__).resolve().parents[2]
 MAIL_TASKS = {
     "bookings.tasks.reservation_notify",
-    "portal.runs.tasks.run_notify",
-    "portal.runs.tasks.robot_hold_notify",
+    "core.events.tasks.events_dispatch_all",
 }
 
 

@@ -16,12 +16,15 @@ import pytest
 from django.core import mail
 from django.utils import timezone
 
-from bookings.models import Reservation, Resource
+from bookings.models import Reservation
+from bookings.services import resource_hold
 from bookings.tasks import reservation_notify, reservations_remind
 from core.audit.models import AuditEvent, IdempotencyKey
 from core.audit.tasks import idempotency_keys_delete_expired
+from core.events.models import EventCursor
+from core.events.tasks import events_dispatch_all
 from portal.celery import app as celery_app
-from portal.runs import notifications, tasks
+from portal.runs import tasks
 from portal.runs.models import DryRun, Run, RunEvent, Sample
 from portal.runs.services import dry_run, staging
 from portal.runs.services.reservations import reservation_cancel, reservation_create
@@ -37,15 +40,14 @@ COVERED = {
     "portal.runs.tasks.run_unstage",
     "portal.runs.tasks.run_hold",
     "portal.runs.tasks.run_collect",
-    "portal.runs.tasks.run_notify",
     "portal.runs.tasks.robots_health_sweep",
     "portal.runs.tasks.robot_health_check",
-    "portal.runs.tasks.robot_hold_notify",
     "portal.runs.tasks.dry_run_execute",
     "portal.runs.tasks.dry_runs_delete_expired",
     "bookings.tasks.reservation_notify",
     "bookings.tasks.reservations_remind",
     "core.audit.tasks.idempotency_keys_delete_expired",
+    "core.events.tasks.events_dispatch_all",
     # Run twice in tests/bookings/scheduler/test_booking_flow.py (they need the stand-in).
     "bookings.tasks.scheduler_sweep",
     "bookings.tasks.lease_cancel",
@@ -131,13 +133,16 @@ def test_a_run_its_owner_cancelled_is_not_told_about(agent, run, owner):
     agent.run_clock(start_s + 1.05, start_s + 2.0)
     tasks.run_collect.apply(args=(run.pk,))
     assert Run.objects.get(pk=run.pk).state == RunState.INTERRUPTED
-    assert not notifications.runs_owner_untold().exists()
+    mail.outbox.clear()
+    twice(events_dispatch_all)
+    assert EventCursor.objects.get(handler="run-owner-mail").position > 0  # it was handed
+    assert mail.outbox == []
 
 
 def test_telling_the_owner_twice_sends_one_mail(run):
     staging._fail(run, "the base station refused the run")
     mail.outbox.clear()
-    twice(tasks.run_notify, run.pk)
+    twice(events_dispatch_all)
     assert [m.subject for m in mail.outbox] == [f"Run failed: {run.title}"]
     assert mail.outbox[0].to == [run.reservation.owner.email]
     assert "refused" in mail.outbox[0].body
@@ -160,23 +165,24 @@ def test_a_health_check_twice_holds_once(agent, run, mobile):
     assert AuditEvent.objects.filter(action="resource.hold").count() == 1
 
 
-def test_the_health_sweep_twice_holds_and_mails_the_admins_once(
+def test_the_health_sweep_twice_holds_and_the_hold_mails_the_admins_once(
     agent, run, mobile, eager_tasks, admin_with_mail
 ):
     _latch_estop(agent)
     mail.outbox.clear()
-    twice(tasks.robots_health_sweep)  # the first checks and holds; the next mails
+    twice(tasks.robots_health_sweep)  # checks and holds
     twice(tasks.robots_health_sweep)
+    twice(events_dispatch_all)  # the hold's event: the mail
     assert AuditEvent.objects.filter(action="resource.hold").count() == 1
     assert [m.to for m in mail.outbox] == [["root@example.org"]]
     assert mail.outbox[0].subject.startswith("mobile-1 out of booking: emergency stop latched")
 
 
 def test_telling_the_admins_of_a_hold_twice_sends_one_mail(agent, mobile, admin_with_mail):
-    Resource.objects.filter(pk=mobile.pk).update(hold_reason="battery low", held_at=timezone.now())
+    assert resource_hold(resource_id=mobile.pk, reason="battery low")
     mail.outbox.clear()
-    twice(tasks.robot_hold_notify, mobile.pk)
-    assert len(mail.outbox) == 1
+    twice(events_dispatch_all)
+    assert [m.subject for m in mail.outbox] == ["mobile-1 out of booking: battery low"]
 
 
 def test_a_dry_run_delivered_twice_runs_once(owner, mobile, monkeypatch):

@@ -222,8 +222,3 @@ def _ask_agent(
 
 def robots_held() -> QuerySet[Resource]:
     return Resource.objects.exclude(hold_reason="").order_by("name")
-
-
-def robots_hold_unnotified() -> QuerySet[Resource]:
-    """Holds the admins have not been e-mailed about yet (the sweep queues the mail)."""
-    return robots_held().filter(hold_notified_at__isnull=True)
