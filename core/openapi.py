@@ -25,6 +25,7 @@ from drf_spectacular.utils import OpenApiResponse
 from rest_framework import permissions, serializers
 
 from core.api import GreaterThan
+from core.events.catalogue import PAYLOADS
 
 DESCRIPTION = """\
 Experiments, reservations, runs and their measurements on the AMazING testbed's mobile node.
@@ -262,8 +263,6 @@ def oas30(schema: Any) -> Any:
 
 def event_payload_components() -> dict[str, Any]:
     """Each event payload's shape and version, as a component, saying which types carry it."""
-    from core.events.catalogue import PAYLOADS
-
     return {
         component: {
             **oas30(schema),

@@ -398,11 +398,9 @@ CELERY_BEAT_SCHEDULE = {
         "schedule": HEALTH_POLL_INTERVAL_S,
     },
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
-    # Kicked after every commit that wrote events; this pass catches what a lost kick left.
-    "events-dispatch": {
-        "task": "core.events.tasks.events_dispatch_all",
-        "schedule": RUN_SWEEP_INTERVAL_S,
-    },
+    # The handlers are woken after every commit that wrote events they want; this pass only
+    # catches what a lost wake-up left (a process that died between its commit and the call).
+    "events-dispatch": {"task": "core.events.tasks.events_dispatch_all", "schedule": 60.0},
     "dry-runs-delete-expired": {
         "task": "portal.runs.tasks.dry_runs_delete_expired",
         "schedule": 3600.0,

@@ -8,7 +8,7 @@ from django.db.models import Q, QuerySet
 
 from core.accounts.models import User
 from core.events.models import Event
-from core.events.services import events_sequence
+from core.events.sequence import events_sequence
 
 # A long poll waits at most this long for an event (the web server's threads are few).
 WAIT_MAX_S = 20.0

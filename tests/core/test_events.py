@@ -19,10 +19,11 @@ from bookings.models import SchedulerLink
 from bookings.scheduler import config as scheduler_config
 from bookings.services import resource_hold, resource_set_service
 from core.errors import Conflict
-from core.events import dispatch
+from core.events import dispatch, registry
 from core.events.catalogue import EVENT_TYPES, PAYLOADS
 from core.events.models import Event, EventCursor
-from core.events.services import event_record, events_sequence
+from core.events.sequence import events_sequence
+from core.events.services import event_record
 from core.openapi import oas30
 from portal.runs.models import Run
 from portal.runs.services.reservations import (
@@ -198,7 +199,7 @@ def test_an_event_committed_late_is_numbered_after_those_read_before_it(owner):
 
 
 def test_the_sequencer_numbers_a_backlog_in_passes_and_then_nothing(owner, monkeypatch):
-    monkeypatch.setattr("core.events.services.SEQUENCE_BATCH", 3)
+    monkeypatch.setattr("core.events.sequence.SEQUENCE_BATCH", 3)
     with transaction.atomic():
         for n in range(7):
             event_record(subject=f"run:{n % 2}", type="run.running", payload={}, owner_id=owner.pk)
@@ -369,7 +370,7 @@ def seen(monkeypatch):
             fail_on.discard(event.payload["run"])
             raise OSError("mail server down")
 
-    monkeypatch.setattr(dispatch, "_HANDLERS", {})
+    monkeypatch.setattr(registry, "_HANDLERS", {})
     dispatch.handler("recorder", types=["run.running", "run.failed"])(record)
     return handled, fail_on
 
@@ -437,3 +438,14 @@ def test_two_passes_of_one_handler_never_overlap(owner, seen):
 def test_a_handler_of_no_known_type_is_refused():
     with pytest.raises(ValueError, match="not event types"):
         dispatch.handler("typo", types=["run.finished"])
+
+
+def test_only_an_event_some_handler_wants_wakes_the_handlers_at_commit(
+    owner, seen, django_capture_on_commit_callbacks
+):
+    with django_capture_on_commit_callbacks() as unwanted:
+        _write(owner, ("run.staged", 1))
+    with django_capture_on_commit_callbacks() as wanted:
+        _write(owner, ("run.failed", 2))
+    assert unwanted == []
+    assert [c.__name__ for c in wanted] == ["_wake_handlers"]

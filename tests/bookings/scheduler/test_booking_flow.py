@@ -705,7 +705,7 @@ def test_cancelling_a_lease_twice_cancels_it_once(linked, owner, slot):
 
 def test_the_link_coming_back_after_failing_is_one_event_for_staff(linked, settings):
     from core.events.models import Event
-    from core.events.services import events_sequence
+    from core.events.sequence import events_sequence
 
     reachable = settings.SCHEDULER
     settings.SCHEDULER = scheduler_config.from_env({"SCHEDULER_URL": "http://127.0.0.1:9"})
