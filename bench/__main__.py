@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
+from bench import sections
+
 REPO = Path(__file__).resolve().parent.parent
 REPORT = REPO / "docs" / "performance.md"
 
@@ -76,15 +78,13 @@ def machine() -> str:
 
 def write_section(key: str, body: str) -> None:
     """Replace (or append) the report section between this benchmark's markers."""
-    begin, end = f"<!-- bench:{key} -->", f"<!-- /bench:{key} -->"
-    text = REPORT.read_text() if REPORT.exists() else "# Performance\n"
-    block = f"{begin}\n{body.rstrip()}\n{end}"
-    if begin in text and end in text:
-        head, rest = text.split(begin, 1)
-        text = head + block + rest.split(end, 1)[1]
-    else:
-        text = text.rstrip() + "\n\n" + block + "\n"
-    REPORT.write_text(text)
+    sections.write_section(
+        REPORT,
+        begin=f"<!-- bench:{key} -->",
+        end=f"<!-- /bench:{key} -->",
+        body=body,
+        title="# Performance",
+    )
 
 
 # Every benchmark, in the order ``python -m bench`` runs them.

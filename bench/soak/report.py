@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
+from bench import sections
 from bench.soak.model import (
     CHECKS,
     FAULT_NAMES,
@@ -154,12 +155,6 @@ def plot(result: SoakResult, path: Path) -> None:
 
 def write_report(markdown: str) -> None:
     """Replace (or add) the soak's section of docs/reliability.md, between its markers."""
-    begin, end = "<!-- soak -->", "<!-- /soak -->"
-    text = REPORT.read_text() if REPORT.exists() else "# Reliability\n"
-    block = f"{begin}\n{markdown.rstrip()}\n{end}"
-    if begin in text and end in text:
-        head, rest = text.split(begin, 1)
-        text = head + block + rest.split(end, 1)[1]
-    else:
-        text = text.rstrip() + "\n\n" + block + "\n"
-    REPORT.write_text(text)
+    sections.write_section(
+        REPORT, begin="<!-- soak -->", end="<!-- /soak -->", body=markdown, title="# Reliability"
+    )
