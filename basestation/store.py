@@ -232,7 +232,8 @@ class RunStore:
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
-        self._connections: list[sqlite3.Connection] = []
+        # Each connection with the thread it belongs to (see ``close``).
+        self._connections: list[tuple[threading.Thread, sqlite3.Connection]] = []
         self._connections_lock = threading.Lock()
         self._closed = False
         # Bumped (and waiters woken) after every commit of samples or of a run's state:
@@ -262,13 +263,16 @@ class RunStore:
     # -- connections and transactions ------------------------------------------------------
 
     def _conn(self) -> sqlite3.Connection:
-        if self._closed:
-            raise StoreClosed(f"run store {self.path} is closed")
         conn: sqlite3.Connection | None = getattr(self._local, "conn", None)
+        if self._closed:
+            if conn is not None:  # this thread's own, left open by close(): closed here
+                self._local.conn = None
+                conn.close()
+            raise StoreClosed(f"run store {self.path} is closed")
         if conn is None:
             # isolation_level=None: we issue BEGIN/COMMIT ourselves, so a transaction is
             # exactly as wide as the code below says. check_same_thread=False only so that
-            # close() can close every thread's connection at shutdown.
+            # close() can close the connections of threads that have ended.
             conn = sqlite3.connect(
                 self.path, isolation_level=None, check_same_thread=False, timeout=10.0
             )
@@ -278,7 +282,7 @@ class RunStore:
             conn.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
             self._local.conn = conn
             with self._connections_lock:
-                self._connections.append(conn)
+                self._connections.append((threading.current_thread(), conn))
         return conn
 
     @contextmanager
@@ -305,11 +309,22 @@ class RunStore:
             conn.execute("COMMIT")
 
     def close(self) -> None:
+        """Refuse every later call (``StoreClosed``) and wake the waiters.
+
+        Closes this thread's connection and those of threads that have ended; a live thread's
+        is closed by that thread, at its next call (or when the thread ends). Closing a
+        connection that another thread is stepping a statement on frees what that thread is
+        still using: an HTTP thread mid-query at shutdown took the whole process down with a
+        segmentation fault."""
         self._closed = True
+        me = threading.current_thread()
         with self._connections_lock:
             connections, self._connections = self._connections, []
-        for conn in connections:
-            conn.close()
+        for owner, conn in connections:
+            if owner is me or not owner.is_alive():
+                conn.close()
+        if getattr(self._local, "conn", None) is not None:
+            self._local.conn = None
         self._signal()
 
     # -- waiting for changes -----------------------------------------------------------------

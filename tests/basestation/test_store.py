@@ -14,7 +14,7 @@ from basestation.config import AgentConfig
 from basestation.errors import RunConflict
 from basestation.program import parse_run_body
 from basestation.runtime import get_runtime
-from basestation.store import RunStore, Sample
+from basestation.store import RunStore, Sample, StoreClosed
 from tests.basestation.conftest import TOKEN, run_body
 
 T0 = 1_900_000_000.0
@@ -188,3 +188,41 @@ def test_usage_is_half_open_at_both_ends_of_the_window(store: RunStore) -> None:
         "started-at-end",
         "still-running",
     }
+
+
+def test_a_close_leaves_a_statement_another_thread_is_stepping_to_that_thread(
+    store: RunStore,
+) -> None:
+    """Closing a connection under a thread mid-statement frees what that thread still uses
+    (the agent died of a segmentation fault once, closed at shutdown under an HTTP thread's
+    query): the thread finishes its statement and meets ``StoreClosed`` at its next call."""
+    stepped, closed = threading.Event(), threading.Event()
+    rows: list[int] = []
+    outcome: list[BaseException] = []
+
+    def read() -> None:
+        try:
+            # Any of the store's reads, held between two steps of its statement.
+            cursor = store._conn().execute(
+                "WITH RECURSIVE n(x) AS (SELECT 1 UNION ALL SELECT x + 1 FROM n WHERE x < 100)"
+                " SELECT x FROM n"
+            )
+            for (x,) in cursor:
+                rows.append(x)
+                if x == 1:
+                    stepped.set()
+                    closed.wait(10.0)
+            store.get_run("run-1")
+        except BaseException as error:  # the test reads which it was
+            outcome.append(error)
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    assert stepped.wait(10.0)
+    store.close()
+    closed.set()
+    reader.join(10.0)
+    assert rows == list(range(1, 101))  # the statement ran to its end
+    assert [type(error) for error in outcome] == [StoreClosed]
+    with pytest.raises(StoreClosed):
+        store.get_run("run-1")

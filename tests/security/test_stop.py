@@ -302,6 +302,15 @@ def _serving(server: Any) -> threading.Thread:
     return thread
 
 
+def _close(server: Any, runtime: Any, holders: list[threading.Thread]) -> None:
+    """The server, then the store (which wakes the long-polls: they answer and end), then the
+    test's own threads: nothing of a test runs on into the next."""
+    server.close()
+    runtime.close()
+    for holder in holders:
+        holder.join(DEADLINE_S)
+
+
 HOLD_S = 30  # the slow requests' long-poll: far longer than the deadline below
 DEADLINE_S = 10.0  # bounds a hang only
 
@@ -342,8 +351,7 @@ def test_a_stop_is_answered_while_every_request_thread_is_busy(agent_app):
         assert runtime.manager.estop is not None
         assert dispatcher.active_count == 2  # the slow requests still hold every thread
     finally:
-        server.close()
-        runtime.close()
+        _close(server, runtime, holders)
 
 
 def test_a_long_poll_gives_its_cpu_slot_back_while_it_waits(agent_app):
@@ -378,5 +386,4 @@ def test_a_long_poll_gives_its_cpu_slot_back_while_it_waits(agent_app):
         assert status.status_code == 200
         assert dispatcher.active_count >= 1  # the long-poll is still waiting
     finally:
-        server.close()
-        runtime.close()
+        _close(server, runtime, [holder])
