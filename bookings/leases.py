@@ -36,6 +36,7 @@ from bookings.choices import (
     RESERVATION_WITHDRAWN_STATES,
     ResourceKind,
 )
+from bookings.events import Problem, reservation_flagged_record
 from bookings.models import Reservation, Resource, SchedulerLease, SchedulerLink
 from bookings.scheduler import (
     ALL_STATUSES,
@@ -303,7 +304,7 @@ def lease_move(*, lease_uuid: str, start_at: datetime, end_at: datetime) -> Leas
 class SweepResult:
     leases_seen: int
     orphans_cancelled: int
-    # (notification kind, reservation id) for each booking flagged by this sweep.
+    # (its problem, reservation id) for each booking flagged by this sweep.
     notices: tuple[tuple[str, int], ...]
 
 
@@ -407,11 +408,13 @@ def _orphan(lease: Lease, *, now: datetime, booking: bool = False) -> bool:
     return first_seen is not None and now - first_seen >= grace
 
 
-def _flag(reservation: Reservation, note: str, kind: str) -> list[tuple[str, int]]:
-    """Flag a booking once per cause; the owner and the admins are to be told."""
+def _flag(reservation: Reservation, note: str, kind: Problem) -> list[tuple[str, int]]:
+    """Flag a booking once per cause, with its event (its owner and the admins are told:
+    ``bookings.handlers``)."""
     if reservation.conflict == note:
         return []
     Reservation.objects.filter(pk=reservation.pk).update(conflict=note)
+    reservation_flagged_record(reservation, problem=kind, note=note)
     logger.warning("reservation %s flagged: %s", reservation.pk, note)
     return [(kind, reservation.pk)]
 

@@ -216,7 +216,6 @@ class Reservation(models.Model):
     booked_via = models.CharField(
         max_length=16, choices=BookedVia.choices, default=BookedVia.PORTAL, editable=False
     )
-    reminder_sent_at = models.DateTimeField(null=True, blank=True)
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 

@@ -20,8 +20,6 @@ SUBJECTS = {
     "approved": "Booking approved: {what}",
     "rejected": "Booking request rejected: {what}",
     "cancelled": "Your booking was cancelled by {who}: {what}",
-    # Queued before ``cancelled`` said who: the same message.
-    "cancelled_by_admin": "Your booking was cancelled by {who}: {what}",
     "blackout_conflict": "Maintenance overlaps a booking: {what}",
     "reminder": "Reminder: {what} starts soon",
     "lease_conflict": "A lease on the testbed scheduler overlaps a booking: {what}",
@@ -59,7 +57,7 @@ def reservation_message(
     via: str = "",
 ) -> tuple[str, str]:
     what = _describe(reservation)
-    who = _canceller(reservation) if kind in ("cancelled", "cancelled_by_admin") else ""
+    who = _canceller(reservation) if kind == "cancelled" else ""
     lines = [f"Hello {reservation.owner.get_username()},", ""]
     if kind == "confirmed":
         lines.append(f"your booking of {what} is confirmed.")
@@ -69,7 +67,7 @@ def reservation_message(
         lines.append(f"your booking of {what} was approved.")
     elif kind == "rejected":
         lines.append(f"your booking request for {what} was rejected: {reservation.decision_reason}")
-    elif kind in ("cancelled", "cancelled_by_admin"):
+    elif kind == "cancelled":
         through = f" {Channel(via).label}" if via in Channel.values else ""
         reason = f": {reservation.cancel_reason}" if reservation.cancel_reason else "."
         lines.append(f"{who} cancelled your booking of {what}{through}{reason}")

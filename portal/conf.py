@@ -168,6 +168,22 @@ IDEMPOTENCY_KEY_TTL_S: Final = Tunable(
     "are deleted hourly and count as new",
     shown="`86400` (24 h)",
 )
+WEBHOOK_RETRY_FIRST_S: Final = Tunable(
+    "WEBHOOK_RETRY_FIRST_S", 5.0, "a webhook's delivery that failed is tried again after this"
+)
+WEBHOOK_RETRY_MAX_S: Final = Tunable(
+    "WEBHOOK_RETRY_MAX_S",
+    6 * 3600.0,
+    "the wait between a delivery's tries doubles up to this",
+    shown="`21600` (6 h)",
+)
+WEBHOOK_RETRY_FOR_S: Final = Tunable(
+    "WEBHOOK_RETRY_FOR_S",
+    2 * DAY_S,
+    "a delivery is tried for this long; then the webhook is paused and its owner told",
+    shown="`172800` (48 h)",
+)
+WEBHOOKS_PER_USER_MAX: Final = Tunable("WEBHOOKS_PER_USER_MAX", 10, "webhooks one person may have")
 
 TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     RUN_SWEEP_INTERVAL_S,
@@ -192,6 +208,10 @@ TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     DOWNLOADS_IN_FLIGHT_MAX,
     DOWNLOAD_SLOT_S,
     IDEMPOTENCY_KEY_TTL_S,
+    WEBHOOK_RETRY_FIRST_S,
+    WEBHOOK_RETRY_MAX_S,
+    WEBHOOK_RETRY_FOR_S,
+    WEBHOOKS_PER_USER_MAX,
 )
 
 

@@ -135,6 +135,7 @@ INSTALLED_APPS = [
     "portal.runs",
     "core.audit",
     "core.events",
+    "core.webhooks",
     "bookings",
     "allauth",
     "allauth.account",
@@ -349,17 +350,18 @@ CELERY_BROKER_CONNECTION_RETRY_ON_STARTUP = True
 # A broker restart must never stop a worker: it reconnects for as long as it takes.
 CELERY_BROKER_CONNECTION_MAX_RETRIES = None
 # Redis hands an unacknowledged task to another worker after this long. Above the longest
-# task plus the longest retry delay (mail backs off up to 600 s), or a slow task would run
-# twice at once; a task lost with a killed worker is meanwhile redone by the next sweep.
+# task plus the longest retry delay (Celery's backoff stops at 600 s), or a slow task would
+# run twice at once; a task lost with a killed worker is meanwhile redone by the next sweep.
 CELERY_VISIBILITY_TIMEOUT_S = 3600
 CELERY_BROKER_TRANSPORT_OPTIONS["visibility_timeout"] = CELERY_VISIBILITY_TIMEOUT_S
 # Two queues, each with its own worker (portal/processes.py): a backlog of mail (a slow or
 # unreachable mail server) cannot delay staging and collecting a run.
 CELERY_TASK_DEFAULT_QUEUE = RUNS_QUEUE
 CELERY_TASK_ROUTES = {
-    "bookings.tasks.reservation_notify": {"queue": MAIL_QUEUE},
-    # The reactions to events, e-mails among them (core/events/dispatch.py).
+    # The reactions to events, the e-mails among them (core/events/dispatch.py).
     "core.events.tasks.events_dispatch_all": {"queue": MAIL_QUEUE},
+    # Outbound like the mail: a slow receiver never delays a run.
+    "core.webhooks.tasks.webhooks_send": {"queue": MAIL_QUEUE},
 }
 CELERY_TIMEZONE = "UTC"
 # The testbed's own timings and limits: portal/conf.py says what each means, its default and
@@ -387,6 +389,14 @@ STAFF_API_TOKEN_DAYS = conf.STAFF_API_TOKEN_DAYS.read()
 DOWNLOADS_IN_FLIGHT_MAX = conf.DOWNLOADS_IN_FLIGHT_MAX.read()
 DOWNLOAD_SLOT_S = conf.DOWNLOAD_SLOT_S.read()
 IDEMPOTENCY_KEY_TTL_S = conf.IDEMPOTENCY_KEY_TTL_S.read()
+WEBHOOK_RETRY_FIRST_S = conf.WEBHOOK_RETRY_FIRST_S.read()
+WEBHOOK_RETRY_MAX_S = conf.WEBHOOK_RETRY_MAX_S.read()
+WEBHOOK_RETRY_FOR_S = conf.WEBHOOK_RETRY_FOR_S.read()
+WEBHOOKS_PER_USER_MAX = conf.WEBHOOKS_PER_USER_MAX.read()
+# Webhooks go to public https URLs only (core/webhooks/guard.py); in development also to http
+# and to this machine, for a receiver of one's own.
+WEBHOOK_ALLOW_HTTP = DEBUG
+WEBHOOK_ALLOW_PRIVATE = DEBUG
 CELERY_BEAT_SCHEDULE = {
     "scheduler-sweep": {
         "task": "bookings.tasks.scheduler_sweep",
@@ -401,6 +411,8 @@ CELERY_BEAT_SCHEDULE = {
     # The handlers are woken after every commit that wrote events they want; this pass only
     # catches what a lost wake-up left (a process that died between its commit and the call).
     "events-dispatch": {"task": "core.events.tasks.events_dispatch_all", "schedule": 60.0},
+    # Each failed try queues the next itself; this pass catches what a dead worker left.
+    "webhooks-send": {"task": "core.webhooks.tasks.webhooks_send", "schedule": 60.0},
     "dry-runs-delete-expired": {
         "task": "portal.runs.tasks.dry_runs_delete_expired",
         "schedule": 3600.0,

@@ -22,6 +22,7 @@ urlpatterns = [
     path("api/v1/", include("bookings.urls")),
     path("api/v1/", include("core.audit.urls")),
     path("api/v1/", include("core.events.urls")),
+    path("api/v1/", include("core.webhooks.urls")),
     path("api/v1/", include("core.accounts.urls")),
     # Last of the API: any other path under /api/ answers a JSON 404, not a page.
     re_path(r"^api/(?P<path>.*)$", api_not_found),

@@ -1,5 +1,6 @@
 """``amazing events``: your events in order (reservations made, moved, decided, cancelled; each
-run's every state), and with ``--follow`` as they happen, from ``GET /api/v1/events/``."""
+run's every state and its data ready), and with ``--follow`` as they happen, from
+``GET /api/v1/events/``."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from amazing_cli.errors import bad_input
 
 # How long one request waits for an event when following (the portal's most).
 WAIT_S = 20.0
-RUN_END_STATES = ("completed", "interrupted", "failed", "cancelled")
+RUN_ENDS = {f"run.{state}" for state in ("completed", "interrupted", "failed", "cancelled")}
 
 
 def event_stream(
@@ -44,6 +45,12 @@ def describe(event: dict[str, Any]) -> str:
         door = f" via {data['via']}" if data.get("via") else ""
         by = f" by {data['by']}" if data.get("by") else ""
         gist = f"{', '.join(data['resources'])} {start}–{end}, {data['state']}{by}{door}"
+    elif event["type"] == "run.data_ready":
+        missing = f", {data['missing']} stretches missing" if data["missing"] else ""
+        gist = (
+            f"{data['resource']} {data['state']}: {data['samples']} samples{missing}; "
+            f"`amazing download {data['run']}`"
+        )
     elif event["type"].startswith("run."):
         reason = f": {data['reason']}" if data.get("reason") else ""
         gist = f"{data['resource']} {data['from_state'] or '∅'} → {data['state']}{reason}"
@@ -78,12 +85,20 @@ def events(
         raise bad_input(f"--run {run}: give a run's id")
     api = portal_api(ctx)
     subject = f"run:{run}" if run is not None else None
-    for event in event_stream(api, after=after, follow=follow, types=type):
-        if subject is not None and event["subject"] != subject:
-            continue
+
+    def show(event: dict[str, Any]) -> None:
         if as_json:
             out.print(json.dumps(event, sort_keys=True), markup=False, highlight=False)
         else:
             out.print(describe(event), markup=False)
-        if subject is not None and event["data"].get("state") in RUN_END_STATES:
+
+    for event in event_stream(api, after=after, follow=follow, types=type):
+        if subject is not None and event["subject"] != subject:
+            continue
+        show(event)
+        if subject is not None and event["type"] in RUN_ENDS:
+            # What its ending wrote with it (its data ready) is there already: shown, then done.
+            for rest in event_stream(api, after=event["id"], follow=False, types=type):
+                if rest["subject"] == subject:
+                    show(rest)
             return

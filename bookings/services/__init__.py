@@ -10,7 +10,6 @@ policies, and the live check of a booking. Callers import from here.
 - ``quota_policies``: quota policies created and changed, audited.
 - ``setup``: the resources of a testbed installation (``TestbedSpec``), named after the
   testbed's scheduler when one is configured.
-- ``_common``: what several of them share (telling people once a change is committed).
 
 Every check that guards capacity runs inside one transaction under row locks taken in a
 fixed order (the user, then the resources by id), so concurrent bookings are decided one at

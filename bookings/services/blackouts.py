@@ -8,9 +8,9 @@ from datetime import datetime
 from django.db import transaction
 from django.utils import timezone
 
+from bookings.events import reservation_flagged_record
 from bookings.models import Blackout, Reservation, ReservationItem, Resource
 from bookings.rules import aware_utc
-from bookings.services._common import _notify
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import InvalidInput, NotAllowed
@@ -66,7 +66,9 @@ def blackout_create(
             conflicts=[r.pk for r in conflicted],
         )
         for r in conflicted:
-            _notify("blackout_conflict", r.pk, blackout_id=blackout.pk)
+            reservation_flagged_record(
+                r, problem="maintenance", note=r.conflict, blackout_id=blackout.pk
+            )
     return blackout, conflicted
 
 
@@ -92,4 +94,6 @@ def _conflicts_flag(
         f"({local(start_at):%Y-%m-%d %H:%M} – {local(end_at):%Y-%m-%d %H:%M})."
     )
     Reservation.objects.filter(pk__in=[r.pk for r in conflicted]).update(conflict=note)
+    for r in conflicted:
+        r.conflict = note
     return conflicted

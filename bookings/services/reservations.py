@@ -27,6 +27,7 @@ from django.utils import timezone
 
 from bookings import queries
 from bookings.choices import BookedVia, Channel, ReservationState
+from bookings.events import reservation_event_record
 from bookings.leases import (
     booking_guard,
     lease_move,
@@ -52,12 +53,10 @@ from bookings.rules import (
     request_problems,
 )
 from bookings.scheduler import Lease
-from bookings.services._common import _notify
 from bookings.tasks import lease_cancel
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import Conflict, DomainError
-from core.events.services import event_record
 
 logger = logging.getLogger(__name__)
 
@@ -82,29 +81,13 @@ def _event(
     via: Channel | None,
     resources: Sequence[str] | None = None,
 ) -> None:
-    """The change's event, in its transaction (``core.events``): the reservation as it is
-    now, who changed it and through which door."""
-    names = (
-        list(resources)
-        if resources is not None
-        else list(
-            reservation.items.order_by("resource__name").values_list("resource__name", flat=True)
-        )
-    )
-    event_record(
-        subject=f"reservation:{reservation.pk}",
-        type=type,
-        owner_id=reservation.owner_id,
-        payload={
-            "reservation": reservation.pk,
-            "state": str(reservation.state),
-            "resources": names,
-            "start_at": reservation.start_at.isoformat(),
-            "end_at": reservation.end_at.isoformat(),
-            "title": reservation.title,
-            "via": _door(via),
-            "by": by.get_username() if by is not None else None,
-        },
+    """The change's event, in its transaction (``bookings.events``)."""
+    reservation_event_record(
+        type,
+        reservation,
+        by=by.get_username() if by is not None else None,
+        via=_door(via),
+        resources=resources,
     )
 
 
@@ -488,7 +471,6 @@ def _create_write(
         via=via,
         resources=sorted(r.name for r in booking.resources),
     )
-    _notify("requested" if booking.waits else "confirmed", reservation.pk)
     return reservation
 
 
@@ -711,7 +693,6 @@ def reservation_cancel(
     with transaction.atomic():
         locked = Reservation.objects.select_for_update().get(pk=reservation.pk)
         _refuse(cancel_problems(reservation=locked, by=by, reason=reason))
-        by_admin = by.pk != locked.owner_id
         locked.state = ReservationState.CANCELLED
         locked.cancelled_by = by
         locked.cancel_reason = reason
@@ -727,8 +708,6 @@ def reservation_cancel(
             via=_door(via),
         )
         _event("reservation.cancelled", locked, by=by, via=via)
-        if by_admin:
-            _notify("cancelled", locked.pk, via=via.value if via is not None else "")
     logger.info("reservation %s cancelled by %s", reservation.pk, by.get_username())
     return locked
 
@@ -771,7 +750,6 @@ def reservation_decide(
         _event(
             "reservation.approved" if approve else "reservation.rejected", locked, by=by, via=via
         )
-        _notify("approved" if approve else "rejected", locked.pk)
     return locked
 
 

@@ -65,22 +65,6 @@ class IdempotencyKey(models.Model):
         return f"{self.user_id}:{self.key}"
 
 
-class TaskOnce(models.Model):
-    """A side effect of a task message that must not happen twice (an e-mail sent).
-
-    Tasks are delivered at least once: a message whose worker died is delivered again with
-    the same id. The task claims its key in the transaction that does the work
-    (``core.audit.once.claim_once``), so a redelivery finds it claimed.
-    """
-
-    key = models.CharField(max_length=200, unique=True)
-    # Indexed for the expiry sweep, which deletes by age.
-    created_at = models.DateTimeField(auto_now_add=True, db_index=True)
-
-    def __str__(self) -> str:
-        return self.key
-
-
 class EventCount(models.Model):
     """How often an event happened, by name and labels: Prometheus counters that every
     process of the portal adds to (workers, beat, collector, web) and ``/metrics`` reads.

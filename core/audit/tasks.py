@@ -5,10 +5,8 @@ from __future__ import annotations
 from celery import shared_task
 
 from core.audit.idempotency import idempotency_keys_delete_expired as _delete_expired
-from core.audit.once import task_once_delete_expired
 
 
 @shared_task(time_limit=300, soft_time_limit=280)
 def idempotency_keys_delete_expired() -> int:
-    # Both are keys that make a repeated request or task harmless, kept as long.
-    return _delete_expired() + task_once_delete_expired()
+    return _delete_expired()

@@ -1,7 +1,7 @@
 """Every event type, its version and the shape of its payload (JSON Schema).
 
-A reservation's and a run's events belong to the reservation's owner; a robot's and the
-scheduler link's to no one (staff read them).
+A reservation's and a run's events belong to the reservation's owner, a webhook's to its
+owner; a robot's and the scheduler link's to no one (staff read them).
 
 The one list: ``services.event_record`` refuses a type or a payload that is not here, the
 OpenAPI schema documents these (``GET /api/v1/events/``), and the tests hold every payload
@@ -35,6 +35,38 @@ RESERVATION_V1: dict[str, Any] = {
     "additionalProperties": False,
 }
 
+RESERVATION_FLAGGED_V1: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "reservation": {"type": "integer"},
+        "state": RESERVATION_V1["properties"]["state"],
+        "resources": {"type": "array", "items": {"type": "string"}},
+        "start_at": _TIME,
+        "end_at": _TIME,
+        "title": {"type": "string"},
+        "problem": {
+            "type": "string",
+            "enum": ["maintenance", "lease_conflict", "lease_vanished"],
+            "description": "a maintenance window over it, a lease made on the testbed "
+            "scheduler over it, or its own lease gone from the scheduler",
+        },
+        "note": {"type": "string", "description": "what the owner and the admins are told"},
+        "blackout": {"type": ["integer", "null"], "description": "the maintenance window"},
+    },
+    "required": [
+        "reservation",
+        "state",
+        "resources",
+        "start_at",
+        "end_at",
+        "title",
+        "problem",
+        "note",
+        "blackout",
+    ],
+    "additionalProperties": False,
+}
+
 RUN_STATES = [
     "scheduled",
     "staged",
@@ -61,6 +93,34 @@ RUN_V1: dict[str, Any] = {
     "additionalProperties": False,
 }
 
+RUN_DATA_V1: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "run": {"type": "integer"},
+        "reservation": {"type": "integer"},
+        "resource": {"type": "string"},
+        "state": {"type": "string", "enum": ["completed", "interrupted", "failed", "cancelled"]},
+        "samples": {"type": "integer", "minimum": 1, "description": "how many were collected"},
+        "missing": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "how many stretches of the program have no samples",
+        },
+        "files": {
+            "type": "object",
+            "description": "where to fetch them (paths on the portal)",
+            "properties": {
+                "csv": {"type": "string"},
+                "json": {"type": "string"},
+                "analysis": {"type": "string"},
+            },
+            "required": ["csv", "json", "analysis"],
+            "additionalProperties": False,
+        },
+    },
+    "required": ["run", "reservation", "resource", "state", "samples", "missing", "files"],
+    "additionalProperties": False,
+}
 
 ROBOT_V1: dict[str, Any] = {
     "type": "object",
@@ -83,6 +143,17 @@ SCHEDULER_LINK_V1: dict[str, Any] = {
     "additionalProperties": False,
 }
 
+WEBHOOK_V1: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "webhook": {"type": "integer"},
+        "url": {"type": "string"},
+        "reason": {"type": "string", "description": "why it was paused (empty for a test)"},
+    },
+    "required": ["webhook", "url", "reason"],
+    "additionalProperties": False,
+}
+
 
 @dataclass(frozen=True)
 class EventType:
@@ -101,8 +172,18 @@ _RESERVATION_TYPES = {
     "reservation.approved": "An admin confirmed a requested reservation.",
     "reservation.rejected": "An admin rejected a requested reservation.",
     "reservation.cancelled": "A reservation was cancelled (its run with it).",
+    "reservation.starting_soon": "A confirmed reservation starts within the reminder lead "
+    "(RESERVATION_REMINDER_LEAD_S); once per reservation.",
+}
+_RESERVATION_FLAGGED_TYPES = {
+    "reservation.flagged": "Something stands in a reservation's way: a maintenance window, or "
+    "a lease on the testbed scheduler. Once per cause.",
 }
 _RUN_TYPES = {f"run.{state}": f"A run is now {state}." for state in RUN_STATES}
+_RUN_DATA_TYPES = {
+    "run.data_ready": "A run has ended and its samples are stored, complete or with the "
+    "stretches it lacks counted: they can be fetched. Once per run, after its last state.",
+}
 
 _ROBOT_TYPES = {
     "robot.held": "The health check took a robot out of booking.",
@@ -114,14 +195,25 @@ _SCHEDULER_TYPES = {
     "scheduler.link_down": "The portal cannot reach the testbed scheduler.",
     "scheduler.link_up": "The portal reaches the testbed scheduler again.",
 }
+_WEBHOOK_TYPES = {
+    "webhook.test": "Sent on its owner's request to one webhook only, to try it.",
+    "webhook.paused": "A webhook failed for its whole retry window and was paused: nothing is "
+    "sent to it until its owner resumes it.",
+}
 
 # Each payload shape and version, as a component of the OpenAPI description, with its types.
 PAYLOADS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "ReservationEventV1": (RESERVATION_V1, _RESERVATION_TYPES),
+    "ReservationFlaggedEventV1": (RESERVATION_FLAGGED_V1, _RESERVATION_FLAGGED_TYPES),
     "RunEventV1": (RUN_V1, _RUN_TYPES),
+    "RunDataEventV1": (RUN_DATA_V1, _RUN_DATA_TYPES),
     "RobotEventV1": (ROBOT_V1, _ROBOT_TYPES),
     "SchedulerLinkEventV1": (SCHEDULER_LINK_V1, _SCHEDULER_TYPES),
+    "WebhookEventV1": (WEBHOOK_V1, _WEBHOOK_TYPES),
 }
+
+# Types that happen at most once to a subject (a unique index holds it: ``Event``).
+ONCE_PER_SUBJECT = ["reservation.starting_soon", "run.data_ready"]
 
 EVENT_TYPES: dict[str, EventType] = {
     name: EventType(name, 1, text, payload, component)

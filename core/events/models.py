@@ -3,6 +3,8 @@ from __future__ import annotations
 from django.conf import settings
 from django.db import models
 
+from core.events.catalogue import ONCE_PER_SUBJECT
+
 
 class Event(models.Model):
     """Something that happened, written in the transaction that made it happen. Append-only.
@@ -34,6 +36,12 @@ class Event(models.Model):
         ordering = ["position"]
         constraints = [
             models.UniqueConstraint(fields=["subject", "seq"], name="event_subject_seq_unique"),
+            # The types that happen once to a subject (catalogue.ONCE_PER_SUBJECT).
+            models.UniqueConstraint(
+                fields=["subject", "type"],
+                condition=models.Q(type__in=ONCE_PER_SUBJECT),
+                name="event_once_per_subject",
+            ),
         ]
         indexes = [
             models.Index(fields=["owner", "position"], name="event_owner_position"),

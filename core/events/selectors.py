@@ -44,3 +44,9 @@ def events_wait(
         if found or time.monotonic() >= deadline:
             return found
         time.sleep(POLL_S)
+
+
+def events_of(*, subject: str, type: str) -> QuerySet[Event]:
+    """The events of one type about one subject, numbered or not (those of the caller's
+    transaction too)."""
+    return Event.objects.filter(subject=subject, type=type)

@@ -54,6 +54,10 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     ("POST", "/api/v1/resources/{name}/robot/stop/"): frozenset({"resource"}),
     ("POST", "/api/v1/resources/{name}/robot/release/"): frozenset({"resource"}),
     ("GET", "/api/v1/resources/{name}/robot/logs/{day}/"): frozenset({"resource"}),
+    # a URL whose name resolves, to an address the deployment allows; staff's event types
+    # only with staff_events, which is staff's
+    ("POST", "/api/v1/webhooks/"): frozenset({"url", "types", "staff_events"}),
+    ("PATCH", "/api/v1/webhooks/{id}/"): frozenset({"url", "types"}),
 }
 
 

@@ -6,12 +6,13 @@ from datetime import datetime, timedelta
 
 import pytest
 from django.core import mail
-from django.db import DatabaseError, transaction
+from django.db import DatabaseError, IntegrityError, transaction
 from django.utils import timezone
 
 from bookings.choices import ReservationState
+from bookings.events import reservation_event_record
 from bookings.models import Reservation
-from bookings.reminders import reservations_due_for_reminder
+from bookings.reminders import reservation_remind, reservations_due_for_reminder
 from bookings.services import blackout_create
 from bookings.tasks import reservations_remind
 from core.audit.models import AuditEvent
@@ -161,20 +162,36 @@ def test_an_admin_cancelling_someone_elses_booking_tells_them_why(
 
 def test_reminders_go_out_once(owner, eager_tasks, django_capture_on_commit_callbacks):
     start, end = _slot(hours_ahead=0.5)
+    with django_capture_on_commit_callbacks(execute=True):
+        reservation = reservation_create(
+            owner=owner, resource=FixedResourceFactory(), start_at=start, end_at=end
+        )
+        reservation_create(
+            owner=owner,
+            resource=FixedResourceFactory(),
+            start_at=start + timedelta(hours=5),
+            end_at=end + timedelta(hours=5),
+        )
+    assert reservations_due_for_reminder(now=timezone.now()) == [reservation.pk]
+    mail.outbox.clear()
+    with django_capture_on_commit_callbacks(execute=True):
+        reservations_remind()
+    with django_capture_on_commit_callbacks(execute=True):
+        reservations_remind()
+    assert [m.subject.split(":")[0] for m in mail.outbox] == ["Reminder"]
+    assert reservations_due_for_reminder(now=timezone.now()) == []
+
+
+def test_a_reminder_is_written_once_by_the_database_too(owner):
+    start, end = _slot(hours_ahead=0.5)
     reservation = reservation_create(
         owner=owner, resource=FixedResourceFactory(), start_at=start, end_at=end
     )
-    reservation_create(
-        owner=owner,
-        resource=FixedResourceFactory(),
-        start_at=start + timedelta(hours=5),
-        end_at=end + timedelta(hours=5),
-    )
-    assert reservations_due_for_reminder(now=timezone.now()) == [reservation.pk]
-    mail.outbox.clear()
-    reservations_remind()
-    reservations_remind()
-    assert [m.subject.split(":")[0] for m in mail.outbox] == ["Reminder"]
+    assert reservation_remind(reservation_id=reservation.pk)
+    assert not reservation_remind(reservation_id=reservation.pk)
+    # Two sweeps that both looked before either wrote: the second write is refused.
+    with pytest.raises(IntegrityError), transaction.atomic():
+        reservation_event_record("reservation.starting_soon", reservation, by=None, via="")
 
 
 def test_rescheduling_checks_everything_again(owner, other):

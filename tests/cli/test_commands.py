@@ -393,8 +393,10 @@ def test_download_zip_writes_the_package_and_checks_it(portal, tmp_path):
 def test_events_follow_prints_a_runs_events_as_it_runs_and_stops_at_its_end(portal):
     """`amazing events --follow --run N`, a process of its own, prints each state the moment
     the portal commits it (a long poll), and exits once the run has ended."""
+    from portal.runs.services import collection
     from portal.runs.services.transitions import run_transition
     from portal.runs.states import Cause, RunState
+    from tests.runs.driving import ingest
 
     erin = portal["erin"]
     start = timezone.now().replace(microsecond=0) + timedelta(hours=1)
@@ -418,15 +420,17 @@ def test_events_follow_prints_a_runs_events_as_it_runs_and_stops_at_its_end(port
         reader.start()
         try:
             assert "run.scheduled" in lines.get(timeout=30)
-            for state in (
-                RunState.STAGED,
-                RunState.RUNNING,
-                RunState.COLLECTING,
-                RunState.COMPLETED,
-            ):
+            for state in (RunState.STAGED, RunState.RUNNING, RunState.COLLECTING):
                 assert run_transition(run_id=run.pk, to_state=state, cause=Cause.DISPATCH)
                 line = lines.get(timeout=30)
                 assert f"run.{state} run:{run.pk}" in line, line
+            # Collected: completed, and its data ready in the same commit, shown before it exits.
+            ingest(run, [(0.5, "cw", 1.0)])
+            assert collection._end(run, RunState.COMPLETED, "20 samples collected", [])
+            assert f"run.completed run:{run.pk}" in lines.get(timeout=30)
+            ready = lines.get(timeout=30)
+            assert f"run.data_ready run:{run.pk}" in ready, ready
+            assert "mobile-1 completed: 20 samples;" in ready
             assert follower.wait(timeout=30) == 0, follower.stderr.read()
         finally:
             follower.kill()

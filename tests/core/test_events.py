@@ -9,6 +9,7 @@ from datetime import timedelta
 
 import jsonschema
 import pytest
+from django.core import mail
 from django.db import connection, transaction
 from django.utils import timezone
 from rest_framework.test import APIClient
@@ -17,7 +18,8 @@ from bookings.choices import Channel
 from bookings.leases import scheduler_sweep
 from bookings.models import SchedulerLink
 from bookings.scheduler import config as scheduler_config
-from bookings.services import resource_hold, resource_set_service
+from bookings.services import blackout_create, resource_hold, resource_set_service
+from bookings.tasks import reservations_remind
 from core.errors import Conflict
 from core.events import dispatch, registry
 from core.events.catalogue import EVENT_TYPES, PAYLOADS
@@ -337,6 +339,45 @@ def test_the_scheduler_link_going_down_and_up_is_one_event_each(settings, owner)
     assert "since" not in events[0].payload
     assert events[1].payload["since"] == link.last_success_at.isoformat()
     _held_to_the_catalogue(events)
+
+
+def test_a_booking_under_maintenance_and_about_to_start_is_flagged_and_reminded_in_events(
+    owner, admin_user, settings, eager_tasks, django_capture_on_commit_callbacks
+):
+    """The reservation's own events, held to the catalogue; its e-mails are their reactions
+    (``bookings.handlers``): the owner's and, for a problem, the admins'."""
+    node = FixedResourceFactory()
+    start = timezone.now() + timedelta(minutes=20)
+    with django_capture_on_commit_callbacks(execute=True):
+        reservation = reservation_create(
+            owner=owner, resource=node, start_at=start, end_at=start + timedelta(minutes=30)
+        )
+    mail.outbox.clear()
+    with django_capture_on_commit_callbacks(execute=True):
+        blackout, _ = blackout_create(
+            by=admin_user,
+            start_at=start,
+            end_at=start + timedelta(hours=1),
+            reason="antenna swap",
+            resources=[node],
+        )
+    settings.RESERVATION_REMINDER_LEAD_S = 3600
+    with django_capture_on_commit_callbacks(execute=True):
+        reservations_remind()
+    events = [e for e in _numbered() if e.subject == f"reservation:{reservation.pk}"]
+    assert [(e.type, e.seq, e.owner_id) for e in events] == [
+        ("reservation.created", 1, owner.pk),
+        ("reservation.flagged", 2, owner.pk),
+        ("reservation.starting_soon", 3, owner.pk),
+    ]
+    assert events[1].payload["problem"] == "maintenance"
+    assert events[1].payload["blackout"] == blackout.pk
+    assert "antenna swap" in events[1].payload["note"]
+    _held_to_the_catalogue(events)
+    assert [(m.subject.split(":")[0], sorted(m.to)) for m in mail.outbox] == [
+        ("Maintenance overlaps a booking", sorted([owner.email, admin_user.email])),
+        ("Reminder", [owner.email]),
+    ]
 
 
 def test_the_api_schema_documents_each_payload_as_the_catalogue_states_it(api):

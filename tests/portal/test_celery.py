@@ -13,8 +13,8 @@ from portal.runs.tasks import MAX_RETRIES
 
 REPO = Path(__file__).resolve().parents[2]
 MAIL_TASKS = {
-    "bookings.tasks.reservation_notify",
     "core.events.tasks.events_dispatch_all",
+    "core.webhooks.tasks.webhooks_send",
 }
 
 

@@ -8,11 +8,15 @@ from __future__ import annotations
 
 from datetime import timedelta
 
+import jsonschema
 import pytest
 from django.utils import timezone
 
 from basestation.client import AgentError
 from bookings.choices import ReservationState
+from core.events.catalogue import EVENT_TYPES
+from core.events.models import Event
+from core.events.sequence import events_sequence
 from portal.runs import tasks
 from portal.runs.models import Run, Sample
 from portal.runs.services import collection, staging
@@ -115,6 +119,16 @@ def test_collection_follows_the_run_and_verifies_the_count(agent, booked):
         "collecting",
         "completed",
     ]
+    # Then its data are ready, once, saying where to fetch them.
+    events_sequence()
+    events = list(Event.objects.filter(subject=f"run:{booked.pk}").order_by("seq"))
+    assert [e.type for e in events][-2:] == ["run.completed", "run.data_ready"]
+    ready = events[-1]
+    assert ready.owner_id == booked.reservation.owner_id
+    jsonschema.validate(ready.payload, EVENT_TYPES["run.data_ready"].payload)
+    assert ready.payload["samples"] == on_agent["sample_count"]
+    assert ready.payload["missing"] == 0
+    assert ready.payload["files"]["csv"] == f"/api/v1/runs/{booked.pk}/samples.csv"
 
 
 @pytest.mark.parametrize("reported", [None, 0, -5.0, "120", True, float("nan")])
@@ -159,6 +173,19 @@ def test_cancelling_a_running_run_aborts_it_and_keeps_the_data(agent, booked, ow
     assert _state(booked) == RunState.INTERRUPTED
     on_agent = agent.client.get_run(booked.agent_run_id)
     assert Sample.objects.filter(run=booked).count() == on_agent["sample_count"] > 0
+    ready = Event.objects.get(subject=f"run:{booked.pk}", type="run.data_ready")
+    assert (ready.payload["state"], ready.payload["samples"]) == (
+        "interrupted",
+        on_agent["sample_count"],
+    )
+    assert ready.payload["missing"] >= 1  # the program's rest, never driven
+
+
+def test_a_run_that_ended_without_samples_has_no_data_ready(agent, booked):
+    staging.run_stage(run_id=booked.pk)
+    collection._close_unreachable(booked, AgentError("gone", retryable=True, status=None))
+    assert _state(booked) == RunState.FAILED
+    assert not Event.objects.filter(type="run.data_ready").exists()
 
 
 # -- a cancel through its real paths: the commit hook, and the sweep when the hook's task is lost

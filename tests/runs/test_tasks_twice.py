@@ -18,17 +18,22 @@ from django.utils import timezone
 
 from bookings.models import Reservation
 from bookings.services import resource_hold
-from bookings.tasks import reservation_notify, reservations_remind
+from bookings.tasks import reservations_remind
 from core.audit.models import AuditEvent, IdempotencyKey
 from core.audit.tasks import idempotency_keys_delete_expired
-from core.events.models import EventCursor
+from core.events.dispatch import events_dispatch
+from core.events.models import Event, EventCursor
 from core.events.tasks import events_dispatch_all
+from core.webhooks.models import WebhookDelivery
+from core.webhooks.services import webhook_create, webhook_test, webhook_update
+from core.webhooks.tasks import webhooks_send
 from portal.celery import app as celery_app
 from portal.runs import tasks
 from portal.runs.models import DryRun, Run, RunEvent, Sample
 from portal.runs.services import dry_run, staging
 from portal.runs.services.reservations import reservation_cancel, reservation_create
 from portal.runs.states import RunState
+from tests.core.test_webhooks import Receiver
 from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
 
 pytestmark = pytest.mark.django_db
@@ -44,10 +49,10 @@ COVERED = {
     "portal.runs.tasks.robot_health_check",
     "portal.runs.tasks.dry_run_execute",
     "portal.runs.tasks.dry_runs_delete_expired",
-    "bookings.tasks.reservation_notify",
     "bookings.tasks.reservations_remind",
     "core.audit.tasks.idempotency_keys_delete_expired",
     "core.events.tasks.events_dispatch_all",
+    "core.webhooks.tasks.webhooks_send",
     # Run twice in tests/bookings/scheduler/test_booking_flow.py (they need the stand-in).
     "bookings.tasks.scheduler_sweep",
     "bookings.tasks.lease_cancel",
@@ -77,6 +82,8 @@ def run(agent, owner, mobile) -> Run:
             owner=owner, segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 2.0}]
         ),
     )
+    events_dispatch_all.apply()  # the booking's own e-mail, out of the tests' way
+    mail.outbox.clear()
     return Run.objects.get(reservation=reservation)
 
 
@@ -200,24 +207,8 @@ def test_a_dry_run_delivered_twice_runs_once(owner, mobile, monkeypatch):
     assert (tried.state, started) == (DryRun.State.COMPLETED, [tried.pk])
 
 
-def test_a_booking_mail_delivered_twice_is_sent_once(owner):
+def test_a_booking_mail_dispatched_twice_is_sent_once(owner):
     start = timezone.now() + timedelta(days=1)
-    reservation = reservation_create(
-        owner=owner,
-        resource=FixedResourceFactory(),
-        start_at=start,
-        end_at=start + timedelta(hours=1),
-    )
-    mail.outbox.clear()
-    twice(reservation_notify, "confirmed", reservation.pk)
-    assert [m.subject.split(":")[0] for m in mail.outbox] == ["Booking confirmed"]
-    # Another message (a second request to send it) is another mail: only redelivery is one.
-    reservation_notify.apply(args=("confirmed", reservation.pk))
-    assert len(mail.outbox) == 2
-
-
-def test_reminding_twice_reminds_once(owner, eager_tasks):
-    start = timezone.now() + timedelta(minutes=30)
     reservation_create(
         owner=owner,
         resource=FixedResourceFactory(),
@@ -225,9 +216,44 @@ def test_reminding_twice_reminds_once(owner, eager_tasks):
         end_at=start + timedelta(hours=1),
     )
     mail.outbox.clear()
+    twice(events_dispatch_all)
+    assert [m.subject.split(":")[0] for m in mail.outbox] == ["Booking confirmed"]
+    # Another pass (beat's) finds the handler's cursor past the event.
+    events_dispatch_all.apply()
+    assert len(mail.outbox) == 1
+
+
+def test_reminding_twice_reminds_once(owner, eager_tasks):
+    start = timezone.now() + timedelta(minutes=30)
+    reservation = reservation_create(
+        owner=owner,
+        resource=FixedResourceFactory(),
+        start_at=start,
+        end_at=start + timedelta(hours=1),
+    )
+    events_dispatch_all.apply()
+    mail.outbox.clear()
     twice(reservations_remind)
+    twice(events_dispatch_all)
     assert [m.subject.split(":")[0] for m in mail.outbox] == ["Reminder"]
-    assert Reservation.objects.filter(reminder_sent_at__isnull=False).count() == 1
+    reminded = Event.objects.filter(type="reservation.starting_soon")
+    assert list(reminded.values_list("subject", flat=True)) == [f"reservation:{reservation.pk}"]
+
+
+def test_sending_webhooks_twice_sends_each_once(owner, tmp_path):
+    subscription, secret = webhook_create(owner=owner, url="http://127.0.0.1:9/hook")
+    receiver = Receiver(tmp_path, secret)
+    receiver.start()
+    try:
+        webhook_update(subscription=subscription, by=owner, url=receiver.url)
+        webhook_test(subscription=subscription, by=owner)
+        events_dispatch(name="webhooks")
+        twice(webhooks_send)
+        assert [line["type"] for line in receiver.received()] == ["webhook.test"]
+        sent = WebhookDelivery.objects.get()
+        assert (sent.state, sent.attempts) == ("delivered", 1)
+    finally:
+        receiver.stop()
 
 
 def test_deleting_expired_keys_twice_deletes_them_once(owner, settings):

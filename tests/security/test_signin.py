@@ -57,7 +57,8 @@ NOT_STAFF = {
     "api-run-package", "api-reservations", "api-reservations-check", "api-reservation",
     "api-reservation-attach", "api-quota-check", "api-rail", "api-resources",
     "api-resource-availability", "api-reservations-busy", "api-quota", "api-blackouts",
-    "api-me", "api-token", "api-events",
+    "api-me", "api-token", "api-events", "api-webhooks", "api-webhook", "api-webhook-resume",
+    "api-webhook-test", "api-webhook-deliveries",
     "home", "experiment-new", "experiment-edit", "dry-run-start", "dry-run", "dry-run-data",
     "book", "reservation-cancel", "reservation-attach", "my-runs", "runs-package",
     "runs-compare", "run", "run-data", "run-csv", "run-json", "run-package", "run-again",
@@ -79,6 +80,8 @@ STAFF_BY_SERVICE = [
             "reason": "maintenance",
         },
     ),
+    # A webhook that takes staff's events (robots, the scheduler link).
+    ("post", "/api/v1/webhooks/", lambda: {"url": "http://127.0.0.1:9/", "staff_events": True}),
 ]
 
 ARGUMENTS = {"pk": "1", "name": "mobile-1", "day": "2026-01-01"}

@@ -40,6 +40,7 @@ from django.conf import settings
 from django.db import IntegrityError, transaction
 from django.db.models import Count, F, Max, Min, QuerySet, Window
 from django.db.models.functions import Lead
+from django.urls import reverse
 from django.utils import timezone
 
 from basestation.client import AgentClient, AgentError
@@ -49,8 +50,10 @@ from basestation.contract import (
     SAMPLE_FIELDS,
     samples_parse,
 )
+from bookings.models import Reservation
 from bookings.services import reservation_complete
 from core import sql
+from core.events.services import event_record
 from core.live import samples_announced, samples_publish, samples_publish_on_commit
 from portal.runs import queries
 from portal.runs.agents import agent_client_for
@@ -422,6 +425,32 @@ def _past_grace(run: Run, now: datetime) -> bool:
     return now > run.end_at + timedelta(seconds=settings.RUN_COLLECT_GRACE_S)
 
 
+def _data_ready_event(run: Run, state: RunState, missing: list[MissingRange]) -> None:
+    """``run.data_ready`` for a run that ended with samples, in its ending's transaction: a
+    script that waits for it fetches them at once, complete or with the gaps counted."""
+    samples = run_sample_stats(run=run)["count"]
+    if not samples:
+        return
+    event_record(
+        subject=f"run:{run.pk}",
+        type="run.data_ready",
+        owner_id=Reservation.objects.values_list("owner_id", flat=True).get(pk=run.reservation_id),
+        payload={
+            "run": run.pk,
+            "reservation": run.reservation_id,
+            "resource": run.resource.name,
+            "state": str(state),
+            "samples": samples,
+            "missing": len(missing),
+            "files": {
+                "csv": reverse("api-run-samples-csv", kwargs={"pk": run.pk}),
+                "json": reverse("api-run-samples-json", kwargs={"pk": run.pk}),
+                "analysis": reverse("api-run-analysis", kwargs={"pk": run.pk}),
+            },
+        },
+    )
+
+
 def _end(run: Run, to_state: RunState, reason: str, missing: list[MissingRange]) -> bool:
     """Record what is missing and end a collecting run; False if it had ended already."""
     with transaction.atomic():
@@ -434,6 +463,7 @@ def _end(run: Run, to_state: RunState, reason: str, missing: list[MissingRange])
         )
         if ended:
             Run.objects.filter(pk=run.pk).update(missing=[asdict(m) for m in missing])
+            _data_ready_event(run, to_state, missing)
     if ended and to_state == RunState.COMPLETED:
         reservation_complete(reservation_id=run.reservation_id)
     return ended

@@ -521,11 +521,12 @@ def test_when_the_scheduler_cannot_be_reached_the_check_reads_the_mirror_and_say
 
 
 def test_a_late_lease_over_a_booking_is_flagged_and_its_owner_and_the_admins_told(
-    linked, owner, admin_user, slot, eager_tasks
+    linked, owner, admin_user, slot, eager_tasks, django_capture_on_commit_callbacks
 ):
-    reservation = without_run.reservation_create(
-        owner=owner, resources=_nodes(3), start_at=slot[0], end_at=slot[1]
-    )
+    with django_capture_on_commit_callbacks(execute=True):
+        reservation = without_run.reservation_create(
+            owner=owner, resources=_nodes(3), start_at=slot[0], end_at=slot[1]
+        )
     mail.outbox.clear()
     # Someone wrote into the scheduler around its own rules.
     linked.seed(
@@ -535,23 +536,28 @@ def test_a_late_lease_over_a_booking_is_flagged_and_its_owner_and_the_admins_tol
         components=[{"name": "node-03"}],
         account_attributes={"name": "elsewhere"},
     )
-    scheduler_sweep.delay()
+    with django_capture_on_commit_callbacks(execute=True):
+        scheduler_sweep.delay()
     reservation.refresh_from_db()
     assert "“sneaky” (elsewhere), holds node-03" in reservation.conflict
     [message] = mail.outbox
     assert message.subject.startswith("A lease on the testbed scheduler overlaps a booking")
     assert set(message.to) == {owner.email, admin_user.email}
-    scheduler_sweep.delay()  # told once, not at every sweep
+    with django_capture_on_commit_callbacks(execute=True):
+        scheduler_sweep.delay()  # told once, not at every sweep
     assert len(mail.outbox) == 1
 
 
-def test_a_booking_whose_lease_vanished_is_flagged(linked, owner, slot, eager_tasks):
+def test_a_booking_whose_lease_vanished_is_flagged(
+    linked, owner, slot, eager_tasks, django_capture_on_commit_callbacks
+):
     reservation = without_run.reservation_create(
         owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
     )
     with linked.scheduler() as scheduler:
         scheduler.cancel_lease(uuid=reservation.lease_uuid)
-    scheduler_sweep.delay()
+    with django_capture_on_commit_callbacks(execute=True):
+        scheduler_sweep.delay()
     reservation.refresh_from_db()
     assert reservation.conflict.startswith("Its lease on the testbed scheduler is gone")
     assert mail.outbox[-1].subject.startswith("A booking lost its lease")
@@ -667,11 +673,12 @@ def test_only_admins_and_the_scheduler_account_book_for_others(linked, owner, ot
 
 
 def test_the_sweep_twice_cancels_an_orphan_and_tells_an_owner_once(
-    linked, owner, slot, eager_tasks
+    linked, owner, slot, eager_tasks, django_capture_on_commit_callbacks
 ):
-    booked = without_run.reservation_create(
-        owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
-    )
+    with django_capture_on_commit_callbacks(execute=True):
+        booked = without_run.reservation_create(
+            owner=owner, resources=_nodes(2), start_at=slot[0], end_at=slot[1]
+        )
     linked.seed(
         name="sneaky",
         valid_from=slot[0].isoformat(),
@@ -687,7 +694,8 @@ def test_the_sweep_twice_cancels_an_orphan_and_tells_an_owner_once(
             component_names=["node-05"],
         )
     mail.outbox.clear()
-    twice(scheduler_sweep)
+    with django_capture_on_commit_callbacks(execute=True):
+        twice(scheduler_sweep)
     assert SchedulerLink.objects.get().orphans_cancelled == 1
     assert len(mail.outbox) == 1
     booked.refresh_from_db()
