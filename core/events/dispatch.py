@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 
 from django.db import transaction
+from django.db.models import Max
 
 from core.events import registry
 from core.events.models import Event, EventCursor
@@ -40,6 +41,13 @@ def events_dispatch(*, name: str, limit: int = PASS_MAX) -> int:
     registration = registry.registration(name)
     events_sequence()
     EventCursor.objects.get_or_create(handler=name)
+    if registration.active is not None:
+        # Read the end first, then ask: what was numbered before a "no" is no one's to handle
+        # (a webhook made after it takes the events from then on).
+        top = Event.objects.aggregate(top=Max("position"))["top"] or 0
+        if not registration.active():
+            EventCursor.objects.filter(handler=name, position__lt=top).update(position=top)
+            return 0
     handled = 0
     while handled < limit:
         with transaction.atomic():

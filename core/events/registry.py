@@ -16,20 +16,27 @@ class Registration:
     name: str
     types: frozenset[str]
     fn: Handler
+    # Whether it has anything to do now (the webhooks: some webhook exists); None: always.
+    active: Callable[[], bool] | None = None
 
 
 _HANDLERS: dict[str, Registration] = {}
 
 
-def handler(name: str, *, types: Iterable[str]) -> Callable[[Handler], Handler]:
-    """Register ``fn`` as the handler ``name`` of ``types`` (each in the catalogue)."""
+def handler(
+    name: str, *, types: Iterable[str], active: Callable[[], bool] | None = None
+) -> Callable[[Handler], Handler]:
+    """Register ``fn`` as the handler ``name`` of ``types`` (each in the catalogue).
+
+    ``active``, when given, says whether the handler has anything to do now: while it says
+    no, its types wake no one and its cursor moves past what came (``events_dispatch``)."""
     wanted = frozenset(types)
     unknown = sorted(wanted - set(EVENT_TYPES))
     if unknown or not wanted:
         raise ValueError(f"handler {name}: not event types: {unknown or 'none given'}")
 
     def register(fn: Handler) -> Handler:
-        _HANDLERS[name] = Registration(name, wanted, fn)
+        _HANDLERS[name] = Registration(name, wanted, fn, active)
         return fn
 
     return register
@@ -44,5 +51,8 @@ def registration(name: str) -> Registration:
 
 
 def handled(type: str) -> bool:
-    """Whether some handler wants events of ``type``."""
-    return any(type in registration.types for registration in _HANDLERS.values())
+    """Whether some handler wants events of ``type`` now."""
+    return any(
+        type in registration.types and (registration.active is None or registration.active())
+        for registration in _HANDLERS.values()
+    )

@@ -7,9 +7,15 @@ from core.events.catalogue import EVENT_TYPES
 from core.events.dispatch import handler
 from core.events.models import Event
 from core.webhooks import notifications, services
+from core.webhooks.models import WebhookSubscription
 
 
-@handler("webhooks", types=sorted(EVENT_TYPES))
+def _any_webhook() -> bool:
+    return WebhookSubscription.objects.exists()
+
+
+# Without a webhook, events cost nothing more: no wake-up, no pass over them.
+@handler("webhooks", types=sorted(EVENT_TYPES), active=_any_webhook)
 def webhooks(event: Event) -> None:
     services.deliveries_for_event(event)
 

@@ -22,7 +22,8 @@ from django.utils import timezone
 from bookings.services import resource_hold
 from core.errors import InvalidInput, NotAllowed
 from core.events.dispatch import events_dispatch
-from core.events.models import Event
+from core.events.models import Event, EventCursor
+from core.events.registry import handled
 from core.events.sequence import events_sequence
 from core.webhooks import delivery, services
 from core.webhooks.guard import Refused, webhook_target
@@ -352,3 +353,16 @@ def test_the_api_shows_the_secret_once_and_each_webhook_only_to_its_owner(
     assert [line["verified"] for line in receiver.received()] == [True]
     assert api.delete(f"/api/v1/webhooks/{pk}/").status_code == 204
     assert not WebhookSubscription.objects.exists()
+
+
+def test_without_a_webhook_events_wake_no_one_and_are_passed_over(owner, mobile):
+    """Most deployments have no webhook: their events must cost nothing more."""
+    assert not handled("run.staged")
+    _a_run_that_completed(owner, mobile)
+    events_sequence()
+    assert events_dispatch(name="webhooks") == 0
+    top = Event.objects.order_by("-position").values_list("position", flat=True).first()
+    assert EventCursor.objects.get(handler="webhooks").position == top
+    _subscribed(owner)
+    assert handled("run.staged")
+    assert not WebhookDelivery.objects.exists()  # the events before it are not its
