@@ -20,15 +20,37 @@ WAIT_S = 20.0
 RUN_ENDS = {f"run.{state}" for state in ("completed", "interrupted", "failed", "cancelled")}
 
 
+def events_page(
+    api: Api,
+    *,
+    after: int,
+    wait_s: float,
+    types: list[str] | None = None,
+    subject: str | None = None,
+) -> dict[str, Any]:
+    """One answer of ``GET /api/v1/events/``: the events after ``after`` (waiting up to
+    ``wait_s`` for the first) and ``last``, where to go on from."""
+    params: dict[str, Any] = {"after": after, "limit": 500, "wait": wait_s}
+    if types:
+        params["type"] = types
+    if subject:
+        params["subject"] = subject
+    return api.call("events", params=params)
+
+
 def event_stream(
-    api: Api, *, after: int, follow: bool, types: list[str] | None = None
+    api: Api,
+    *,
+    after: int,
+    follow: bool,
+    types: list[str] | None = None,
+    subject: str | None = None,
 ) -> Iterator[dict[str, Any]]:
     """The events after ``after``, oldest first; following, it waits for more for ever."""
     while True:
-        params: dict[str, Any] = {"after": after, "limit": 500, "wait": WAIT_S if follow else 0}
-        if types:
-            params["type"] = types
-        page = api.call("events", params=params)
+        page = events_page(
+            api, after=after, wait_s=WAIT_S if follow else 0, types=types, subject=subject
+        )
         yield from page["events"]
         after = page["last"]
         if not follow and not page["events"]:
@@ -92,13 +114,12 @@ def events(
         else:
             out.print(describe(event), markup=False)
 
-    for event in event_stream(api, after=after, follow=follow, types=type):
-        if subject is not None and event["subject"] != subject:
-            continue
+    for event in event_stream(api, after=after, follow=follow, types=type, subject=subject):
         show(event)
         if subject is not None and event["type"] in RUN_ENDS:
             # What its ending wrote with it (its data ready) is there already: shown, then done.
-            for rest in event_stream(api, after=event["id"], follow=False, types=type):
-                if rest["subject"] == subject:
-                    show(rest)
+            for rest in event_stream(
+                api, after=event["id"], follow=False, types=type, subject=subject
+            ):
+                show(rest)
             return

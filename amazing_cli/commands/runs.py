@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
@@ -35,6 +34,7 @@ from amazing_cli.commands._common import (
     print_json,
     reports_errors,
 )
+from amazing_cli.commands.events import events_page
 from amazing_cli.errors import OK, RUN_NOT_COMPLETED, UNAVAILABLE, CliError, bad_input
 from amazing_cli.package import read_package
 
@@ -82,9 +82,12 @@ def _program_s(run: dict[str, Any]) -> float:
 
 
 def _polls(api: Api, run_id: int, interval_s: float) -> Iterator[dict[str, Any]]:
+    """The run, read again as soon as its next event commits (the events' long poll), or after
+    ``interval_s`` for its progress: a new state shows at once, not at the next look."""
+    after = 0
     while True:
         yield api.call("run", path={"id": run_id})
-        time.sleep(interval_s)
+        after = events_page(api, after=after, wait_s=interval_s, subject=f"run:{run_id}")["last"]
 
 
 def _progress_of(run: dict[str, Any]) -> tuple[float, str]:

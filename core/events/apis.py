@@ -29,6 +29,11 @@ class EventQuery(serializers.Serializer):
         required=False,
         help_text="Only these types (repeat the parameter for several).",
     )
+    subject = serializers.CharField(
+        required=False,
+        max_length=80,
+        help_text="Only the events about this: `run:17`, `reservation:42`.",
+    )
 
 
 @extend_schema_field(
@@ -77,6 +82,7 @@ class EventListApi(APIView):
             limit=query["limit"],
             wait_s=query["wait"],
             types=sorted(query.get("type") or []),
+            subject=query.get("subject"),
         )
         last = events[-1].position if events else query["after"]
         return Response({"events": EventOutput(events, many=True).data, "last": last})

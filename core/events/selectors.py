@@ -17,21 +17,35 @@ LIMIT_MAX = 500
 
 
 def events_visible(
-    *, user: User, after: int, limit: int, types: list[str] | None = None
+    *,
+    user: User,
+    after: int,
+    limit: int,
+    types: list[str] | None = None,
+    subject: str | None = None,
 ) -> QuerySet[Event]:
     """Numbered events after ``after`` that ``user`` may read, oldest first: their own, and
-    for staff (with their second factor) also those of no one (robots, the scheduler)."""
+    for staff (with their second factor) also those of no one (robots, the scheduler); of
+    ``types`` and about ``subject`` only, when given."""
     mine = Q(owner=user)
     if user.is_testbed_admin:
         mine |= Q(owner__isnull=True)
     found = Event.objects.filter(mine, position__gt=after)
     if types:
         found = found.filter(type__in=types)
+    if subject:
+        found = found.filter(subject=subject)
     return found.order_by("position")[:limit]
 
 
 def events_wait(
-    *, user: User, after: int, limit: int, wait_s: float, types: list[str] | None = None
+    *,
+    user: User,
+    after: int,
+    limit: int,
+    wait_s: float,
+    types: list[str] | None = None,
+    subject: str | None = None,
 ) -> list[Event]:
     """``events_visible``, waiting up to ``wait_s`` for the first one (a long poll).
 
@@ -40,7 +54,9 @@ def events_wait(
     deadline = time.monotonic() + min(max(wait_s, 0.0), WAIT_MAX_S)
     while True:
         events_sequence()
-        found = list(events_visible(user=user, after=after, limit=limit, types=types))
+        found = list(
+            events_visible(user=user, after=after, limit=limit, types=types, subject=subject)
+        )
         if found or time.monotonic() >= deadline:
             return found
         time.sleep(POLL_S)

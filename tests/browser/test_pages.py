@@ -11,6 +11,7 @@ from django.utils import timezone
 from playwright.sync_api import Page, expect
 from playwright.sync_api import TimeoutError as PlaywrightTimeoutError
 
+from portal.runs.models import RunEvent
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
 from tests.integration.stack import running_stack
@@ -91,7 +92,14 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack_in_utc):
     page.get_by_role("button", name="Book").click()
 
     expect(page.get_by_role("heading", name="browser lap")).to_be_visible()
-    expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
+    try:
+        expect(page.locator("#run-state")).to_have_attribute(
+            "data-state", "completed", timeout=60_000
+        )
+    except AssertionError:
+        # Say why the run did not complete, from its history and the processes' own words.
+        history = list(RunEvent.objects.order_by("at").values_list("to_state", "reason"))
+        pytest.fail(f"the run's history: {history}\n{stack.output(120)}")
     expect(page.locator("#sample-count")).not_to_have_text("0")
     for chart, dataset in (("velocity-chart", 1), ("position-chart", 0), ("battery-chart", 0)):
         points = page.evaluate(f"Chart.getChart('{chart}').data.datasets[{dataset}].data.length")

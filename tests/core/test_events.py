@@ -247,11 +247,24 @@ def test_a_user_reads_their_own_events_after_a_position_and_no_one_elses(
     assert [e["type"] for e in only["events"]] == ["reservation.cancelled"]
     theirs = client_for(other).get("/api/v1/events/").json()
     assert {e["data"]["by"] for e in theirs["events"]} == {"bob"}
+    second_of_mine = _book(owner, hours_ahead=5)
+    about = api.get("/api/v1/events/", {"subject": f"reservation:{second_of_mine.pk}"}).json()
+    assert [e["subject"] for e in about["events"]] == [f"reservation:{second_of_mine.pk}"]
+    # Someone else's subject is no way in: nothing of theirs comes back.
+    bobs = client_for(other).get("/api/v1/events/", {"subject": f"reservation:{mine.pk}"})
+    assert bobs.json()["events"] == []
 
 
 @pytest.mark.parametrize(
     "query",
-    [{"after": "-1"}, {"after": "x"}, {"wait": "21"}, {"limit": "0"}, {"type": "run.exploded"}],
+    [
+        {"after": "-1"},
+        {"after": "x"},
+        {"wait": "21"},
+        {"limit": "0"},
+        {"type": "run.exploded"},
+        {"subject": "r" * 81},
+    ],
 )
 def test_a_bad_question_is_answered_400_and_says_which_parameter(api, query):
     answer = api.get("/api/v1/events/", query)
