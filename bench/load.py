@@ -110,16 +110,19 @@ def _stop(process: subprocess.Popen[bytes]) -> None:
             process.wait()
 
 
-def _locust(port: int, users: int, duration_s: float, tokens: Path, prefix: Path) -> None:
+def _locust(
+    port: int, users: int, duration_s: float, tokens: Path, prefix: Path
+) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, LOAD_TOKENS_FILE=str(tokens))
-    subprocess.run(
+    return subprocess.run(
         [
             sys.executable, "-m", "locust", "-f", str(REPO / "bench" / "locustfile.py"),
             "--headless", "--users", str(users), "--spawn-rate", str(users),
             "--run-time", f"{max(1, round(duration_s))}s", "--host", f"http://127.0.0.1:{port}",
             "--csv", str(prefix), "--only-summary", "--loglevel", "WARNING",
         ],
-        cwd=REPO, env=env, check=False, capture_output=True, timeout=duration_s + 120,
+        cwd=REPO, env=env, check=False, capture_output=True, text=True,
+        timeout=duration_s + 120,
     )  # fmt: skip
 
 
@@ -151,9 +154,16 @@ def run(
             try:
                 for n in users:
                     prefix = work / f"w{count}-u{n}"
-                    _locust(port, n, duration_s, tokens_file, prefix)
+                    locust = _locust(port, n, duration_s, tokens_file, prefix)
                     stats = _stats(prefix)
                     total = next(s for s in stats if s["Name"] == "Aggregated")
+                    if total["Request Count"] == "0":
+                        # Nothing measured: say what locust and the web server said instead.
+                        raise RuntimeError(
+                            f"locust made no call in {duration_s:g} s ({n} users, {count} web "
+                            f"processes; exit {locust.returncode}):\n{locust.stderr[-3000:]}\n"
+                            f"web server:\n{(work / 'web.log').read_text()[-2000:]}"
+                        )
                     rows.append(
                         f"| {n} | {count} | {float(total['Requests/s']):.0f} "
                         f"| {total['50%']} ms | {total['95%']} ms "
