@@ -100,6 +100,21 @@ def _start_web(database_url: str, workers: int, port: int, log: Path) -> subproc
     raise RuntimeError(f"the web server did not start: {log.read_text()[-2000:]}")
 
 
+# What each round calls (bench/locustfile.py), asked once before it: the first answers of a
+# process (its URLs, its pool's connections) are not what a round measures, and a busy machine
+# took its whole 3 s round to give them.
+WARM_PATHS = ("/api/v1/resources/", "/api/v1/reservations/", "/api/v1/runs/", "/api/v1/quota/")
+
+
+def _warm(port: int, token: str, workers: int) -> None:
+    headers = {"Authorization": f"Token {token}", "Accept": "application/json"}
+    for _ in range(2 * workers):  # each process, most likely
+        for path in WARM_PATHS:
+            answer = requests.get(f"http://127.0.0.1:{port}{path}", headers=headers, timeout=60)
+            if answer.status_code != 200:
+                raise RuntimeError(f"warming {path}: {answer.status_code} {answer.text[:300]}")
+
+
 def _stop(process: subprocess.Popen[bytes]) -> None:
     if process.poll() is None:
         os.killpg(process.pid, signal.SIGTERM)
@@ -142,7 +157,8 @@ def run(
     work = Path(tempfile.mkdtemp(prefix="bench-load-"))
     try:
         tokens_file = work / "tokens"
-        tokens_file.write_text("\n".join(_seed(max(users))) + "\n")
+        tokens = _seed(max(users))
+        tokens_file.write_text("\n".join(tokens) + "\n")
         from django.db import connections
 
         connections.close_all()
@@ -152,6 +168,7 @@ def run(
             port = free_port()
             web = _start_web(database_url, count, port, work / "web.log")
             try:
+                _warm(port, tokens[0], count)
                 for n in users:
                     prefix = work / f"w{count}-u{n}"
                     locust = _locust(port, n, duration_s, tokens_file, prefix)
@@ -176,7 +193,8 @@ def run(
         lines = [
             "## Portal under load: the researcher's API mix",
             "",
-            f"locust (headless, {duration_s:g} s a round) on the same machine, each user with "
+            f"locust (headless, {duration_s:g} s a round, after each path was asked twice per "
+            "web process) on the same machine, each user with "
             "a token of its own calling back to back (resources, a week of busy slots, a week "
             "of availability, own reservations, own runs, quota — weights 1:2:2:2:2:1); the "
             "web server as docker-compose.yml runs it (granian, WEB_THREADS threads "
