@@ -119,6 +119,12 @@ def test_collection_follows_the_run_and_verifies_the_count(agent, booked):
         "collecting",
         "completed",
     ]
+    # A collection that overlapped the one that ended it changes nothing of the record.
+    provenance = Run.objects.get(pk=booked.pk).provenance
+    view = collection._look(booked, agent.client)
+    assert view is not None
+    collection._close(booked, view, RunState.COMPLETED, timezone.now())
+    assert Run.objects.get(pk=booked.pk).provenance == provenance
     # Then its data are ready, once, saying where to fetch them.
     events_sequence()
     events = list(Event.objects.filter(subject=f"run:{booked.pk}").order_by("seq"))

@@ -476,13 +476,17 @@ def _missing_text(missing: list[MissingRange]) -> str:
 
 def _close(run: Run, view: AgentRunView, final_state: RunState, now: datetime) -> None:
     """The agent has ended the run: check what is stored against it and end it here."""
-    run_transition(
+    moved = run_transition(
         run_id=run.pk,
         to_state=RunState.COLLECTING,
         cause=Cause.DISPATCH,
         from_states=[RunState.STAGED, RunState.RUNNING],
         reason=f"ended on the base station ({view.state})",
     )
+    if not moved and not Run.objects.filter(pk=run.pk, state=RunState.COLLECTING).exists():
+        # Ended meanwhile by another collection (the collector's and a sweep's overlap): its
+        # record of the run as collected stands; a second one would rewrite its time.
+        return
     Run.objects.filter(pk=run.pk).update(agent_sample_count=view.sample_count)
     if view.raw is not None:
         run_provenance_record(
