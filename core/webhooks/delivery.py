@@ -14,11 +14,10 @@ from __future__ import annotations
 import json
 import logging
 from datetime import datetime, timedelta
-from typing import Any
 
 from django.conf import settings
 from django.db import transaction
-from django.db.models import Exists, OuterRef
+from django.db.models import Exists, OuterRef, QuerySet
 from django.utils import timezone
 
 from core.crypto import decrypt
@@ -68,7 +67,7 @@ def _retry_delay_s(attempts: int) -> float:
     return float(min(first * 2 ** max(attempts - 1, 0), settings.WEBHOOK_RETRY_MAX_S))
 
 
-def _due(now: datetime) -> Any:
+def _due(now: datetime) -> QuerySet[WebhookDelivery]:
     earlier = WebhookDelivery.objects.filter(
         subscription=OuterRef("subscription"),
         state=PENDING,
