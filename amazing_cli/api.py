@@ -38,6 +38,13 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "run_package": ("GET", "/api/v1/runs/{id}/package.zip"),
     "run_again": ("POST", "/api/v1/runs/{id}/again/"),
     "events": ("GET", "/api/v1/events/"),
+    "webhooks": ("GET", "/api/v1/webhooks/"),
+    "webhook_create": ("POST", "/api/v1/webhooks/"),
+    "webhook": ("GET", "/api/v1/webhooks/{id}/"),
+    "webhook_delete": ("DELETE", "/api/v1/webhooks/{id}/"),
+    "webhook_test": ("POST", "/api/v1/webhooks/{id}/test/"),
+    "webhook_resume": ("POST", "/api/v1/webhooks/{id}/resume/"),
+    "webhook_deliveries": ("GET", "/api/v1/webhooks/{id}/deliveries/"),
     "schema": ("GET", "/api/schema/"),
 }
 
@@ -184,7 +191,12 @@ class Api:
         return self.call(operation, json=body, headers={"X-Idempotency-Key": key}, **kwargs)
 
     def pages(
-        self, operation: str, *, params: dict[str, Any] | None = None, limit: int | None = None
+        self,
+        operation: str,
+        *,
+        path: dict[str, Any] | None = None,
+        params: dict[str, Any] | None = None,
+        limit: int | None = None,
     ) -> Iterator[dict[str, Any]]:
         """Every item of a paginated list (at most ``limit``), following ``next``."""
         query = dict(params or {})
@@ -192,7 +204,7 @@ class Api:
         query["offset"] = 0
         given = 0
         while True:
-            page = self.call(operation, params=query)
+            page = self.call(operation, path=path, params=query)
             for item in page["results"]:
                 if limit is not None and given >= limit:
                     return

@@ -15,7 +15,15 @@ from typing import Annotated
 
 import typer
 
-from amazing_cli.commands import account, bookings, events, experiments, resources, runs
+from amazing_cli.commands import (
+    account,
+    bookings,
+    events,
+    experiments,
+    resources,
+    runs,
+    webhooks,
+)
 from amazing_cli.errors import OK
 
 app = typer.Typer(
@@ -28,6 +36,10 @@ app = typer.Typer(
 )
 experiment_app = typer.Typer(help="Experiments: the programs the robot runs.", no_args_is_help=True)
 app.add_typer(experiment_app, name="experiment")
+webhook_app = typer.Typer(
+    help="Webhooks: your events sent to a URL of yours, signed.", no_args_is_help=True
+)
+app.add_typer(webhook_app, name="webhook")
 
 
 @app.callback()
@@ -64,6 +76,12 @@ app.command()(runs.download)
 app.command()(events.events)
 experiment_app.command("create")(experiments.experiment_create)
 experiment_app.command("list")(experiments.experiment_list)
+webhook_app.command("create")(webhooks.webhook_create)
+webhook_app.command("list")(webhooks.webhook_list)
+webhook_app.command("log")(webhooks.webhook_log)
+webhook_app.command("test")(webhooks.webhook_test)
+webhook_app.command("resume")(webhooks.webhook_resume)
+webhook_app.command("delete")(webhooks.webhook_delete)
 
 
 def main() -> int:

@@ -15,9 +15,19 @@ from bookings.models import Resource
 from bookings.selectors import resources_bookable
 from core.accounts.models import User
 from core.accounts.services import TOKEN_EXPIRY_MAX_DAYS, TOKEN_NAME_MAX_LENGTH
+from core.errors import DomainError
+from core.events.catalogue import EVENT_TYPES
 from core.wall_clock import NonexistentLocalTime, local_instant
+from core.webhooks.services import STAFF_ONLY_PREFIXES
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
+
+
+def form_refusal(form: forms.Form, exc: DomainError) -> None:
+    """Show a service's refusal on the form, next to the field it names when the form has it."""
+    for field, errors in (exc.fields or {"__all__": [exc.message]}).items():
+        for message in errors:
+            form.add_error(field if field in form.fields else None, message)
 
 
 class PassForm(forms.Form):
@@ -118,3 +128,38 @@ class ApiTokenForm(forms.Form):
         required=False,
         help_text="Empty: until you revoke it.",
     )
+
+
+class WebhookForm(forms.Form):
+    """A new webhook: where to send, and which of the user's events (staff: also the robots'
+    and the scheduler link's)."""
+
+    url = forms.URLField(
+        label="URL",
+        max_length=500,
+        assume_scheme="https",
+        help_text="https, at a public address: the portal checks it before each try.",
+    )
+    description = forms.CharField(max_length=200, required=False, help_text="What it is for.")
+    types = forms.MultipleChoiceField(
+        label="Only these events",
+        required=False,
+        widget=forms.CheckboxSelectMultiple,
+        help_text="None ticked: all of yours.",
+    )
+    staff_events = forms.BooleanField(
+        label="Also the robots' and the scheduler link's events",
+        required=False,
+    )
+
+    def __init__(self, *args: Any, staff: bool, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        types = self.fields["types"]
+        assert isinstance(types, forms.MultipleChoiceField)
+        types.choices = [
+            (name, f"{name}: {kind.description}")
+            for name, kind in sorted(EVENT_TYPES.items())
+            if staff or not name.startswith(STAFF_ONLY_PREFIXES)
+        ]
+        if not staff:
+            del self.fields["staff_events"]

@@ -1,6 +1,17 @@
 from django.urls import path
 
-from portal.web import attach, calendars, console, dry_runs, live, my_runs, roof, timeline, views
+from portal.web import (
+    attach,
+    calendars,
+    console,
+    dry_runs,
+    live,
+    my_runs,
+    roof,
+    timeline,
+    views,
+    webhooks,
+)
 
 urlpatterns = [
     path("", views.home, name="home"),
@@ -32,6 +43,11 @@ urlpatterns = [
         "calendar/feed/<str:token>/<slug:name>.ics", calendars.ical_resource, name="ical-resource"
     ),
     path("account/tokens/", views.api_tokens_page, name="api-tokens"),
+    path("account/webhooks/", webhooks.webhooks_page, name="webhooks"),
+    path("account/webhooks/<int:pk>/", webhooks.webhook_page, name="webhook"),
+    path("account/webhooks/<int:pk>/test/", webhooks.webhook_test_view, name="webhook-test"),
+    path("account/webhooks/<int:pk>/resume/", webhooks.webhook_resume_view, name="webhook-resume"),
+    path("account/webhooks/<int:pk>/delete/", webhooks.webhook_delete_view, name="webhook-delete"),
     path("approvals/", views.approvals, name="approvals"),
     path("robot/<slug:name>/", views.robot_console, name="robot"),
     path("robot/<slug:name>/log.csv", console.robot_log_csv, name="robot-log-csv"),

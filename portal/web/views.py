@@ -57,7 +57,7 @@ from portal.runs.services.reservations import (
 from portal.runs.services.robot import HOLD_REPEAT_MS, HOLD_TTL_S
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.builder import builder_context
-from portal.web.forms import ApiTokenForm, BookingForm, ExperimentForm, PassForm
+from portal.web.forms import ApiTokenForm, BookingForm, ExperimentForm, PassForm, form_refusal
 
 
 @never_cache
@@ -78,13 +78,6 @@ HEALTH_LINK_FIELDS = frozenset({"configured", "ok", "last_sync_age_s"})
 
 def _user(request: HttpRequest) -> Any:
     return request.user
-
-
-def _form_error(form: Any, exc: DomainError) -> None:
-    """Show a service's refusal on the form, next to the field it names when the form has it."""
-    for field, errors in (exc.fields or {"__all__": [exc.message]}).items():
-        for message in errors:
-            form.add_error(field if field in form.fields else None, message)
 
 
 @login_required
@@ -119,7 +112,7 @@ def experiment_edit(request: HttpRequest, pk: int | None = None) -> HttpResponse
                         experiment=experiment, title=form.cleaned_data["title"], segments=segments
                     )
             except DomainError as exc:
-                _form_error(form, exc)
+                form_refusal(form, exc)
             else:
                 fits = fits_summary(experiment_fits(experiment))
                 messages.success(request, f"Experiment “{experiment.title}” saved. {fits}".strip())
@@ -148,7 +141,7 @@ def book(request: HttpRequest) -> HttpResponse:
                     owner=user, ip=client_ip(request), via=Channel.WEB, **form.cleaned_data
                 )
             except DomainError as exc:
-                _form_error(form, exc)
+                form_refusal(form, exc)
             else:
                 messages.success(request, f"Booked {_booked(reservation)}.")
                 run = getattr(reservation, "run", None)
@@ -347,7 +340,7 @@ def api_tokens_page(request: HttpRequest) -> HttpResponse:
                     ip=client_ip(request),
                 )
             except DomainError as exc:
-                _form_error(form, exc)
+                form_refusal(form, exc)
             else:
                 form = ApiTokenForm()
     response = render(

@@ -260,6 +260,7 @@ def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
         "dry-run-waiting": f"/dry-runs/{waiting.pk}/",
         "password": "/accounts/password/change/",
         "api-tokens": "/account/tokens/",
+        "webhooks": "/account/webhooks/",
         "two-factor": "/accounts/2fa/",
         "api-docs": "/api/docs/",
     }

@@ -187,6 +187,7 @@ def test_no_page_breaks_the_content_security_policy(browser, live_server):
         "/scheduler-link/",
         "/accounts/password/change/",
         "/account/tokens/",
+        "/account/webhooks/",
         "/accounts/2fa/",
         "/accounts/2fa/recovery-codes/",
     ):

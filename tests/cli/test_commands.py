@@ -436,3 +436,64 @@ def test_events_follow_prints_a_runs_events_as_it_runs_and_stops_at_its_end(port
             follower.kill()
             reader.join(10)
     assert lines.empty()  # the reservation's own events were not the run's
+
+
+def test_webhook_commands_make_list_test_log_resume_and_delete(portal, calls):
+    """`amazing webhook …` through the API: the secret printed once, a test event sent and its
+    delivery in the log, a paused webhook resumed, another user's not found, one deleted."""
+    from core.events.dispatch import events_dispatch
+    from core.events.sequence import events_sequence
+    from core.webhooks import delivery
+    from core.webhooks.models import WebhookSubscription
+
+    made = amazing("webhook", "create", "http://127.0.0.1:9/hook", "--type", "run.completed",
+                   "--description", "lab bot", "-q")  # fmt: skip
+    assert made.exit_code == 0, made.stderr
+    webhook = int(made.stdout.strip())
+    assert "Its secret (shown this once" in made.stderr
+    assert "whsec_" in made.stderr
+    listed = amazing("webhook", "list")
+    assert f"{webhook}" in listed.stdout
+    assert "run.completed" in listed.stdout
+    assert "active" in listed.stdout
+    assert "whsec_" not in listed.stdout
+
+    tested = amazing("webhook", "test", str(webhook), "-q")
+    assert tested.exit_code == 0, tested.stderr
+    event = int(tested.stdout)
+    # The mail worker's pass and one try of the sender, here: port 9 does not answer.
+    events_sequence()
+    events_dispatch(name="webhooks")
+    delivery.webhook_deliveries_send()
+    log = amazing("webhook", "log", str(webhook), "--json")
+    assert log.exit_code == 0, log.stderr
+    (tried,) = json.loads(log.stdout)
+    assert (tried["event"], tried["type"], tried["state"]) == (event, "webhook.test", "pending")
+    assert tried["attempts"] == 1
+    assert tried["last_error"].startswith("no answer")
+    assert "webhook.test" in amazing("webhook", "log", str(webhook)).stdout
+
+    WebhookSubscription.objects.filter(pk=webhook).update(
+        paused_at=timezone.now(), pause_reason="failed for a day"
+    )
+    assert "paused: failed for a day" in amazing("webhook", "list").stdout
+    resumed = amazing("webhook", "resume", str(webhook))
+    assert resumed.exit_code == 0, resumed.stderr
+    assert WebhookSubscription.objects.get(pk=webhook).paused_at is None
+
+    theirs = WebhookSubscription.objects.create(
+        owner=UserFactory(username="bob"), url="http://127.0.0.1:9/theirs", secret_encrypted="x"
+    )
+    for command in ("log", "test", "resume"):
+        _one_line_error(amazing("webhook", command, str(theirs.pk)), 4)
+    _one_line_error(amazing("webhook", "delete", str(theirs.pk), "--yes"), 4)
+    assert WebhookSubscription.objects.filter(pk=theirs.pk).exists()
+
+    kept = CliRunner().invoke(app, ["webhook", "delete", str(webhook)], input="n\n")
+    assert "Kept it." in kept.stdout
+    assert WebhookSubscription.objects.filter(pk=webhook).exists()
+    deleted = amazing("webhook", "delete", str(webhook), "--yes")
+    assert deleted.exit_code == 0, deleted.stderr
+    assert not WebhookSubscription.objects.filter(pk=webhook).exists()
+    schema = Api(portal["url"], portal["token"]).schema()
+    assert not undocumented([c for c in calls if not c[1].endswith("/api/schema/")], schema)
