@@ -1,6 +1,6 @@
 """The bookings' reactions to events (``core.events.dispatch``): the e-mails about a
-reservation, to its owner (and to the admins for a request and a problem). Imported when the
-app is ready (``BookingsConfig.ready``)."""
+reservation, to its owner (and to the admins for a request and a problem), and the count of
+robots' holds. Imported when the app is ready (``BookingsConfig.ready``)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import logging
 
 from bookings import notifications
 from bookings.models import Reservation
+from core.audit.counters import event_count
 from core.events.dispatch import handler
 from core.events.models import Event
 
@@ -65,3 +66,10 @@ def reservation_mail(event: Event) -> None:
     except Reservation.DoesNotExist:
         # Deleted with its owner since: no one to tell, and the events after it must go on.
         logger.info("reservation %s is gone: no %r mail", payload["reservation"], kind)
+
+
+@handler("robot-hold-count", types=["robot.held"])
+def robot_hold_count(event: Event) -> None:
+    """``amazing_robot_holds_total``: counted in the pass's transaction with its cursor, so once
+    per hold."""
+    event_count("robot_holds", resource=event.payload["resource"])

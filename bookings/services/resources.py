@@ -15,7 +15,6 @@ from django.utils import timezone
 
 from bookings.models import HOLD_REASON_MAX_CHARS, Resource
 from core.accounts.models import User
-from core.audit.counters import event_count
 from core.audit.services import audit_record
 from core.audit.text import storable_text
 from core.errors import InvalidInput, NotAllowed
@@ -83,8 +82,8 @@ def resource_hold(*, resource_id: int, reason: str) -> bool:
         if held:
             resource = Resource.objects.get(pk=resource_id)
             audit_record(actor=None, action="resource.hold", target=resource, reason=reason)
+            # Counted by its handler (bookings.handlers), as every reaction to an event.
             robot_event("robot.held", resource, reason=reason, by=None)
-            event_count("robot_holds", resource=resource.name)
     return bool(held)
 
 

@@ -22,6 +22,7 @@ from prometheus_client.registry import Collector
 from bookings.choices import ResourceKind
 from bookings.models import Resource, SchedulerLink
 from core.audit.counters import COUNTERS, event_counts
+from core.events.metrics import EventsCollector
 from core.metrics import metrics_response
 from portal.runs.models import Run, Sample
 from portal.runs.services.health import robot_health_cached
@@ -124,4 +125,4 @@ def _counters() -> Iterator[CounterMetricFamily]:
 
 
 def metrics_view(request: HttpRequest) -> HttpResponse:
-    return metrics_response(request, [SystemCollector()])
+    return metrics_response(request, [SystemCollector(), EventsCollector()])

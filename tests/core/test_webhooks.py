@@ -5,10 +5,6 @@ which verifies each signature with ``standardwebhooks``."""
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from datetime import timedelta
@@ -32,65 +28,12 @@ from portal.runs.models import Run
 from portal.runs.services.reservations import reservation_create
 from portal.runs.services.transitions import run_transition
 from portal.runs.states import Cause, RunState
+from tests.core.webhook_receiver import Receiver
 from tests.factories import ExperimentFactory, FixedResourceFactory, MobileResourceFactory
 
 pytestmark = pytest.mark.django_db
 
-REPO = Path(__file__).resolve().parents[2]
 DEADLINE_S = 30.0  # bounds a hang only
-
-
-class Receiver:
-    """``tests/core/webhook_receiver.py`` as a process; stopped and started again on its port."""
-
-    def __init__(self, directory: Path, secret: str, **env: str) -> None:
-        self.log = directory / "received.jsonl"
-        self.port_file = directory / "port"
-        self.secret = secret
-        self.env = env
-        self.port = 0
-        self.process: subprocess.Popen[bytes] | None = None
-
-    def start(self) -> None:
-        self.port_file.unlink(missing_ok=True)
-        env = {
-            **os.environ,
-            "PYTHONPATH": str(REPO),
-            "WEBHOOK_SECRET": self.secret,
-            "PORT": str(self.port),
-            **self.env,
-        }
-        self.process = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "tests.core.webhook_receiver",
-                str(self.log),
-                str(self.port_file),
-            ],
-            env=env,
-        )
-        deadline = time.monotonic() + DEADLINE_S
-        while not self.port_file.exists() or not self.port_file.read_text():
-            assert self.process.poll() is None, "the receiver died"
-            assert time.monotonic() < deadline, "the receiver never listened"
-            time.sleep(0.05)
-        self.port = int(self.port_file.read_text())
-
-    def stop(self) -> None:
-        if self.process is not None:
-            self.process.terminate()
-            self.process.wait(10)
-            self.process = None
-
-    @property
-    def url(self) -> str:
-        return f"http://127.0.0.1:{self.port}/hook"
-
-    def received(self) -> list[dict[str, Any]]:
-        if not self.log.exists():
-            return []
-        return [json.loads(line) for line in self.log.read_text().splitlines()]
 
 
 @pytest.fixture

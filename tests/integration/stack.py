@@ -102,6 +102,9 @@ FAULT_ENV = {
     "HEALTH_UNREACHABLE_S": "120",
     "RUN_START_GRACE_S": "3",
     "RUN_COLLECT_GRACE_S": "120",
+    # A webhook's failed delivery tried again within two seconds, not minutes.
+    "WEBHOOK_RETRY_FIRST_S": "0.5",
+    "WEBHOOK_RETRY_MAX_S": "2",
 }
 
 

@@ -24,8 +24,13 @@ from django.utils import timezone
 from basestation.client import AgentClient, AgentError
 from bench.stack import Proc
 from bookings.models import Resource
+from core.events.models import Event
+from core.events.sequence import events_sequence
+from core.webhooks.models import WebhookDelivery
+from core.webhooks.services import webhook_create
 from portal.runs.models import Run, Sample
 from portal.runs.services.collection import MissingRange
+from tests.core.webhook_receiver import Receiver
 from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
 from tests.integration.experimenter import Experimenter
 from tests.integration.stack import FAULT_ENV, Stack
@@ -348,4 +353,70 @@ def test_a_mail_backlog_does_not_delay_a_run(fault_stack, robots):
         fault_stack,
         lambda: _confirmed(mail, nodes) == len(nodes),
         30,
+    )
+
+
+RECEIVER_DOWN_S = 60.0
+
+
+def test_webhooks_deliver_every_event_through_a_killed_mail_worker_and_a_minute_down(
+    fault_stack, robots, tmp_path
+):
+    """A run's events sent to a webhook receiver (a process of its own): the mail worker is
+    killed while the receiver holds its answer to the first delivery, and the receiver is then
+    down for a minute while the run goes on. Every event still arrives, signed, at least once,
+    the cut one again with its id, each first accepted in order; none is lost."""
+    erin = Experimenter(fault_stack, "erin")
+    receiver = Receiver(tmp_path, "whsec_" + "A" * 32, HOLD_FIRST_S="4")
+    receiver.start()
+    subscription, secret = webhook_create(owner=erin.user, url=receiver.url)
+    receiver.stop()
+    receiver.secret = secret
+    receiver.start()  # the same port, now verifying with the webhook's own secret
+    try:
+        run_id = erin.run("mobile-1", program_s=3.0)
+        cut = wait_for("the first delivery", fault_stack, receiver.received, 30)[0]
+        fault_stack.kill("mail")  # SIGKILL mid-delivery: the receiver has not answered yet
+        receiver.stop()
+        down_at = time.monotonic()
+        fault_stack.start("mail")
+        fault_stack.wait_ready("mail")
+        run = wait_state(fault_stack, run_id, "completed", "interrupted", "failed")
+        assert run.state == "completed", run.reason
+        wait_for(
+            "a try while the receiver is down",
+            fault_stack,
+            lambda: WebhookDelivery.objects.filter(
+                subscription=subscription, attempts__gt=0, last_error__startswith="no answer"
+            ).exists(),
+            RECEIVER_DOWN_S,
+        )
+        # The fault lasts its minute (nothing is asserted on the wait).
+        time.sleep(max(0.0, down_at + RECEIVER_DOWN_S - time.monotonic()))
+        receiver.start()
+
+        def delivered() -> set[int] | None:
+            events_sequence()  # number what has committed, as every reader does
+            mine = set(Event.objects.filter(owner=erin.user).values_list("position", flat=True))
+            done = set(
+                WebhookDelivery.objects.filter(
+                    subscription=subscription, state="delivered"
+                ).values_list("event__position", flat=True)
+            )
+            ready = Event.objects.filter(type="run.data_ready", subject=f"run:{run_id}").exists()
+            return mine if ready and mine == done else None
+
+        events = wait_for("every event delivered", fault_stack, delivered, 60)
+    finally:
+        receiver.stop()
+    got = receiver.received()
+    assert all(line["verified"] for line in got), got
+    accepted = [line["id"] for line in got if line["answer"] == 200]
+    assert set(accepted) == events  # none lost
+    assert [line["webhook_id"] for line in got].count(cut["webhook_id"]) >= 2  # sent again
+    firsts = list(dict.fromkeys(accepted))
+    assert firsts == sorted(firsts)  # each first accepted in the order of the events
+    assert (
+        WebhookDelivery.objects.get(subscription=subscription, event__position=cut["id"]).attempts
+        >= 2
     )

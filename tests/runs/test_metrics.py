@@ -19,6 +19,7 @@ from bookings.models import Resource
 from bookings.scheduler import config as scheduler_config
 from bookings.services import resource_hold
 from core.audit.counters import event_count
+from core.events.dispatch import events_dispatch
 from portal.runs.models import Run
 from portal.runs.services import staging
 from portal.runs.services.health import RobotHealth, _cache_key
@@ -125,8 +126,15 @@ def test_staging_failures_scheduler_link_errors_and_holds_are_counted(
     assert scheduler_sweep() is None
     assert resource_hold(resource_id=mobile.pk, reason="e-stop latched")
     assert not resource_hold(resource_id=mobile.pk, reason="e-stop latched")  # held already
+    # Counted by the hold's handler, once however often its pass runs.
+    assert (
+        _scrape(client)[("amazing_event_handler_backlog", (("handler", "robot-hold-count"),))] == 1
+    )
+    for _ in range(2):
+        events_dispatch(name="robot-hold-count")
 
     metrics = _scrape(client)
+    assert metrics[("amazing_event_handler_backlog", (("handler", "robot-hold-count"),))] == 0
     retrying = (("outcome", "retrying"), ("resource", mobile.name))
     assert metrics[("amazing_run_staging_failures_total", retrying)] == 2
     assert metrics[("amazing_scheduler_link_errors_total", ())] == 1
