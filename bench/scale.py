@@ -61,8 +61,10 @@ class _Announcements:
     """Every ``samples`` event on the runs' channels, with when it was heard."""
 
     def __init__(self, redis_url: str) -> None:
+        from core.live import redis_channel  # after django.setup(): this database's channels
+
         self._pubsub = redis.Redis.from_url(redis_url).pubsub(ignore_subscribe_messages=True)
-        self._pubsub.psubscribe("amazing:live:run-*")
+        self._pubsub.psubscribe(redis_channel("run-*"))
         self.heard: dict[int, dict[int, float]] = {}  # run id -> seq -> when
         self.repeats = 0
         self._stop = threading.Event()

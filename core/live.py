@@ -12,8 +12,11 @@ Channels: ``run-<id>`` (state changes, new samples), ``robot-<name>`` (status, h
 
 Two transports, chosen by ``REDIS_URL``:
 
-- Redis pub/sub (production, tests): ``PUBLISH amazing:live:<channel>``; the web process
-  subscribes with ``redis.asyncio``, one connection per open stream, no thread.
+- Redis pub/sub (production, tests): ``PUBLISH amazing:live:<database>:<channel>``
+  (:func:`redis_channel`; ids repeat between databases, and Redis's pub/sub is one for all
+  its numbered databases, so two portals or two tests sharing a server never hear each
+  other's runs); the web process subscribes with ``redis.asyncio``, one connection per open
+  stream, no thread.
 - Files (``make run``, no Redis): each channel is a file of JSON lines under
   ``var/live/``; publishers append, the web process reads what was added since it last
   looked, four times a second. Processes on one machine only.
@@ -62,6 +65,11 @@ ANNOUNCED_PREFIX = "amazing:live:announced:"
 ANNOUNCED_TTL_S = 7 * 24 * 3600
 # Marks set by one BITFIELD command (a long backlog is marked in several, in one transaction).
 MARKS_PER_COMMAND = 1024
+
+
+def redis_channel(channel: str) -> str:
+    """``channel``'s name on Redis: this database's own (a pattern too: ``run-*``)."""
+    return f"{REDIS_PREFIX}{database_namespace()}:{channel}"
 
 
 def run_channel(run_id: int) -> str:
@@ -122,14 +130,16 @@ def _whole_bytes(seqs: range) -> tuple[range, list[int]]:
 
 
 class RedisBus:
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, prefix: str) -> None:
         self.url = url
+        # REDIS_PREFIX and the database's namespace (redis_channel).
+        self.prefix = prefix
         self._client = redis.Redis.from_url(
             url, socket_connect_timeout=PUBLISH_TIMEOUT_S, socket_timeout=PUBLISH_TIMEOUT_S
         )
 
     def publish(self, channel: str, payload: str) -> None:
-        self._client.publish(REDIS_PREFIX + channel, payload)
+        self._client.publish(self.prefix + channel, payload)
 
     def publish_marked(self, channel: str, payload: str, key: str, seqs: range) -> None:
         """Publish and set a bit per sequence number of ``key``, atomically (MULTI/EXEC)."""
@@ -145,7 +155,7 @@ class RedisBus:
                 ops += ["SET", "u1", seq, 1]
             pipe.execute_command("BITFIELD", key, *ops)
         pipe.expire(key, ANNOUNCED_TTL_S)
-        pipe.publish(REDIS_PREFIX + channel, payload)
+        pipe.publish(self.prefix + channel, payload)
         pipe.execute()
 
     def marks(self, key: str) -> bytes | None:
@@ -160,7 +170,7 @@ class RedisBus:
         pubsub = client.pubsub(ignore_subscribe_messages=True)
         try:
             try:
-                await pubsub.subscribe(*(REDIS_PREFIX + c for c in channels))
+                await pubsub.subscribe(*(self.prefix + c for c in channels))
             except (redis.RedisError, OSError) as exc:
                 raise LiveUnavailable(str(exc)) from exc
             yield None  # subscribed: nothing published from here on is missed
@@ -247,15 +257,19 @@ class FileBus:
 
 
 _bus: _Bus | None = None
-_bus_key: tuple[str, str] | None = None
+_bus_key: tuple[str, str, str] | None = None
 
 
 def bus() -> _Bus:
     """The transport the settings name (rebuilt if they change, as tests do)."""
     global _bus, _bus_key
-    key = (settings.REDIS_URL, str(settings.LIVE_DIR))
+    prefix = redis_channel("")
+    key = (settings.REDIS_URL, str(settings.LIVE_DIR), prefix)
     if _bus is None or _bus_key != key:
-        _bus = RedisBus(settings.REDIS_URL) if settings.REDIS_URL else FileBus(settings.LIVE_DIR)
+        if settings.REDIS_URL:
+            _bus = RedisBus(settings.REDIS_URL, prefix)
+        else:
+            _bus = FileBus(settings.LIVE_DIR)
         _bus_key = key
     return _bus
 

@@ -411,6 +411,13 @@ CELERY_BEAT_SCHEDULE = {
     # The handlers are woken after every commit that wrote events they want; this pass only
     # catches what a lost wake-up left (a process that died between its commit and the call).
     "events-dispatch": {"task": "core.events.tasks.events_dispatch_all", "schedule": 60.0},
+    # The handlers whose passes the runs worker makes (the live pushes: portal/web/handlers.py).
+    "events-dispatch-runs": {
+        "task": "core.events.tasks.events_dispatch_all",
+        "schedule": 60.0,
+        "kwargs": {"queue": RUNS_QUEUE},
+        "options": {"queue": RUNS_QUEUE},
+    },
     # Each failed try queues the next itself; this pass catches what a dead worker left.
     "webhooks-send": {"task": "core.webhooks.tasks.webhooks_send", "schedule": 60.0},
     "dry-runs-delete-expired": {

@@ -9,17 +9,21 @@ again at the next pass, so each event reaches each handler at least once, and in
 side effect must bear a repeat (an e-mail sent twice after a crash between sending and
 committing, never zero times).
 
-Passes run in the mail worker (``core.events.tasks.events_dispatch_all``): woken after every
-commit that wrote events a handler wants, and by beat every minute besides. Two passes of
-one handler never overlap: the second finds the cursor's row locked and leaves.
+Passes run in the mail worker (``core.events.tasks.events_dispatch_all``), or in the worker of
+the handler's own ``queue`` (the live pushes: the runs worker, so they never wait behind an
+e-mail): woken after every commit that wrote events a handler wants, and by beat every minute
+besides. Two passes of one handler never overlap: the second finds the cursor's row locked
+and leaves.
 """
 
 from __future__ import annotations
 
 import logging
+from datetime import timedelta
 
 from django.db import transaction
 from django.db.models import Max
+from django.utils import timezone
 
 from core.events import registry
 from core.events.models import Event, EventCursor
@@ -32,6 +36,8 @@ logger = logging.getLogger(__name__)
 
 # Events one pass hands a handler at most: a backlog is worked through pass after pass.
 PASS_MAX = 200
+# A handler that starts from the end (``from_end``) is still handed the events this recent.
+FROM_END_RECENT_S = 300
 
 
 def events_dispatch(*, name: str, limit: int = PASS_MAX) -> int:
@@ -40,7 +46,13 @@ def events_dispatch(*, name: str, limit: int = PASS_MAX) -> int:
     """
     registration = registry.registration(name)
     events_sequence()
-    EventCursor.objects.get_or_create(handler=name)
+    if registration.from_end and not EventCursor.objects.filter(handler=name).exists():
+        # Past what is older than a moment: the event that woke this first pass still counts.
+        old = timezone.now() - timedelta(seconds=FROM_END_RECENT_S)
+        top = Event.objects.filter(occurred_at__lt=old).aggregate(top=Max("position"))["top"]
+        EventCursor.objects.get_or_create(handler=name, defaults={"position": top or 0})
+    else:
+        EventCursor.objects.get_or_create(handler=name)
     if registration.active is not None:
         # Read the end first, then ask: what was numbered before a "no" is no one's to handle
         # (a webhook made after it takes the events from then on).
@@ -70,11 +82,14 @@ def events_dispatch(*, name: str, limit: int = PASS_MAX) -> int:
     return handled
 
 
-def events_dispatch_all() -> dict[str, int]:
-    """One pass of every handler; a handler that fails is logged and tried again next pass,
-    and the others go on."""
+def events_dispatch_all(*, queue: str | None = None) -> dict[str, int]:
+    """One pass of every handler whose passes run on ``queue`` (None: the events' own, the
+    mail worker's); a handler that fails is logged and tried again next pass, and the others
+    go on."""
     done: dict[str, int] = {}
-    for name in sorted(registry.handlers()):
+    for name, registration in sorted(registry.handlers().items()):
+        if registration.queue != queue:
+            continue
         try:
             done[name] = events_dispatch(name=name)
         except Exception:

@@ -27,6 +27,9 @@ def handler_backlogs() -> dict[str, int]:
         if registration.active is not None and not registration.active():
             backlogs[name] = 0
             continue
+        if registration.from_end and name not in cursors:
+            backlogs[name] = 0  # its first pass starts it after what is there
+            continue
         backlogs[name] = Event.objects.filter(
             position__gt=cursors.get(name, 0), type__in=registration.types
         ).count()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from datetime import datetime
+from functools import partial
 from typing import Any
 
 from django.db import connection, transaction
@@ -12,7 +13,7 @@ from django.utils import timezone
 
 from core.events.catalogue import EVENT_TYPES
 from core.events.models import Event
-from core.events.registry import handled
+from core.events.registry import queues_wanting
 from core.events.tasks import events_dispatch_all
 
 logger = logging.getLogger(__name__)
@@ -43,12 +44,12 @@ def event_record(
         owner_id=owner_id,
         occurred_at=occurred_at or timezone.now(),
     )
-    if handled(type):
-        transaction.on_commit(_wake_handlers)
+    for queue in queues_wanting(type):
+        transaction.on_commit(partial(_wake_handlers, queue))
     return event
 
 
-def _wake_handlers() -> None:
+def _wake_handlers(queue: str | None) -> None:
     # After the change committed, if a handler wants it: wake the handlers' pass
     # (core.events.dispatch), which numbers what has committed before it hands anything out.
     # Numbering here, in the request, cost a booking a third of its time (the bench of
@@ -56,6 +57,9 @@ def _wake_handlers() -> None:
     # they read). A failure here loses nothing (beat's pass comes within a minute), so it is
     # logged, never raised into the request that made the change.
     try:
-        events_dispatch_all.delay()
+        if queue is None:
+            events_dispatch_all.delay()
+        else:
+            events_dispatch_all.apply_async(kwargs={"queue": queue}, queue=queue)
     except Exception:
         logger.exception("waking the event handlers failed; beat's next pass hands them out")

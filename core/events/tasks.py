@@ -8,5 +8,6 @@ from core.events import dispatch
 
 
 @shared_task(time_limit=120, soft_time_limit=110)
-def events_dispatch_all() -> dict[str, int]:
-    return dispatch.events_dispatch_all()
+def events_dispatch_all(queue: str | None = None) -> dict[str, int]:
+    """One pass of the handlers whose passes run on ``queue`` (None: the events' own)."""
+    return dispatch.events_dispatch_all(queue=queue)

@@ -1,7 +1,9 @@
+from importlib import import_module
+
 from django.apps import AppConfig
 from django.db.models.signals import post_delete, post_save
 
-from portal.web.signals import CALENDAR_MODELS, calendar_changed, resource_saved
+from portal.web.signals import calendar_changed, resource_saved
 
 
 class WebConfig(AppConfig):
@@ -10,8 +12,15 @@ class WebConfig(AppConfig):
     verbose_name = "Web pages"
 
     def ready(self) -> None:
-        # Live pushes to open calendars and consoles (portal/web/signals.py).
-        for label in CALENDAR_MODELS:
-            for signal in (post_save, post_delete):
-                signal.connect(calendar_changed, sender=label, dispatch_uid=f"live:{label}")
+        # Live pushes: of the events (portal/web/handlers.py), and of the changes that are
+        # not events (portal/web/signals.py).
+        import_module("portal.web.handlers")
+        for signal in (post_save, post_delete):
+            signal.connect(
+                calendar_changed, sender="bookings.Blackout", dispatch_uid="live:blackout"
+            )
+        # A booking's every change is an event, but its deletion (with its owner's account).
+        post_delete.connect(
+            calendar_changed, sender="bookings.Reservation", dispatch_uid="live:reservation"
+        )
         post_save.connect(resource_saved, sender="bookings.Resource", dispatch_uid="live:resource")

@@ -1,4 +1,6 @@
-"""What the calendar hears live: bookings, maintenance windows and robots' holds changed.
+"""What the calendar hears live of the changes that are not events: maintenance windows made,
+changed or deleted, a booking deleted (with its owner's account), a robot made or taken out of
+service or put back (the events' pushes: ``portal/web/handlers.py``).
 
 Connected by ``WebConfig.ready`` to the models' saves (by model label, so this module loads
 before the models do). A save of any process tells the calendars open anywhere; the
@@ -10,8 +12,6 @@ from __future__ import annotations
 from typing import Any
 
 from core.live import CALENDAR, hold_publish, publish_on_commit
-
-CALENDAR_MODELS = ("bookings.Reservation", "bookings.Blackout")
 
 
 def calendar_changed(sender: Any, **kwargs: Any) -> None:

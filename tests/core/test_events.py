@@ -502,4 +502,38 @@ def test_only_an_event_some_handler_wants_wakes_the_handlers_at_commit(
     with django_capture_on_commit_callbacks() as wanted:
         _write(owner, ("run.failed", 2))
     assert unwanted == []
-    assert [c.__name__ for c in wanted] == ["_wake_handlers"]
+    assert [(c.func.__name__, c.args) for c in wanted] == [("_wake_handlers", (None,))]
+
+
+def test_a_handler_of_its_own_queue_is_woken_there_and_passed_by_that_queues_pass(
+    owner, seen, django_capture_on_commit_callbacks
+):
+    handled, _ = seen
+    pushed: list[int] = []
+    dispatch.handler("pusher", types=["run.failed"], queue="runs")(
+        lambda event: pushed.append(event.payload["run"])
+    )
+    with django_capture_on_commit_callbacks() as woken:
+        _write(owner, ("run.failed", 1))
+    assert sorted(str(c.args[0]) for c in woken) == ["None", "runs"]
+    assert dispatch.events_dispatch_all(queue="runs") == {"pusher": 1}
+    assert (pushed, handled) == ([1], [])
+    assert dispatch.events_dispatch_all() == {"recorder": 1}
+    assert handled == [1]
+
+
+def test_a_handler_from_the_end_starts_after_the_old_events_and_takes_the_recent(owner, seen):
+    _write(owner, ("run.failed", 1), ("run.failed", 2))
+    events_sequence()
+    Event.objects.filter(payload__run=1).update(
+        occurred_at=timezone.now() - timedelta(seconds=dispatch.FROM_END_RECENT_S + 60)
+    )
+    late: list[int] = []
+    dispatch.handler("late", types=["run.failed"], from_end=True)(
+        lambda event: late.append(event.payload["run"])
+    )
+    assert dispatch.events_dispatch(name="late") == 1
+    assert late == [2]  # not the old one
+    _write(owner, ("run.failed", 3))
+    assert dispatch.events_dispatch(name="late") == 1
+    assert late == [2, 3]

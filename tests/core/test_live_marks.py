@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 
-from core.live import RedisBus, _whole_bytes
+from core.live import RedisBus, _whole_bytes, redis_channel
 
 KEY = "test:live-marks"
 
@@ -28,7 +28,7 @@ def test_whole_bytes_and_the_rest_are_exactly_the_range(start, length):
 def test_the_bitmap_is_the_one_setting_each_bit_would_give(pages):
     client = redis.Redis.from_url(settings.REDIS_URL)
     client.delete(KEY, KEY + ":each")
-    bus = RedisBus(settings.REDIS_URL)
+    bus = RedisBus(settings.REDIS_URL, redis_channel(""))
     for start, length in pages:
         seqs = range(start, start + length)
         bus.publish_marked("test-marks", "{}", KEY, seqs)

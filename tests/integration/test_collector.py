@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 import redis
 
-from core.live import REDIS_PREFIX, run_channel
+from core.live import redis_channel, run_channel
 from tests.factories import MobileResourceFactory
 from tests.integration.experimenter import Experimenter
 from tests.integration.stack import FAULT_ENV, Stack, private_stack
@@ -50,7 +50,7 @@ class Listener:
         self._pubsub = redis.Redis.from_url(stack.redis.url(0)).pubsub(
             ignore_subscribe_messages=True
         )
-        self._pubsub.subscribe(REDIS_PREFIX + run_channel(run_id))
+        self._pubsub.subscribe(redis_channel(run_channel(run_id)))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._listen, daemon=True)
         self._thread.start()

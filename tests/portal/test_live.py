@@ -9,7 +9,8 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
-from asgiref.sync import async_to_sync
+from asgiref.sync import async_to_sync, sync_to_async
+from django.db import connection
 
 from core import live
 
@@ -47,6 +48,28 @@ def test_a_subscriber_hears_what_is_published_on_its_channels_only(bus_settings)
 
     heard = async_to_sync(scenario)()
     assert heard == [{"type": "samples", "last_seq": 40}, {"type": "changed"}]
+
+
+def test_a_portal_on_another_database_sharing_the_redis_is_not_heard(monkeypatch):
+    """Redis's pub/sub is one for all its numbered databases, and run ids repeat between
+    databases (two portals, two test workers): each database's channels are its own."""
+
+    def published_from_another_database() -> None:
+        with monkeypatch.context() as elsewhere:
+            elsewhere.setitem(connection.settings_dict, "NAME", "another_portal")
+            assert live.publish(live.run_channel(7), {"type": "samples", "last_seq": 99})
+
+    async def scenario() -> dict[str, Any]:
+        events = live.subscribe([live.run_channel(7)], idle_s=60)
+        assert await anext(events) is None  # subscribed
+        await sync_to_async(published_from_another_database)()
+        assert live.publish(live.run_channel(7), {"type": "samples", "last_seq": 40})
+        try:
+            return await _next(events)
+        finally:
+            await events.aclose()
+
+    assert async_to_sync(scenario)() == {"type": "samples", "last_seq": 40}
 
 
 def test_a_quiet_channel_yields_keepalives(bus_settings):

@@ -127,7 +127,7 @@ def run_channel_events(run, settings):
     client = redis.Redis.from_url(settings.REDIS_URL)
     client.delete(live.announced_key(run.pk))
     pubsub = client.pubsub()
-    pubsub.subscribe(live.REDIS_PREFIX + live.run_channel(run.pk))
+    pubsub.subscribe(live.redis_channel(live.run_channel(run.pk)))
 
     def events(expected: int) -> list[tuple[int, int]]:
         """The next ``expected`` events' ranges, then whatever else comes within half a

@@ -1,5 +1,7 @@
 """The pages' live streams (Server-Sent Events): who may follow what, and that what the
-workers publish (a run's state, its samples, a robot's hold, a booking) reaches the stream."""
+workers publish (a run's state, its samples, a robot's hold, a booking) reaches the stream:
+the samples as they are stored, the rest through their events' handler, whose pass the runs
+worker makes (``runs_worker_pass`` here)."""
 
 from __future__ import annotations
 
@@ -13,9 +15,10 @@ from asgiref.sync import async_to_sync, sync_to_async
 from django.test import AsyncClient
 from django.utils import timezone
 
-from bookings.models import Resource
-from core import live
+from bookings.services import resource_hold
 from core.accounts.staff import has_staff_role
+from core.events.dispatch import events_dispatch_all
+from portal.processes import RUNS_QUEUE
 from portal.runs.models import Run
 from portal.runs.services.collection import samples_ingest
 from portal.runs.services.reservations import reservation_create
@@ -53,6 +56,13 @@ def _status(user: Any, url: str, *, second_factor: bool = True) -> int:
         return response.status_code
 
     return async_to_sync(scenario)()
+
+
+def runs_worker_pass() -> None:
+    """What the runs worker does when woken after a commit that wrote events: the live
+    pushes' pass (``portal/web/handlers.py``)."""
+    done = events_dispatch_all(queue=RUNS_QUEUE)
+    assert done["live-pushes"] > 0, done
 
 
 def _follow(user: Any, url: str, then: Callable[[], Any], count: int) -> list[str]:
@@ -94,6 +104,7 @@ def run(owner, mobile) -> Run:
         experiment=ExperimentFactory(owner=owner),
     )
     Run.objects.filter(reservation=reservation).update(state=RunState.RUNNING)
+    events_dispatch_all(queue=RUNS_QUEUE)  # the booking's pushes, before any stream opens
     return Run.objects.get(reservation=reservation)
 
 
@@ -116,6 +127,7 @@ def test_the_run_stream_carries_its_state_changes_and_new_samples(run, owner):
             from_states=[RunState.RUNNING],
             reason="ended on the base station (completed)",
         )
+        runs_worker_pass()
 
     samples, state = _follow(owner, f"/live/runs/{run.pk}/", collect, 2)
     assert samples.startswith("event: samples\n")
@@ -135,10 +147,8 @@ def test_a_robots_stream_is_for_admins_and_carries_its_hold(owner, admin_user, m
     assert _status(admin_user, "/live/robots/no-such-robot/") == 404
 
     def hold() -> None:
-        Resource.objects.filter(pk=mobile.pk).update(
-            hold_reason="battery low: 48.0 V, under 50 V", held_at=timezone.now()
-        )
-        live.hold_publish(Resource.objects.get(pk=mobile.pk))
+        assert resource_hold(resource_id=mobile.pk, reason="battery low: 48.0 V, under 50 V")
+        runs_worker_pass()
 
     [event] = _follow(admin_user, url, hold, 1)
     assert event.startswith("event: hold\n")
@@ -158,6 +168,7 @@ def test_the_calendar_stream_hears_bookings_made_anywhere(owner, other):
             start_at=start,
             end_at=start + timedelta(hours=1),
         )
+        runs_worker_pass()
 
     [event] = _follow(owner, "/live/calendar/", book, 1)
     assert event == 'event: changed\ndata: {"type":"changed"}\n\n'

@@ -45,7 +45,7 @@ from bookings.services import (
     resource_hold,
     resource_record_agent_limits,
 )
-from core.live import hold_publish, publish_on_commit, robot_channel
+from core.live import publish_on_commit, robot_channel
 from portal.runs.agents import AgentNotConfigured, agent_client_for
 
 logger = logging.getLogger(__name__)
@@ -172,9 +172,8 @@ def robot_health_check(*, resource_id: int, now_s: float | None = None) -> Robot
     if health.problems and resource_hold(
         resource_id=resource.pk, reason="; ".join(health.problems)
     ):
+        # Its robot.held event tells the pages (portal/web/handlers.py) and the admins.
         logger.warning("%s taken out of booking: %s", resource.name, "; ".join(health.problems))
-        resource.refresh_from_db(fields=["hold_reason", "held_at"])
-        hold_publish(resource)
     publish_on_commit(robot_channel(resource.name), {"type": "status", **health.to_json()})
     return health
 

@@ -13,10 +13,9 @@ from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import Conflict, InvalidInput, NotAllowed
 from core.events.services import event_record
-from core.live import publish_on_commit, run_channel
 from portal.experiments.models import Experiment
 from portal.runs.models import Run, RunEvent
-from portal.runs.states import RUN_END_STATES, Cause, RunState, allowed, sources
+from portal.runs.states import Cause, RunState, allowed, sources
 
 logger = logging.getLogger(__name__)
 
@@ -178,16 +177,6 @@ def run_transition(
             to_state=to_state,
             reason=reason,
             cause=cause,
-        )
-        publish_on_commit(
-            run_channel(run_id),
-            {
-                "type": "state",
-                "state": to_state,
-                "label": RunState(to_state).label,
-                "reason": reason,
-                "live": to_state not in RUN_END_STATES,
-            },
         )
     logger.info("run %s: %s → %s (%s) %s", run_id, current, to_state, cause, reason)
     return True
