@@ -91,9 +91,10 @@ run: setup
 services:
 	@bash tests/ensure_services.sh $(TEST_DATABASE_URL) $(TEST_REDIS_URL)
 
-# Firmware first (seconds), then every Python suite; pytest's summary closes the output.
+# Firmware first (seconds; the simulator's library too, before any agent starts), then every
+# Python suite; pytest's summary closes the output.
 test: setup system-deps services $(NGINX)
-	$(MAKE) --no-print-directory -C firmware test hex size-check
+	$(MAKE) --no-print-directory -C firmware test shared hex size-check
 	$(TEST_ENV) $(PY) -m pytest
 
 # Known vulnerabilities in the installed Python and npm packages (deploy/audit_dependencies.py,

@@ -6,9 +6,12 @@ import os
 import sys
 import time
 
+import psycopg
 import pytest
 from allauth.account.authentication import AUTHENTICATION_METHODS_SESSION_KEY
 from django.core.cache import cache
+from django.db import OperationalError
+from django.db.backends.postgresql.operations import DatabaseOperations
 from hypothesis import settings as hypothesis_settings
 from rest_framework.test import APIClient
 
@@ -98,6 +101,38 @@ def django_db_setup(django_db_setup):
             if not left or left[0] == 0:
                 break
             time.sleep(0.05)
+
+
+# How often a test's end empties the tables again after a deadlock with a system's process.
+FLUSH_TRIES = 5
+
+
+def flush_tried_again(flush):
+    """``execute_sql_flush`` that tries again when PostgreSQL broke a deadlock by aborting it.
+
+    A transactional test's end empties every table with one ``TRUNCATE``, which locks them one
+    after the other, while the processes of a system still running (a module's stack: its
+    worker, collector, beat) read some of them in their own transactions: one that holds a
+    table the ``TRUNCATE`` reaches later and waits for one it has already locked closes a
+    cycle, and PostgreSQL aborts one of the two. When that is the ``TRUNCATE``, the tables
+    stay full, and the module's next tests meet the rows of this one."""
+
+    def execute_sql_flush(self, sql_list):
+        for attempt in range(1, FLUSH_TRIES + 1):
+            try:
+                return flush(self, sql_list)
+            except OperationalError as exc:
+                if attempt == FLUSH_TRIES or not isinstance(
+                    exc.__cause__, psycopg.errors.DeadlockDetected
+                ):
+                    raise
+                time.sleep(0.1 * attempt)  # the other transaction ends meanwhile
+        return None
+
+    return execute_sql_flush
+
+
+DatabaseOperations.execute_sql_flush = flush_tried_again(DatabaseOperations.execute_sql_flush)
 
 
 @pytest.fixture(autouse=True)

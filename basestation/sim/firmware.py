@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import fcntl
 import os
 import shutil
 import subprocess
@@ -203,12 +204,17 @@ def build_library() -> Path:
     """
     if shutil.which("make") is None or shutil.which("g++") is None:
         raise FirmwareError("make and g++ are needed to build libamazing_robot.so")
-    result = subprocess.run(  # noqa: S603 - fixed argv, no shell
-        ["make", "-s", "-C", str(FIRMWARE_DIR), "shared"],  # noqa: S607 - make from PATH
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    # One build at a time on this tree: agents started together (two robots, several
+    # systems at once) would otherwise write the same objects at the same time.
+    DEFAULT_LIBRARY.parent.mkdir(parents=True, exist_ok=True)
+    with (DEFAULT_LIBRARY.parent / ".build.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        result = subprocess.run(  # noqa: S603 - fixed argv, no shell
+            ["make", "-s", "-C", str(FIRMWARE_DIR), "shared"],  # noqa: S607 - make from PATH
+            capture_output=True,
+            text=True,
+            check=False,
+        )
     if result.returncode != 0:
         raise FirmwareError(f"make -C firmware shared failed:\n{result.stdout}{result.stderr}")
     return DEFAULT_LIBRARY
