@@ -6,7 +6,6 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import typer
-from rich.table import Table
 
 from amazing_cli import times
 from amazing_cli.commands._common import (
@@ -80,11 +79,10 @@ def webhook_list(ctx: typer.Context, as_json: JsonOption = False) -> None:
     if not listed:
         out.print("No webhooks: `amazing webhook create URL` makes one.")
         return
-    table = Table("id", "url", "events", "state", "description", box=None)
     for w in listed:
         state = f"paused: {w['pause_reason']}" if w["paused"] else "active"
-        table.add_row(str(w["id"]), w["url"], _takes(w), state, w["description"])
-    out.print(table)
+        about = f" ({w['description']})" if w["description"] else ""
+        out.print(f"{w['id']} {w['url']}{about}: {_takes(w)}; {state}", markup=False)
 
 
 @reports_errors
@@ -106,20 +104,17 @@ def webhook_log(
     if not deliveries:
         out.print(f"Nothing sent to webhook {webhook} yet: `amazing webhook test {webhook}`.")
         return
-    table = Table("event", "type", "state", "tries", "last answer", "last try", "next try")
+    # One line each, as `amazing events` prints: an error can be long, and a table would
+    # fold the columns that say which event it was (`--json` has every field).
     for d in deliveries:
-        answer = str(d["last_status"]) if d["last_status"] else (d["last_error"] or "—")
-        next_try = times.local(d["next_try_at"]) if d["state"] == "pending" else "—"
-        table.add_row(
-            str(d["event"]),
-            d["type"],
-            d["state"],
-            str(d["attempts"]),
-            answer,
-            times.local(d["last_tried_at"]),
-            next_try,
+        tries = f"{d['attempts']} {'try' if d['attempts'] == 1 else 'tries'}"
+        answer = str(d["last_status"]) if d["last_status"] else (d["last_error"] or "")
+        last = f", last {times.local(d['last_tried_at'])}: {answer}" if d["last_tried_at"] else ""
+        next_try = f", next {times.local(d['next_try_at'])}" if d["state"] == "pending" else ""
+        out.print(
+            f"#{d['event']} {d['type']} {d['state']}, {tries}{last}{next_try}",
+            markup=False,
         )
-    out.print(table)
 
 
 @reports_errors

@@ -299,13 +299,14 @@ def test_the_api_shows_the_secret_once_and_each_webhook_only_to_its_owner(
 
 
 def test_without_a_webhook_events_wake_no_one_and_are_passed_over(owner, mobile):
-    """Most deployments have no webhook: their events must cost nothing more."""
-    assert not handled("run.staged")
+    """Most deployments have no webhook: their events must cost nothing more (a run's data
+    ready, which no other handler takes, wakes no one)."""
+    assert not handled("run.data_ready")
     _a_run_that_completed(owner, mobile)
     events_sequence()
     assert events_dispatch(name="webhooks") == 0
     top = Event.objects.order_by("-position").values_list("position", flat=True).first()
     assert EventCursor.objects.get(handler="webhooks").position == top
     _subscribed(owner)
-    assert handled("run.staged")
+    assert handled("run.data_ready")
     assert not WebhookDelivery.objects.exists()  # the events before it are not its

@@ -15,7 +15,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from datetime import timedelta
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import pytest
 import requests
@@ -24,7 +24,7 @@ from django.utils import timezone
 from basestation.client import AgentClient, AgentError
 from bench.stack import Proc
 from bookings.models import Resource
-from core.events.models import Event
+from core.events.models import Event, EventCursor
 from core.events.sequence import events_sequence
 from core.webhooks.models import WebhookDelivery
 from core.webhooks.services import webhook_create
@@ -366,15 +366,15 @@ def test_webhooks_deliver_every_event_through_a_killed_mail_worker_and_a_minute_
     killed while the receiver holds its answer to the first delivery, and the receiver is then
     down for a minute while the run goes on. Every event still arrives, signed, at least once,
     the cut one again with its id, each first accepted in order; none is lost."""
-    erin = Experimenter(fault_stack, "erin")
+    wendy = Experimenter(fault_stack, "wendy")
     receiver = Receiver(tmp_path, "whsec_" + "A" * 32, HOLD_FIRST_S="4")
     receiver.start()
-    subscription, secret = webhook_create(owner=erin.user, url=receiver.url)
+    subscription, secret = webhook_create(owner=wendy.user, url=receiver.url)
     receiver.stop()
     receiver.secret = secret
     receiver.start()  # the same port, now verifying with the webhook's own secret
     try:
-        run_id = erin.run("mobile-1", program_s=3.0)
+        run_id = wendy.run("mobile-1", program_s=3.0)
         cut = wait_for("the first delivery", fault_stack, receiver.received, 30)[0]
         fault_stack.kill("mail")  # SIGKILL mid-delivery: the receiver has not answered yet
         receiver.stop()
@@ -397,7 +397,7 @@ def test_webhooks_deliver_every_event_through_a_killed_mail_worker_and_a_minute_
 
         def delivered() -> set[int] | None:
             events_sequence()  # number what has committed, as every reader does
-            mine = set(Event.objects.filter(owner=erin.user).values_list("position", flat=True))
+            mine = set(Event.objects.filter(owner=wendy.user).values_list("position", flat=True))
             done = set(
                 WebhookDelivery.objects.filter(
                     subscription=subscription, state="delivered"
@@ -406,7 +406,10 @@ def test_webhooks_deliver_every_event_through_a_killed_mail_worker_and_a_minute_
             ready = Event.objects.filter(type="run.data_ready", subject=f"run:{run_id}").exists()
             return mine if ready and mine == done else None
 
-        events = wait_for("every event delivered", fault_stack, delivered, 60)
+        deadline = time.monotonic() + 60
+        while (events := delivered()) is None:
+            assert time.monotonic() < deadline, _webhook_state(subscription, wendy.user)
+            time.sleep(0.2)
     finally:
         receiver.stop()
     got = receiver.received()
@@ -420,3 +423,19 @@ def test_webhooks_deliver_every_event_through_a_killed_mail_worker_and_a_minute_
         WebhookDelivery.objects.get(subscription=subscription, event__position=cut["id"]).attempts
         >= 2
     )
+
+
+def _webhook_state(subscription: Any, owner: Any) -> str:
+    """What a webhook test that timed out saw: the owner's events, their deliveries, the
+    handlers' cursors."""
+    lines = ["events:"]
+    for event in Event.objects.filter(owner=owner).order_by("position"):
+        lines.append(f"  {event.position} {event.type} {event.subject} at {event.occurred_at}")
+    lines.append("deliveries:")
+    for d in WebhookDelivery.objects.filter(subscription=subscription).order_by("pk"):
+        lines.append(
+            f"  event {d.event.position} {d.state} tries={d.attempts} status={d.last_status} "
+            f"error={d.last_error!r} next={d.next_try_at}"
+        )
+    lines.append(f"cursors: {list(EventCursor.objects.values_list('handler', 'position'))}")
+    return "\n".join(lines)

@@ -105,12 +105,15 @@ def test_a_replay_gets_the_stored_answer_and_queues_nothing(
     assert replay["Idempotent-Replayed"] == "true"
     assert replay.json() == first.json()
     assert Reservation.objects.count() == 1
-    # The booking's event woke its handlers (its e-mail) once, from the request that did the
-    # work (beside the live push that tells open calendars to read again).
-    # (The calendar's cache generation moving on at commit is not a task.)
+    # The booking's event woke its handlers once, from the request that did the work: the
+    # mail worker's (its e-mail) and the runs worker's (the live push that tells open
+    # calendars to read again). (The calendar's cache generation moving on at commit is not
+    # a task.)
     tasks = [c for c in first_tasks if not isinstance(getattr(c, "__self__", None), Generation)]
-    queued = sorted(getattr(getattr(c, "func", c), "__name__", "") for c in tasks)
-    assert queued == ["_wake_handlers", "publish"]
+    queued = sorted(
+        (getattr(getattr(c, "func", c), "__name__", ""), str(getattr(c, "args", ()))) for c in tasks
+    )
+    assert queued == [("_wake_handlers", "('runs',)"), ("_wake_handlers", "(None,)")]
     assert replay_tasks == []
 
 
