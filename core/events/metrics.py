@@ -1,8 +1,9 @@
 """``/metrics``: how far each handler of events is behind (``amazing_event_handler_backlog``).
 
-A backlog that stays above zero says the mail worker, which runs the handlers' passes, is down
-or stuck, or that a handler fails on an event and is handed it again at every pass (its
-error is in the mail worker's log). docs/operations.md has the alert.
+A backlog that stays above zero says the worker that runs the handler's passes (the mail
+worker; the runs worker for the live pushes) is down or stuck, or that the handler fails on an
+event and is handed it again at every pass (its error is in that worker's log).
+docs/operations.md has the alert.
 """
 
 from __future__ import annotations
