@@ -160,10 +160,15 @@ class Proc:
                 raise AssertionError(f"{self.name}: expected e-mail not seen\n{self.output()}")
             time.sleep(0.1)
 
-    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 15) -> int:
+    def tell(self, sig: int = signal.SIGTERM) -> None:
+        """Send ``sig`` to the process and its children, without waiting."""
         if self.popen.poll() is None:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(self.popen.pid, sig)
+
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 15) -> int:
+        if self.popen.poll() is None:
+            self.tell(sig)
             try:
                 self.popen.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
@@ -425,7 +430,12 @@ class Stack:
         return "\n".join(p.output(last) for p in self.procs.values())
 
     def stop(self) -> None:
-        for proc in reversed(list(self.procs.values())):
+        # Every process told at once, then each waited for: their shutdowns (a worker's
+        # warm one, a web server's) overlap instead of adding up, test after test.
+        procs = list(reversed(list(self.procs.values())))
+        for proc in procs:
+            proc.tell()
+        for proc in procs:
             proc.stop()
 
 

@@ -66,7 +66,9 @@ def live_portal(
         wait_http(f"{portal.url}/healthz", 30, portal.procs)
         yield portal
     finally:
-        for proc in reversed(portal.procs):
+        for proc in portal.procs:
+            proc.tell()
+        for proc in portal.procs:
             proc.stop()
 
 
