@@ -45,6 +45,11 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "webhook_test": ("POST", "/api/v1/webhooks/{id}/test/"),
     "webhook_resume": ("POST", "/api/v1/webhooks/{id}/resume/"),
     "webhook_deliveries": ("GET", "/api/v1/webhooks/{id}/deliveries/"),
+    "measurements": ("GET", "/api/v1/runs/{id}/measurements/"),
+    "measurement_upload": ("POST", "/api/v1/runs/{id}/measurements/"),
+    "measurement": ("GET", "/api/v1/runs/{id}/measurements/{name}/"),
+    "measurement_offset": ("PATCH", "/api/v1/runs/{id}/measurements/{name}/"),
+    "measurement_delete": ("DELETE", "/api/v1/runs/{id}/measurements/{name}/"),
     "schema": ("GET", "/api/schema/"),
 }
 
@@ -127,6 +132,8 @@ class Api:
         path: dict[str, Any] | None = None,
         params: dict[str, Any] | None = None,
         json: Any = None,
+        data: dict[str, Any] | None = None,
+        files: dict[str, Any] | None = None,
         headers: dict[str, str] | None = None,
         stream: bool = False,
     ) -> requests.Response:
@@ -138,6 +145,8 @@ class Api:
                 url,
                 params=params,
                 json=json,
+                data=data,
+                files=files,
                 headers=headers,
                 stream=stream,
                 timeout=(CONNECT_TIMEOUT_S, READ_TIMEOUT_S),

@@ -20,6 +20,7 @@ from amazing_cli.commands import (
     bookings,
     events,
     experiments,
+    measurements,
     resources,
     runs,
     webhooks,
@@ -40,6 +41,10 @@ webhook_app = typer.Typer(
     help="Webhooks: your events sent to a URL of yours, signed.", no_args_is_help=True
 )
 app.add_typer(webhook_app, name="webhook")
+measurements_app = typer.Typer(
+    help="Your own measurements on a run, placed where the robot was.", no_args_is_help=True
+)
+app.add_typer(measurements_app, name="measurements")
 
 
 @app.callback()
@@ -82,6 +87,10 @@ webhook_app.command("log")(webhooks.webhook_log)
 webhook_app.command("test")(webhooks.webhook_test)
 webhook_app.command("resume")(webhooks.webhook_resume)
 webhook_app.command("delete")(webhooks.webhook_delete)
+measurements_app.command("add")(measurements.measurements_add)
+measurements_app.command("list")(measurements.measurements_list)
+measurements_app.command("offset")(measurements.measurements_offset)
+measurements_app.command("delete")(measurements.measurements_delete)
 
 
 def main() -> int:

@@ -184,6 +184,12 @@ WEBHOOK_RETRY_FOR_S: Final = Tunable(
     shown="`172800` (48 h)",
 )
 WEBHOOKS_PER_USER_MAX: Final = Tunable("WEBHOOKS_PER_USER_MAX", 10, "webhooks one person may have")
+MEASUREMENT_MAX_UPLOAD_BYTES: Final = Tunable(
+    "MEASUREMENT_MAX_UPLOAD_BYTES",
+    64 * 1024 * 1024,
+    "the largest measurement file (CSV, JSON, Parquet) a run takes; a larger one answers 413",
+    shown="`67108864` (64 MiB)",
+)
 
 TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     RUN_SWEEP_INTERVAL_S,
@@ -212,6 +218,7 @@ TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     WEBHOOK_RETRY_MAX_S,
     WEBHOOK_RETRY_FOR_S,
     WEBHOOKS_PER_USER_MAX,
+    MEASUREMENT_MAX_UPLOAD_BYTES,
 )
 
 

@@ -42,7 +42,8 @@ from core import sql
 from core.accounts.models import User
 from portal.experiments.models import Experiment
 from portal.runs import queries as runs_queries
-from portal.runs.models import Run, Sample
+from portal.runs.measurements import measurement_add, read_file_points, series_points
+from portal.runs.models import MeasurementSeries, Run, Sample
 from portal.runs.selectors import run_samples_csv, run_samples_json
 from portal.runs.services.collection import samples_ingest
 from tests.sqlite import run_on_sqlite
@@ -230,6 +231,7 @@ def _runs_answers() -> dict[str, Any]:
     document = json.loads(b"".join(run_samples_json(run=run)))
     columns = runs_queries.sample_columns(run)
     return {
+        "measurements": _measurement_answers(run, owner),
         "stored": stored,
         "seqs": list(Sample.objects.filter(run=run).order_by("seq").values_list("seq", flat=True)),
         "csv": [
@@ -241,6 +243,27 @@ def _runs_answers() -> dict[str, Any]:
             name: _column(getattr(columns, name).astype(float).tolist())
             for name in ("seq", "t_s", "segment", "ccw", "track_m", "fix_quality")
         },
+    }
+
+
+def _measurement_answers(run: Run, owner: User) -> dict[str, Any]:
+    """A series's points in (new ones, overlapping ones, the first again) and out."""
+
+    def points(first: int, last: int) -> Any:
+        rows = "".join(f"{T0_S + i * 0.5},{-50 - i}\n" for i in range(first, last + 1))
+        return read_file_points(f"t,rssi\n{rows}".encode(), "csv")
+
+    stored = [
+        measurement_add(run=run, by=owner, name="rssi", points=batch).stored
+        for batch in (points(0, 5), points(4, 7), points(0, 5))
+    ]
+    series = MeasurementSeries.objects.get(run=run, name="rssi")
+    ((times_s, values),) = series_points(series)
+    return {
+        "stored": stored,
+        "times_s": [round(t - T0_S, 3) for t in times_s.tolist()],
+        "values": values.tolist(),
+        "where": series.summary["columns"]["rssi"]["where"],
     }
 
 
@@ -308,6 +331,11 @@ def _check_answers(answers: dict[str, Any]) -> None:
     assert columns["segment"] == [0, None, 0, None, 0, None]
     assert columns["ccw"] == [1, 0, 1, 0, 1, 0]
     assert columns["fix_quality"] == [None, 4, None, 4, None, 4]
+    measured = runs["measurements"]
+    assert measured["stored"] == [6, 2, 0]
+    assert measured["times_s"] == [0.5 * i for i in range(8)]
+    assert measured["values"] == [-50.0 - i for i in range(8)]
+    assert sum(measured["where"].values()) == 8
     assert answers["core"] == {"lock taken": True}
 
 

@@ -184,7 +184,15 @@ class DryRun(models.Model):
 
 # The columns of a sample are the contract's (``basestation/contract.py``): the order the
 # downloads give them in. A test checks the model below against the contract.
-__all__ = ["SAMPLE_FIELDS", "DryRun", "Run", "RunEvent", "Sample"]
+__all__ = [
+    "SAMPLE_FIELDS",
+    "DryRun",
+    "MeasurementPoint",
+    "MeasurementSeries",
+    "Run",
+    "RunEvent",
+    "Sample",
+]
 
 
 class Sample(models.Model):
@@ -218,6 +226,65 @@ class Sample(models.Model):
 
     def __str__(self) -> str:
         return f"{self.run_id}#{self.seq}"
+
+
+class MeasurementSeries(models.Model):
+    """A researcher's own measurement on a run (a signal strength, a throughput): named
+    value columns over time, on the researcher's clock plus ``clock_offset_s``.
+
+    ``summary`` is the series placed on the run's path (``portal/runs/measurements.py``):
+    how many points fell where, per metre of track and per grid cell statistics, and a
+    downsampled line per column; made again whenever points or the offset change, so that
+    the run page reads one row, not a million.
+    """
+
+    run = models.ForeignKey(Run, on_delete=models.CASCADE, related_name="measurements")
+    name = models.SlugField(max_length=64)
+    unit = models.CharField(max_length=32, blank=True)
+    description = models.TextField(blank=True, max_length=2000)
+    # The node that measured (for example the fixed node the robot's node talked to).
+    source_node = models.CharField(max_length=64, blank=True)
+    # The value columns, in order: ``MeasurementPoint.column_index`` indexes this list.
+    columns = models.JSONField()
+    # Added to every point's time to put it on the base station's clock.
+    clock_offset_s = models.FloatField(default=0.0)
+    point_count = models.PositiveIntegerField(default=0)
+    summary = models.JSONField(default=dict, blank=True)
+    created_by = models.ForeignKey(
+        settings.AUTH_USER_MODEL, on_delete=models.SET_NULL, null=True, related_name="+"
+    )
+    created_at = models.DateTimeField(auto_now_add=True)
+    updated_at = models.DateTimeField(auto_now=True)
+
+    class Meta:
+        ordering = ["run", "name"]
+        constraints = [
+            models.UniqueConstraint(fields=["run", "name"], name="measurement_run_name_unique"),
+        ]
+
+    def __str__(self) -> str:
+        return f"{self.run_id}/{self.name}"
+
+
+class MeasurementPoint(models.Model):
+    """One value of one column of a series at one time (the researcher's clock, UTC).
+
+    The key is (series, column, time): a point sent twice is stored once, and the table
+    carries no other index to keep up while a million rows are copied in.
+    """
+
+    pk = models.CompositePrimaryKey("series", "column_index", "t")
+    # No index of its own: the key begins with it.
+    series = models.ForeignKey(
+        MeasurementSeries, on_delete=models.CASCADE, related_name="+", db_index=False
+    )
+    column_index = models.PositiveSmallIntegerField()
+    t = models.DateTimeField()
+    # NULL: the file had no value there.
+    value = models.FloatField(null=True)
+
+    def __str__(self) -> str:
+        return f"{self.series_id}[{self.column_index}]@{self.t.isoformat()}"
 
 
 # What the runs lists show (state, events, samples stored): cached until a run or its events

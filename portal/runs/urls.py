@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.runs.apis import attach, rail, reservations, robot, runs
+from portal.runs.apis import attach, measurements, rail, reservations, robot, runs
 
 urlpatterns = [
     path("runs/", runs.RunListApi.as_view(), name="api-runs"),
@@ -11,6 +11,16 @@ urlpatterns = [
         "runs/<int:pk>/samples.json", runs.RunSamplesJsonApi.as_view(), name="api-run-samples-json"
     ),
     path("runs/<int:pk>/analysis/", runs.RunAnalysisApi.as_view(), name="api-run-analysis"),
+    path(
+        "runs/<int:pk>/measurements/",
+        measurements.MeasurementListApi.as_view(),
+        name="api-run-measurements",
+    ),
+    path(
+        "runs/<int:pk>/measurements/<slug:name>/",
+        measurements.MeasurementApi.as_view(),
+        name="api-run-measurement",
+    ),
     path("runs/<int:pk>/again/", reservations.RunAgainApi.as_view(), name="api-run-again"),
     path("runs/<int:pk>/package.zip", runs.RunPackageApi.as_view(), name="api-run-package"),
     path("reservations/", reservations.ReservationListApi.as_view(), name="api-reservations"),

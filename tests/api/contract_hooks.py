@@ -48,6 +48,13 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     ("PUT", "/api/v1/experiments/{id}/"): frozenset({"segments"}),
     # the position must be on this run's rail
     ("GET", "/api/v1/runs/{id}/analysis/"): frozenset({"pass_at_m"}),
+    # a measurement file must read as points near the run's time, into a series of a slug's
+    # name with those columns; a batch's points likewise; an offset within a day
+    ("POST", "/api/v1/runs/{id}/measurements/"): frozenset(
+        {"file", "name", "format", "columns", "time_column", "clock_offset_s"}
+    ),
+    ("POST", "/api/v1/runs/{id}/measurements/{name}/"): frozenset({"points", "name"}),
+    ("PATCH", "/api/v1/runs/{id}/measurements/{name}/"): frozenset({"clock_offset_s"}),
     # a fixed node has no robot; the robot's own velocity limit
     ("GET", "/api/v1/resources/{name}/robot/"): frozenset({"resource"}),
     ("POST", "/api/v1/resources/{name}/robot/control/"): frozenset({"resource", "velocity_mps"}),

@@ -497,3 +497,50 @@ def test_webhook_commands_make_list_test_log_resume_and_delete(portal, calls):
     assert not WebhookSubscription.objects.filter(pk=webhook).exists()
     schema = Api(portal["url"], portal["token"]).schema()
     assert not undocumented([c for c in calls if not c[1].endswith("/api/schema/")], schema)
+
+
+def test_measurements_commands_add_list_offset_and_delete(portal, calls, tmp_path):
+    """`amazing measurements …` through the API: a Parquet file added as a series and added
+    again (stored once), listed with where its points fell, an offset set, a bad file refused
+    with exit 2, another user's run not found, the series deleted after asking."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from portal.runs.models import MeasurementPoint, MeasurementSeries
+    from tests.runs.driving import completed_run
+
+    run = completed_run(portal["erin"], MobileResourceFactory(), [(0.5, "cw", 2.0)])
+    t0_s = run.start_at.timestamp()
+    pq.write_table(
+        pa.table(
+            {"unix_s": [t0_s + 0.25 * i for i in range(8)], "rssi": [-50.0 - i for i in range(8)]}
+        ),
+        tmp_path / "walk.parquet",
+    )
+    for stored in (8, 0):
+        added = amazing("measurements", "add", str(run.pk), "walk.parquet", "--name", "rssi",
+                        "--unit", "dBm")  # fmt: skip
+        assert added.exit_code == 0, added.stderr
+        assert f"Stored {stored} values in rssi of run {run.pk}" in added.stdout
+    assert "8 were there already" in added.stdout
+    assert MeasurementPoint.objects.count() == 8
+    listed = amazing("measurements", "list", str(run.pk))
+    assert "rssi [dBm]: 8 points of rssi (8 on the path)" in listed.stdout
+    moved = amazing("measurements", "offset", str(run.pk), "rssi", "--", "-60")
+    assert moved.exit_code == 0, moved.stderr
+    assert "8 before" in moved.stdout
+    assert "clock offset -60 s" in moved.stdout
+    (tmp_path / "bad.csv").write_text("t,rssi\n2027-01-01T10:00:00,-50\n")
+    said = _one_line_error(amazing("measurements", "add", str(run.pk), "bad.csv", "--name", "x"), 2)
+    assert "UTC offset" in said
+    robot = MobileResourceFactory(name="mobile-2")
+    theirs = completed_run(UserFactory(username="bob"), robot, [(0.5, "cw", 2.0)])
+    _one_line_error(amazing("measurements", "list", str(theirs.pk)), 4)
+    kept = CliRunner().invoke(app, ["measurements", "delete", str(run.pk), "rssi"], input="n\n")
+    assert "Kept it." in kept.stdout
+    deleted = amazing("measurements", "delete", str(run.pk), "rssi", "--yes")
+    assert deleted.exit_code == 0, deleted.stderr
+    assert not MeasurementSeries.objects.exists()
+    assert not MeasurementPoint.objects.exists()
+    schema = _schema(portal["url"])
+    assert not undocumented([c for c in calls if not c[1].endswith("/api/schema/")], schema)

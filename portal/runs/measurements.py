@@ -1,0 +1,400 @@
+"""A researcher's own measurements on a run: stored, placed on the robot's path, summed up.
+
+One service for every door (the run page's upload, ``/api/v1/runs/{id}/measurements/``, the
+``amazing measurements`` command, live batches during the run): :func:`measurement_add`
+checks the points against the run, stores those not stored yet (a point is its series,
+column and time: sent twice, stored once), and makes the series's summary again from every
+point it holds, placed on the run's samples (``placement.py``, ``measurement_summary.py``).
+Who may is the caller's ``runs_visible`` (the run's owner and staff); the audit log records
+each change with the door it came through.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any, Final
+
+import numpy as np
+import psycopg
+from django.conf import settings
+from django.db import IntegrityError, transaction
+from django.utils.text import slugify
+
+from core import sql
+from core.accounts.models import User
+from core.audit.services import audit_record
+from core.errors import InvalidInput
+from portal.runs import queries
+from portal.runs.measurement_files import (
+    MeasurementFileError,
+    Points,
+    read_points,
+    rows_table,
+    table_points,
+)
+from portal.runs.measurement_summary import column_summary
+from portal.runs.models import MeasurementPoint, MeasurementSeries, Run, Sample
+from portal.runs.placement import Track, place
+
+# Points further than this from the run's window cannot be the run's: most likely a column
+# in milliseconds, or a year typed wrong. (Within it, points outside the window are kept and
+# marked "before" or "after".)
+SENSE_S: Final = 7 * 24 * 3600.0
+MAX_CLOCK_OFFSET_S: Final = 24 * 3600.0
+MAX_SERIES_POINTS: Final = 5_000_000
+MAX_SERIES_PER_RUN: Final = 50
+
+
+class MeasurementRefused(InvalidInput):
+    """Bad points or a bad series description: nothing was stored."""
+
+
+@dataclass(frozen=True)
+class Added:
+    """What an upload did: the series, the points new to it, those it held already."""
+
+    series: MeasurementSeries
+    created: bool
+    stored: int
+    already: int
+
+
+def _refuse(field: str, message: str) -> MeasurementRefused:
+    return MeasurementRefused(message, fields={field: [message]})
+
+
+def series_name(name: str) -> str:
+    """A series's name as stored: a slug (``rssi``, ``iperf-up``)."""
+    slug = slugify(name)
+    if not slug or slug != name.strip().lower() or len(slug) > 64:
+        raise _refuse(
+            "name",
+            "a series's name is letters, digits, '-' and '_' only (at most 64), "
+            f"for example {slug or 'rssi'!r}",
+        )
+    return slug
+
+
+def _checked_points(run: Run, points: Points, offset_s: float) -> None:
+    if len(points) > MAX_SERIES_POINTS:
+        raise _refuse("file", f"at most {MAX_SERIES_POINTS:,} points in a series")
+    if not np.isfinite(offset_s) or abs(offset_s) > MAX_CLOCK_OFFSET_S:
+        raise _refuse("clock_offset_s", f"a clock offset is within ±{MAX_CLOCK_OFFSET_S:g} s")
+    shifted = points.times_s + offset_s
+    low_s = run.start_at.timestamp() - SENSE_S
+    high_s = run.end_at.timestamp() + SENSE_S
+    outside = (shifted < low_s) | (shifted > high_s)
+    if outside.any():
+        row = int(np.flatnonzero(outside)[0])
+        at = datetime.fromtimestamp(float(shifted[row]), UTC) if abs(shifted[row]) < 1e11 else None
+        raise _refuse(
+            "file",
+            f"row {row + 1}: the time {at.isoformat() if at else repr(float(points.times_s[row]))} "
+            "is more than 7 days from the run: are the times in seconds (not milliseconds), "
+            "and of this run?",
+        )
+    order = np.argsort(points.times_s, kind="stable")
+    repeated = np.flatnonzero(np.diff(np.rint(points.times_s[order] * 1e6)) == 0)
+    if len(repeated):
+        first, second = sorted((int(order[repeated[0]]), int(order[repeated[0] + 1])))
+        raise _refuse("file", f"rows {first + 1} and {second + 1} have the same time")
+
+
+def _store_column(
+    series: MeasurementSeries, index: int, times_us: np.ndarray, values: np.ndarray
+) -> int:
+    """Store one column's points (those with a value); how many were new."""
+    keep = ~np.isnan(values)
+    times_us, values = times_us[keep], values[keep]
+    if len(times_us) == 0:
+        return 0
+    if sql.is_postgresql():
+        try:
+            # Straight in when none is stored yet (the first upload, a later live batch):
+            # as fast as COPY itself. A point stored already fails it whole: merged then.
+            with transaction.atomic():
+                queries.measurement_points_copy(series.pk, index, times_us, values)
+            return len(times_us)
+        except (IntegrityError, psycopg.errors.UniqueViolation):
+            return queries.measurement_points_merge(series.pk, index, times_us, values)
+    rows = [
+        MeasurementPoint(
+            series=series,
+            column_index=index,
+            t=datetime.fromtimestamp(int(t_us) / 1e6, UTC),
+            value=float(value),
+        )
+        for t_us, value in zip(times_us, values, strict=True)
+    ]
+    before = MeasurementPoint.objects.filter(series=series, column_index=index).count()
+    MeasurementPoint.objects.bulk_create(rows, batch_size=2000, ignore_conflicts=True)
+    return MeasurementPoint.objects.filter(series=series, column_index=index).count() - before
+
+
+def series_points(series: MeasurementSeries) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every stored point of the series: per column, its times (Unix seconds, on the
+    researcher's clock) and values, in time order."""
+    if sql.is_postgresql():
+        columns, times_us, values = queries.measurement_points_read(series.pk)
+    else:
+        rows = list(
+            MeasurementPoint.objects.filter(series=series)
+            .order_by("column_index", "t")
+            .values_list("column_index", "t", "value")
+        )
+        columns = np.array([row[0] for row in rows], dtype=np.int64)
+        times_us = np.array([round(row[1].timestamp() * 1e6) for row in rows], dtype=np.int64)
+        values = np.array([row[2] for row in rows], dtype=np.float64)
+    out = []
+    for index in range(len(series.columns)):
+        mine = columns == index
+        out.append((times_us[mine] / 1e6, values[mine]))
+    return out
+
+
+def run_track(run: Run) -> Track:
+    """The run's samples as placement reads them."""
+    rows = list(
+        Sample.objects.filter(run=run)
+        .order_by("seq")
+        .values_list(
+            "seq",
+            "t",
+            "track_m",
+            "segment",
+            "lap",
+            "commanded_velocity_mps",
+            "velocity_mps",
+            "lat_deg",
+            "lon_deg",
+            "grid_id",
+        )
+    )
+
+    def column(i: int) -> np.ndarray:
+        return np.array([np.nan if row[i] is None else row[i] for row in rows], dtype=np.float64)
+
+    return Track(
+        seq=np.array([row[0] for row in rows], dtype=np.int64),
+        t_s=np.array([row[1].timestamp() for row in rows], dtype=np.float64),
+        track_m=column(2),
+        segment=column(3),
+        lap=column(4),
+        commanded_velocity_mps=column(5),
+        velocity_mps=column(6),
+        lat_deg=column(7),
+        lon_deg=column(8),
+        grid_id=[row[9] for row in rows],
+        rail_length_m=run.rail_length_m,
+    )
+
+
+def summary_of(series: MeasurementSeries, track: Track | None = None) -> dict[str, Any]:
+    """The series placed on its run's path, per column (``measurement_summary``)."""
+    run = series.run
+    track = track if track is not None else run_track(run)
+    columns: dict[str, Any] = {}
+    times_seen: set[int] = set()
+    for name, (times_s, values) in zip(series.columns, series_points(series), strict=True):
+        shifted = times_s + series.clock_offset_s
+        times_seen.update(np.rint(times_s * 1e6).astype(np.int64).tolist())
+        columns[name] = column_summary(
+            shifted, values, place(shifted, track), start_s=run.start_at.timestamp()
+        )
+    return {
+        "columns": columns,
+        "points": len(times_seen),
+        "clock_offset_s": series.clock_offset_s,
+        "samples": len(track.seq),
+    }
+
+
+def _refresh(series: MeasurementSeries) -> None:
+    series.summary = summary_of(series)
+    series.point_count = int(series.summary["points"])
+    series.save(update_fields=["summary", "point_count", "updated_at"])
+
+
+def _locked_series(run: Run, name: str, points: Points, by: User) -> tuple[Run, MeasurementSeries]:
+    """The run and its series ``name``, locked; a new series (not saved yet) if there is
+    none. The run's row serialises the series made on it (their number is capped)."""
+    locked_run = Run.objects.select_for_update().get(pk=run.pk)
+    series = MeasurementSeries.objects.select_for_update().filter(run=run, name=name).first()
+    if series is None:
+        if MeasurementSeries.objects.filter(run=run).count() >= MAX_SERIES_PER_RUN:
+            raise _refuse("name", f"a run holds at most {MAX_SERIES_PER_RUN} series")
+        return locked_run, MeasurementSeries(
+            run=locked_run, name=name, columns=list(points.columns), created_by=by
+        )
+    if list(series.columns) != list(points.columns):
+        raise _refuse(
+            "file",
+            f"the series {name!r} has the columns {', '.join(series.columns)}; "
+            f"these points have {', '.join(points.columns)}",
+        )
+    return locked_run, series
+
+
+def measurement_add(
+    *,
+    run: Run,
+    by: User,
+    name: str,
+    points: Points,
+    unit: str = "",
+    description: str = "",
+    source_node: str = "",
+    clock_offset_s: float | None = None,
+    ip: str | None = None,
+    via: str = "",
+) -> Added:
+    """Add ``points`` to the run's series ``name`` (made on first use, with ``points``'s
+    columns): the points not stored yet are stored, and the summary made again. A series
+    given again with other columns is refused; ``clock_offset_s`` given changes the
+    series's offset."""
+    name = series_name(name)
+    if len(unit) > 32 or len(source_node) > 64 or len(description) > 2000:
+        raise _refuse("unit", "unit at most 32 characters, source node 64, description 2000")
+    with transaction.atomic():
+        locked_run, series = _locked_series(run, name, points, by)
+        created = series.pk is None
+        offset_s = series.clock_offset_s if clock_offset_s is None else float(clock_offset_s)
+        _checked_points(locked_run, points, offset_s)
+        if series.point_count + len(points) > MAX_SERIES_POINTS:
+            raise _refuse("file", f"at most {MAX_SERIES_POINTS:,} points in a series")
+        series.clock_offset_s = offset_s
+        for field, given in (
+            ("unit", unit),
+            ("description", description),
+            ("source_node", source_node),
+        ):
+            if given:
+                setattr(series, field, given)
+        series.save()
+        times_us = np.rint(points.times_s * 1e6).astype(np.int64)
+        stored = 0
+        for index, values in enumerate(points.values):
+            stored += _store_column(series, index, times_us, values)
+        _refresh(series)
+        total = sum(int(np.count_nonzero(~np.isnan(values))) for values in points.values)
+        audit_record(
+            actor=by,
+            action="measurement.add",
+            target=series,
+            ip=ip,
+            via=via,
+            run=run.pk,
+            name=name,
+            values_stored=stored,
+            values_already=total - stored,
+            digest=_digest(times_us, points.values),
+        )
+    return Added(series=series, created=created, stored=stored, already=total - stored)
+
+
+def _digest(times_us: np.ndarray, values: list[np.ndarray]) -> str:
+    """A fingerprint of the points, for the audit log (the same upload twice: one digest)."""
+    digest = hashlib.sha256(times_us.tobytes())
+    for column in values:
+        digest.update(column.tobytes())
+    return digest.hexdigest()[:16]
+
+
+def measurement_set_offset(
+    *,
+    series: MeasurementSeries,
+    by: User,
+    clock_offset_s: float,
+    ip: str | None = None,
+    via: str = "",
+) -> MeasurementSeries:
+    """Set the series's clock offset and place its points again."""
+    if not np.isfinite(clock_offset_s) or abs(clock_offset_s) > MAX_CLOCK_OFFSET_S:
+        raise _refuse("clock_offset_s", f"a clock offset is within ±{MAX_CLOCK_OFFSET_S:g} s")
+    with transaction.atomic():
+        locked = (
+            MeasurementSeries.objects.select_for_update().select_related("run").get(pk=series.pk)
+        )
+        before = locked.clock_offset_s
+        locked.clock_offset_s = float(clock_offset_s)
+        locked.save(update_fields=["clock_offset_s", "updated_at"])
+        _refresh(locked)
+        audit_record(
+            actor=by,
+            action="measurement.offset",
+            target=locked,
+            ip=ip,
+            via=via,
+            run=locked.run_id,
+            before_s=before,
+            after_s=locked.clock_offset_s,
+        )
+    return locked
+
+
+def measurement_delete(
+    *, series: MeasurementSeries, by: User, ip: str | None = None, via: str = ""
+) -> None:
+    """Delete the series and its points."""
+    with transaction.atomic():
+        audit_record(
+            actor=by,
+            action="measurement.delete",
+            target=series,
+            ip=ip,
+            via=via,
+            run=series.run_id,
+            name=series.name,
+            points=series.point_count,
+        )
+        MeasurementPoint.objects.filter(series=series).delete()
+        series.delete()
+
+
+def suggested_offset_s(*, marker_s: float, robot_event_s: float) -> float:
+    """The offset that puts a series's marker (a time on the researcher's clock) on a known
+    robot event (a time on the base station's clock, for example the first segment's start):
+    the two are the same moment, so the offset is the clocks' difference then."""
+    return round(robot_event_s - marker_s, 6)
+
+
+def read_file_points(
+    data: bytes, fmt: str, *, time_column: str = "", columns: list[str] | None = None
+) -> Points:
+    """``measurement_files.read_points``, its errors as the services' (a 400 with the
+    field ``file``)."""
+    try:
+        return read_points(data, fmt, time_column=time_column, columns=columns)
+    except MeasurementFileError as exc:
+        raise _refuse("file", str(exc)) from None
+
+
+def rows_points(rows: list[dict[str, Any]]) -> Points:
+    """An API batch's points (objects with a time and values), its errors as the services'
+    (a 400 with the field ``points``)."""
+    try:
+        return table_points(rows_table(rows))
+    except MeasurementFileError as exc:
+        raise _refuse("points", str(exc)) from None
+
+
+def max_upload_bytes() -> int:
+    """The largest measurement file taken (``MEASUREMENT_MAX_UPLOAD_BYTES``)."""
+    return int(settings.MEASUREMENT_MAX_UPLOAD_BYTES)
+
+
+__all__ = [
+    "Added",
+    "MeasurementRefused",
+    "measurement_add",
+    "measurement_delete",
+    "measurement_set_offset",
+    "read_file_points",
+    "rows_points",
+    "run_track",
+    "series_points",
+    "suggested_offset_s",
+    "summary_of",
+]
