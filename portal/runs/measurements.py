@@ -388,6 +388,7 @@ def max_upload_bytes() -> int:
 __all__ = [
     "Added",
     "MeasurementRefused",
+    "clock_state",
     "measurement_add",
     "measurement_delete",
     "measurement_set_offset",
@@ -398,3 +399,20 @@ __all__ = [
     "suggested_offset_s",
     "summary_of",
 ]
+
+
+def clock_state(provenance: Any) -> str:
+    """The base station's clock over the run, in words, from its provenance: what a series's
+    times are compared with."""
+    collected = (provenance or {}).get("collected") or {}
+    said = []
+    for when in ("start", "end"):
+        clock = collected.get(f"clock_at_{when}") or {}
+        synchronized = clock.get("synchronized")
+        state = {True: "synchronised", False: "not synchronised"}.get(synchronized, "unknown")
+        if clock.get("offset_s") is not None:
+            state += f" (offset {clock['offset_s']:.6f} s)"
+        said.append(f"at {when} {state}")
+    if not collected:
+        return "not recorded yet (it is, when the run is collected)"
+    return ", ".join(said)

@@ -163,3 +163,38 @@ class WebhookForm(forms.Form):
         ]
         if not staff:
             del self.fields["staff_events"]
+
+
+class MeasurementForm(forms.Form):
+    """A measurement file added to a run as a series (the run page's "Add measurements")."""
+
+    file = forms.FileField(
+        label="File (CSV, JSON or Parquet)",
+        help_text="A time column (RFC 3339 with its UTC offset, or Unix seconds) and numbers.",
+        widget=forms.ClearableFileInput(attrs={"accept": ".csv,.json,.parquet,.pq"}),
+    )
+    name = forms.SlugField(
+        max_length=64, label="Series name", help_text="For example rssi or throughput."
+    )
+    unit = forms.CharField(max_length=32, required=False, label="Unit")
+    time_column = forms.CharField(
+        max_length=64, required=False, label="Time column", help_text="Default: t, time, …"
+    )
+    clock_offset_s = forms.FloatField(
+        required=False,
+        label="Clock offset (s)",
+        help_text="Added to the file's times: how far your clock was behind the base station's.",
+        widget=forms.NumberInput(attrs={"step": "any", "inputmode": "decimal"}),
+    )
+    source_node = forms.CharField(max_length=64, required=False, label="Measured by (node)")
+    description = forms.CharField(
+        max_length=2000, required=False, widget=forms.Textarea(attrs={"rows": 2})
+    )
+
+
+class MeasurementOffsetForm(forms.Form):
+    """A series's clock offset, set again."""
+
+    clock_offset_s = forms.FloatField(
+        label="Clock offset (s)", widget=forms.NumberInput(attrs={"step": "any"})
+    )

@@ -39,6 +39,7 @@ from portal.runs.downloads import (
     samples_csv_response,
     samples_json_response,
 )
+from portal.runs.measurements import clock_state
 from portal.runs.models import Run
 from portal.runs.provenance import provenance_summary
 from portal.runs.selectors import (
@@ -57,7 +58,15 @@ from portal.runs.services.reservations import (
 from portal.runs.services.robot import HOLD_REPEAT_MS, HOLD_TTL_S
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 from portal.web.builder import builder_context
-from portal.web.forms import ApiTokenForm, BookingForm, ExperimentForm, PassForm, form_refusal
+from portal.web.forms import (
+    ApiTokenForm,
+    BookingForm,
+    ExperimentForm,
+    MeasurementForm,
+    MeasurementOffsetForm,
+    PassForm,
+    form_refusal,
+)
 
 
 @never_cache
@@ -224,7 +233,7 @@ def _run_context(request: HttpRequest, run: Run) -> dict[str, Any]:
     }
 
 
-def _visible_run(request: HttpRequest, pk: int, *related: str) -> Run:
+def visible_run(request: HttpRequest, pk: int, *related: str) -> Run:
     """The run ``pk`` if the signed-in user may see it, else 404 (never 403: whether another's
     run exists is not told)."""
     runs = runs_visible(user=_user(request))
@@ -232,17 +241,46 @@ def _visible_run(request: HttpRequest, pk: int, *related: str) -> Run:
     return get_object_or_404(runs.select_related(*related) if related else runs, pk=pk)
 
 
-@page_throttled
-@login_required
-def run_page(request: HttpRequest, pk: int) -> HttpResponse:
-    run = _visible_run(request, pk)
+def _measurements_context(run: Run, form: MeasurementForm | None) -> dict[str, Any]:
+    """The run page's measurements section: each series with its columns' summaries, the
+    charts' data, and the form that adds one."""
+    series = list(run.measurements.order_by("name"))
+    return {
+        "measurements": [
+            {"series": s, "columns": list(s.summary.get("columns", {}).items())} for s in series
+        ],
+        "measurements_charts": [
+            {"name": s.name, "unit": s.unit, "columns": s.summary.get("columns", {})}
+            for s in series
+        ],
+        "measurement_form": form or MeasurementForm(),
+        "offset_form": MeasurementOffsetForm(),
+        "clock_state": clock_state(run.provenance),
+    }
+
+
+def run_page_response(
+    request: HttpRequest,
+    run: Run,
+    *,
+    measurement_form: MeasurementForm | None = None,
+    status: int = 200,
+) -> HttpResponse:
+    """The run page; ``measurement_form`` with its errors when an upload was refused."""
     context = _run_context(request, run)
     context["events"] = run.events.all()
     context["provenance"] = provenance_summary(run.provenance)
     context["repeats"] = list(run.repeats.order_by("start_at").values_list("pk", flat=True))
     # "Compare the two runs" links from a repeated run (`?ids=A,B`).
     context["compare_path"] = reverse("runs-compare")
-    return render(request, "web/run.html", context)
+    context.update(_measurements_context(run, measurement_form))
+    return render(request, "web/run.html", context, status=status)
+
+
+@page_throttled
+@login_required
+def run_page(request: HttpRequest, pk: int) -> HttpResponse:
+    return run_page_response(request, visible_run(request, pk))
 
 
 @login_required
@@ -251,7 +289,7 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
     if request.method != "POST":
         return redirect("run", pk=pk)
     user = _user(request)
-    run = _visible_run(request, pk, "experiment")
+    run = visible_run(request, pk, "experiment")
     try:
         reservation = reservation_repeat(run=run, by=user, ip=client_ip(request), via=Channel.WEB)
     except DomainError as exc:
@@ -270,7 +308,7 @@ def run_again(request: HttpRequest, pk: int) -> HttpResponse:
 @page_throttled
 @login_required
 def run_package(request: HttpRequest, pk: int) -> StreamingHttpResponse:
-    run = _visible_run(request, pk)
+    run = visible_run(request, pk)
     return run_package_response(request, run)
 
 
@@ -278,7 +316,7 @@ def run_package(request: HttpRequest, pk: int) -> StreamingHttpResponse:
 @login_required
 def run_data(request: HttpRequest, pk: int) -> JsonResponse:
     """What the run page's charts, status and tables need, polled while the run is live."""
-    run = _visible_run(request, pk)
+    run = visible_run(request, pk)
     context = _run_context(request, run)
     report = context["report"]
     return JsonResponse(
@@ -299,14 +337,14 @@ def run_data(request: HttpRequest, pk: int) -> JsonResponse:
 @page_throttled
 @login_required
 def run_json(request: HttpRequest, pk: int) -> StreamingHttpResponse:
-    run = _visible_run(request, pk)
+    run = visible_run(request, pk)
     return samples_json_response(request, run)
 
 
 @page_throttled
 @login_required
 def run_csv(request: HttpRequest, pk: int) -> StreamingHttpResponse:
-    run = _visible_run(request, pk)
+    run = visible_run(request, pk)
     return samples_csv_response(request, run)
 
 
