@@ -409,7 +409,13 @@ def clock_state(provenance: Any) -> str:
     for when in ("start", "end"):
         clock = collected.get(f"clock_at_{when}") or {}
         synchronized = clock.get("synchronized")
-        state = {True: "synchronised", False: "not synchronised"}.get(synchronized, "unknown")
+        state = (
+            "synchronised"
+            if synchronized is True
+            else "not synchronised"
+            if synchronized is False
+            else "unknown"
+        )
         if clock.get("offset_s") is not None:
             state += f" (offset {clock['offset_s']:.6f} s)"
         said.append(f"at {when} {state}")
