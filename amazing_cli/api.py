@@ -36,6 +36,8 @@ OPERATIONS: dict[str, tuple[str, str]] = {
     "samples_csv": ("GET", "/api/v1/runs/{id}/samples.csv"),
     "samples_json": ("GET", "/api/v1/runs/{id}/samples.json"),
     "run_package": ("GET", "/api/v1/runs/{id}/package.zip"),
+    "samples_parquet": ("GET", "/api/v1/runs/{id}/samples.parquet"),
+    "measurement_parquet": ("GET", "/api/v1/runs/{id}/measurements/{name}/points.parquet"),
     "run_again": ("POST", "/api/v1/runs/{id}/again/"),
     "events": ("GET", "/api/v1/events/"),
     "webhooks": ("GET", "/api/v1/webhooks/"),

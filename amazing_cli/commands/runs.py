@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
+import pyarrow.parquet as pq
 import requests
 import typer
 from rich.progress import (
@@ -146,12 +147,21 @@ def watch(
     raise typer.Exit(OK if current["state"] == "completed" else RUN_NOT_COMPLETED)
 
 
+# What --format asks for, and the API's operation that gives it.
+FORMATS = {
+    "csv": "samples_csv",
+    "json": "samples_json",
+    "zip": "run_package",
+    "parquet": "samples_parquet",
+}
+
+
 @reports_errors
 def download(
     ctx: typer.Context,
     run: Annotated[int, typer.Argument(metavar="RUN", help="The run whose samples to download.")],
     format: Annotated[
-        str, typer.Option("--format", "-f", metavar="FORMAT", help="csv or json.")
+        str, typer.Option("--format", "-f", metavar="FORMAT", help="csv, json, zip or parquet.")
     ] = "csv",
     output: Annotated[
         Path | None,
@@ -165,16 +175,18 @@ def download(
     as_json: JsonOption = False,
 ) -> None:
     """Download every sample of a run, streamed, with a progress bar; `--format zip` is the
-    self-describing package (samples, metadata, a README of every column)."""
-    if format not in ("csv", "json", "zip"):
-        raise bad_input(f"--format {format!r}: give csv, json or zip")
+    self-describing package (samples, metadata, a README of every column, each measurement
+    series); `--format parquet` the samples as Parquet, and each measurement series beside
+    them (FILE-NAME.parquet)."""
+    if format not in FORMATS:
+        raise bad_input(f"--format {format!r}: give csv, json, zip or parquet")
     api = portal_api(ctx)
     details = api.call("run", path={"id": run})
     target = output or Path(f"amazing-run-{run}.{format}")
     to_stdout = str(target) == "-"
-    if format == "zip" and to_stdout:
-        raise bad_input("--format zip: give a file with --output (a zip is not for a terminal)")
-    operation = {"csv": "samples_csv", "json": "samples_json", "zip": "run_package"}[format]
+    if format in ("zip", "parquet") and to_stdout:
+        raise bad_input(f"--format {format}: give a file with --output (not for a terminal)")
+    operation = FORMATS[format]
     response = api.stream(operation, path={"id": run})
     total = details["sample_count"] if format == "csv" else None
     newlines, size = _save(response, target, run=run, format=format, total=total, quiet=as_json)
@@ -189,7 +201,10 @@ def download(
             f"{details['sample_count']}; download it again",
             exit_code=UNAVAILABLE,
         )
+    series = _series_beside(api, run, target, quiet=as_json) if format == "parquet" else []
     summary = {"run": run, "format": format, "path": str(target), "samples": samples, "bytes": size}
+    if series:
+        summary["measurements"] = series
     if as_json:
         (err if to_stdout else out).print_json(json.dumps(summary))
     else:
@@ -197,6 +212,27 @@ def download(
             f"Wrote {target}: {samples if samples is not None else '?'} samples, {size} bytes.",
             markup=False,
         )
+        for written in series:
+            out.print(f"Wrote {written['path']}: {written['rows']} rows.", markup=False)
+
+
+def _series_beside(api: Api, run: int, target: Path, *, quiet: bool) -> list[dict[str, Any]]:
+    """Each measurement series of the run as Parquet next to ``target`` (its name added)."""
+    written = []
+    for series in api.call("measurements", path={"id": run}):
+        path = target.with_name(f"{target.stem}-{series['name']}.parquet")
+        response = api.stream("measurement_parquet", path={"id": run, "name": series["name"]})
+        _save(response, path, run=run, format="parquet", total=None, quiet=quiet)
+        written.append({"name": series["name"], "path": str(path), "rows": _parquet_rows(path)})
+    return written
+
+
+def _parquet_rows(path: Path) -> int:
+    """The rows of a Parquet file, from its footer (a file cut short has none: refused)."""
+    try:
+        return int(pq.ParquetFile(path).metadata.num_rows)
+    except (OSError, ValueError) as exc:
+        raise CliError(f"{path} is not a whole Parquet file: {exc}", exit_code=UNAVAILABLE) from exc
 
 
 def _save(
@@ -267,4 +303,6 @@ def _samples(target: Path, format: str, newlines: int) -> int | None:
         return read_package(target).rows
     if format == "csv":
         return max(0, newlines - 1)
+    if format == "parquet":
+        return _parquet_rows(target)
     return len(json.loads(target.read_bytes())["samples"]) if str(target) != "-" else None

@@ -23,10 +23,15 @@ import pyarrow.compute as pc
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from basestation.contract import CSV_FORMULA_PREFIXES
+
 FORMATS: Final = ("csv", "json", "parquet")
 # The time column's name when none is given: the first of these the file has.
 TIME_COLUMNS: Final = ("t", "time", "timestamp", "time_s", "unix_s", "datetime")
 MAX_COLUMNS: Final = 16
+# A series's table (``measurement_tables.py``) has these columns of its own beside the values.
+RESERVED_NAMES: Final = frozenset({"t", "t_base"})
+RESERVED_PREFIX: Final = "robot_"
 
 
 class MeasurementFileError(ValueError):
@@ -185,6 +190,20 @@ def _is_number(text: str) -> bool:
     return True
 
 
+def _check_column_name(name: str) -> None:
+    if not name.strip() or len(name) > 64:
+        raise MeasurementFileError(f"a value column's name is 1 to 64 characters: {name!r}")
+    if name.startswith(CSV_FORMULA_PREFIXES):
+        raise MeasurementFileError(
+            f"a value column's name may not begin with = + - @ (a spreadsheet's formula): {name!r}"
+        )
+    if name in RESERVED_NAMES or name.startswith(RESERVED_PREFIX):
+        raise MeasurementFileError(
+            f"the value column {name!r} would clash with the series's own columns "
+            f"(t, t_base, {RESERVED_PREFIX}…): rename it"
+        )
+
+
 def read_points(
     data: bytes, fmt: str, *, time_column: str = "", columns: list[str] | None = None
 ) -> Points:
@@ -221,6 +240,8 @@ def table_points(
         )
     if not wanted:
         raise MeasurementFileError("no value column: the file has only its times")
+    for name in wanted:
+        _check_column_name(name)
     if len(wanted) > MAX_COLUMNS:
         raise MeasurementFileError(
             f"at most {MAX_COLUMNS} value columns, the file has {len(wanted)}"

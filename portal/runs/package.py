@@ -10,7 +10,10 @@
   run, the experiment program, the reservation, the owner, how the run was made
   (``portal/runs/provenance.py``) and the analysis summary, with the format's name and
   version (:data:`FORMAT_VERSION`);
-- ``README.md``: the same for people, every column named with its unit and meaning.
+- ``README.md``: the same for people, every column named with its unit and meaning;
+- ``measurements/<name>.csv``: each of the run's measurement series placed on the robot's
+  path (``portal/runs/measurement_tables.py``), a resource of its own with its Table Schema
+  and a foreign key to the samples.
 
 Columns, types, units and meanings come from ``basestation/contract.py`` ``SAMPLE_COLUMNS``
 and nowhere else, so the package cannot describe a column the CSV does not have. The
@@ -34,7 +37,9 @@ from typing import Any, Final
 from django.utils import timezone
 
 from basestation.contract import SAMPLE_COLUMNS, SampleColumn
-from portal.runs.models import Run
+from portal.runs.measurement_tables import series_csv, series_schema
+from portal.runs.measurements import run_track
+from portal.runs.models import MeasurementSeries, Run
 from portal.runs.provenance import PORTAL_VERSION, provenance_summary, provenance_view
 from portal.runs.selectors import CSV_TIME_FORMAT, run_report, run_report_json, run_samples_csv
 
@@ -48,6 +53,7 @@ README_FILE: Final = "README.md"
 # A download of several runs: one package per folder and a manifest of them.
 MANIFEST_FORMAT: Final = "amazing-runs-manifest"
 MANIFEST_FILE: Final = "manifest.json"
+MEASUREMENTS_FOLDER: Final = "measurements/"
 # Deflate's fastest level keeps up with the database; the CSV still shrinks about fourfold.
 ZIP_LEVEL: Final = 1
 
@@ -152,8 +158,42 @@ def run_metadata(run: Run, *, url: str | None, now: datetime) -> dict[str, Any]:
     }
 
 
+def series_file(series: MeasurementSeries) -> str:
+    return f"{MEASUREMENTS_FOLDER}{series.name}.csv"
+
+
+def series_resource(series: MeasurementSeries, *, csv_bytes: int, csv_sha256: str) -> dict:
+    """A measurement series as a tabular resource of the package."""
+    unit = f" ({series.unit})" if series.unit else ""
+    return {
+        "name": f"measurement-{series.name}",
+        "path": series_file(series),
+        "profile": "tabular-data-resource",
+        "title": f"{series.name}{unit}: {', '.join(series.columns)}, placed on the robot's path",
+        "description": series.description or f"The measurement series {series.name}.",
+        "format": "csv",
+        "mediatype": "text/csv",
+        "encoding": "utf-8",
+        "bytes": csv_bytes,
+        "hash": f"sha256:{csv_sha256}",
+        "schema": series_schema(series),
+        "amazing": {
+            "unit": series.unit,
+            "source_node": series.source_node,
+            "columns": list(series.columns),
+            "clock_offset_s": series.clock_offset_s,
+            "points": series.point_count,
+        },
+    }
+
+
 def package_descriptor(
-    run: Run, *, metadata: dict[str, Any], csv_bytes: int, csv_sha256: str
+    run: Run,
+    *,
+    metadata: dict[str, Any],
+    csv_bytes: int,
+    csv_sha256: str,
+    series: Sequence[dict[str, Any]] = (),
 ) -> dict[str, Any]:
     """The Data Package descriptor: the samples as a tabular resource, the metadata beside."""
     owner = metadata["owner"]["username"]
@@ -181,7 +221,8 @@ def package_descriptor(
                 "bytes": csv_bytes,
                 "hash": f"sha256:{csv_sha256}",
                 "schema": table_schema(),
-            }
+            },
+            *series,
         ],
         "amazing": metadata,
     }
@@ -236,6 +277,10 @@ def package_readme(run: Run, metadata: dict[str, Any]) -> str:
         f"`amazing` the run's metadata (format `{FORMAT}`, version {FORMAT_VERSION}): the run, "
         "the program, the reservation, the owner, how the run was made and the analysis "
         "summary.",
+        f"- `{MEASUREMENTS_FOLDER}<name>.csv`: each measurement series of the run (if any), "
+        "placed on the robot's path: `t` (the measuring clock), `t_base` (the base station's), "
+        "the values, and `robot_*`, where the robot was then; `robot_sample_seq` is the nearer "
+        f"sample's `seq` in `{SAMPLES_FILE}`. Each one's columns are in `{DESCRIPTOR_FILE}`.",
         f"- `{README_FILE}`: this file.",
         "",
         "Check the package with Frictionless: `frictionless validate datapackage.json`.",
@@ -340,8 +385,28 @@ def _package_members(
             taken = sink.take()
             if taken:
                 yield taken
+    resources = []
+    track = None
+    for series in run.measurements.order_by("name"):
+        track = track if track is not None else run_track(run)
+        data = series_csv(series, track)
+        archive.writestr(
+            zipfile.ZipInfo(folder + series_file(series), date_time=stamp),
+            data,
+            compress_type=zipfile.ZIP_DEFLATED,
+        )
+        yield sink.take()
+        resources.append(
+            series_resource(
+                series, csv_bytes=len(data), csv_sha256=hashlib.sha256(data).hexdigest()
+            )
+        )
     descriptor = package_descriptor(
-        run, metadata=metadata, csv_bytes=size, csv_sha256=digest.hexdigest()
+        run,
+        metadata=metadata,
+        csv_bytes=size,
+        csv_sha256=digest.hexdigest(),
+        series=resources,
     )
     archive.writestr(
         zipfile.ZipInfo(folder + DESCRIPTOR_FILE, date_time=stamp),
@@ -396,7 +461,15 @@ def runs_package_zip(
                 "start_at": info["start_at"],
                 "end_at": info["end_at"],
                 "samples": info["samples"],
-                "files": [folder + name for name in (README_FILE, SAMPLES_FILE, DESCRIPTOR_FILE)],
+                "files": [
+                    folder + name
+                    for name in (
+                        README_FILE,
+                        SAMPLES_FILE,
+                        *(r["path"] for r in descriptor["resources"][1:]),
+                        DESCRIPTOR_FILE,
+                    )
+                ],
                 "samples_bytes": samples["bytes"],
                 "samples_hash": samples["hash"],
             }

@@ -105,6 +105,8 @@ class Placed:
     lat_deg: np.ndarray
     lon_deg: np.ndarray
     grid_id: list[str | None]
+    # The nearer sample's sequence number (the point's row in the run's samples).
+    sample_seq: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -161,6 +163,7 @@ def place(times_s: np.ndarray, track: Track) -> Placed:
             lat_deg=unknown.copy(),
             lon_deg=unknown.copy(),
             grid_id=[None] * n_points,
+            sample_seq=unknown.copy(),
         )
     located = _locate(t, track)
     placed, lo, hi, f = located.where == PLACED, located.lo, located.hi, located.f
@@ -181,6 +184,8 @@ def place(times_s: np.ndarray, track: Track) -> Placed:
     grid: list[str | None] = [None] * n_points
     for k, sample in zip(np.flatnonzero(placed), nearer, strict=True):
         grid[k] = track.grid_id[sample]
+    sample_seq = unknown.copy()
+    sample_seq[placed] = track.seq[nearer]
     return Placed(
         where=located.where,
         track_m=on_rail,
@@ -193,4 +198,5 @@ def place(times_s: np.ndarray, track: Track) -> Placed:
         lat_deg=between(track.lat_deg),
         lon_deg=between(track.lon_deg),
         grid_id=grid,
+        sample_seq=sample_seq,
     )

@@ -10,6 +10,11 @@ urlpatterns = [
     path(
         "runs/<int:pk>/samples.json", runs.RunSamplesJsonApi.as_view(), name="api-run-samples-json"
     ),
+    path(
+        "runs/<int:pk>/samples.parquet",
+        runs.RunSamplesParquetApi.as_view(),
+        name="api-run-samples-parquet",
+    ),
     path("runs/<int:pk>/analysis/", runs.RunAnalysisApi.as_view(), name="api-run-analysis"),
     path(
         "runs/<int:pk>/measurements/",
@@ -20,6 +25,11 @@ urlpatterns = [
         "runs/<int:pk>/measurements/<slug:name>/",
         measurements.MeasurementApi.as_view(),
         name="api-run-measurement",
+    ),
+    path(
+        "runs/<int:pk>/measurements/<slug:name>/points.parquet",
+        runs.MeasurementParquetApi.as_view(),
+        name="api-run-measurement-parquet",
     ),
     path("runs/<int:pk>/again/", reservations.RunAgainApi.as_view(), name="api-run-again"),
     path("runs/<int:pk>/package.zip", runs.RunPackageApi.as_view(), name="api-run-package"),

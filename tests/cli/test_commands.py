@@ -536,6 +536,11 @@ def test_measurements_commands_add_list_offset_and_delete(portal, calls, tmp_pat
     robot = MobileResourceFactory(name="mobile-2")
     theirs = completed_run(UserFactory(username="bob"), robot, [(0.5, "cw", 2.0)])
     _one_line_error(amazing("measurements", "list", str(theirs.pk)), 4)
+    parquet = amazing("download", str(run.pk), "--format", "parquet", "-o", "run.parquet")
+    assert parquet.exit_code == 0, parquet.stderr
+    assert "Wrote run.parquet: 40 samples" in parquet.stdout
+    assert "Wrote run-rssi.parquet: 8 rows." in parquet.stdout
+    assert pq.read_table(tmp_path / "run-rssi.parquet").column("rssi").to_pylist()[0] == -50.0
     kept = CliRunner().invoke(app, ["measurements", "delete", str(run.pk), "rssi"], input="n\n")
     assert "Kept it." in kept.stdout
     deleted = amazing("measurements", "delete", str(run.pk), "rssi", "--yes")

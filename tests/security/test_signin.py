@@ -59,6 +59,7 @@ NOT_STAFF = {
     "api-resource-availability", "api-reservations-busy", "api-quota", "api-blackouts",
     "api-me", "api-token", "api-events", "api-webhooks", "api-webhook", "api-webhook-resume",
     "api-webhook-test", "api-webhook-deliveries", "api-run-measurements", "api-run-measurement",
+    "api-run-samples-parquet", "api-run-measurement-parquet",
     "home", "experiment-new", "experiment-edit", "dry-run-start", "dry-run", "dry-run-data",
     "book", "reservation-cancel", "reservation-attach", "my-runs", "runs-package",
     "runs-compare", "run", "run-data", "run-csv", "run-json", "run-package", "run-again",

@@ -14,14 +14,17 @@ from rest_framework.views import APIView
 from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
 from bookings.models import CALENDAR
 from core.api import Pagination, cached_json, paginated_data, request_user, valid_query
+from core.openapi import errors
 from portal.experiments.apis import SegmentOutput
 from portal.runs import listing
 from portal.runs.downloads import (
     run_package_response,
     samples_csv_response,
     samples_json_response,
+    samples_parquet_response,
+    series_parquet_response,
 )
-from portal.runs.models import RUNS, Run
+from portal.runs.models import RUNS, MeasurementSeries, Run
 from portal.runs.provenance import provenance_view
 from portal.runs.selectors import run_report, run_report_json, run_samples, runs_visible
 from portal.runs.states import RunState
@@ -370,6 +373,11 @@ class ZipRenderer(StreamedRenderer):
     format = "zip"
 
 
+class ParquetRenderer(StreamedRenderer):
+    media_type = "application/vnd.apache.parquet"
+    format = "parquet"
+
+
 class DownloadApi(APIView):
     """A streamed download. Its errors are JSON whatever the client accepts."""
 
@@ -421,6 +429,45 @@ class RunPackageApi(DownloadApi):
     def get(self, request: Request, pk: int) -> StreamingHttpResponse:
         run = _run(request, pk)
         return run_package_response(request, run)
+
+
+class RunSamplesParquetApi(DownloadApi):
+    """Every sample as one Parquet file: the contract's columns typed, `t` a UTC timestamp
+    (docs/run-package.md)."""
+
+    renderer_classes = [*APIView.renderer_classes, ParquetRenderer]
+
+    @extend_schema(
+        responses={
+            (200, "application/vnd.apache.parquet"): OpenApiResponse(
+                bytes, description="One row per sample in seq order."
+            )
+        }
+    )
+    def get(self, request: Request, pk: int) -> StreamingHttpResponse:
+        return samples_parquet_response(request, _run(request, pk))
+
+
+class MeasurementParquetApi(DownloadApi):
+    """A measurement series placed on the robot's path, as one Parquet file: `t`, `t_base`,
+    the values and the `robot_*` columns (docs/run-package.md)."""
+
+    renderer_classes = [*APIView.renderer_classes, ParquetRenderer]
+
+    @extend_schema(
+        responses={
+            (200, "application/vnd.apache.parquet"): OpenApiResponse(
+                bytes, description="One row per time of the series, in time order."
+            ),
+            **errors(404),
+        }
+    )
+    def get(self, request: Request, pk: int, name: str) -> StreamingHttpResponse:
+        run = _run(request, pk)
+        series = get_object_or_404(
+            MeasurementSeries.objects.select_related("run"), run=run, name=name
+        )
+        return series_parquet_response(request, series)
 
 
 class AnalysisQuery(serializers.Serializer):
