@@ -139,7 +139,8 @@ soak: setup services
 
 # The accessibility test photographs every page at both widths as it checks it.
 screenshots: setup system-deps services
-	$(TEST_ENV) SCREENSHOT_DIR=docs/screenshots $(PY) -m pytest tests/browser/test_accessibility.py -q
+	$(TEST_ENV) SCREENSHOT_DIR=docs/screenshots $(PY) -m pytest tests/browser/test_accessibility.py \
+		tests/browser/test_measurements.py -q
 
 clean:
 	rm -rf $(VENV) $(STAMPS) node_modules var .mypy_cache .ruff_cache .pytest_cache .hypothesis

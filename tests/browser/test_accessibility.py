@@ -13,19 +13,25 @@ banner, a live part reconnecting or a roof not available fails it.
 
 from __future__ import annotations
 
+import random
 import re
 import time
 from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from django.conf import settings
 from django.utils import timezone
 from playwright.sync_api import Browser, Page, Request, expect
 
 from basestation.dryrun import dry_run
+from basestation.sim.rssi import DEFAULT_NODE_AT, PathLoss, distance_m
+from basestation.telemetry.rail import Rail
 from core.accounts.models import User
+from portal.runs.measurement_files import Points
+from portal.runs.measurements import measurement_add
 from portal.runs.models import DryRun, Run
 from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
@@ -219,6 +225,19 @@ def _completed(run_ids: list[int], timeout_s: float = 120.0) -> None:
     raise AssertionError(f"runs {run_ids} not completed in {timeout_s:.0f} s: {states}")
 
 
+def _measured(run: Run, owner: User) -> None:
+    """A synthetic signal strength at each of the run's samples: its measurements section."""
+    model, rail, rng = PathLoss(), Rail.default(), random.Random(3)
+    samples = list(run.samples.order_by("seq").values_list("t", "track_m"))
+    values = [model.sample_dbm(distance_m(rail, DEFAULT_NODE_AT, m), rng) for _, m in samples]
+    points = Points(
+        times_s=np.array([t.timestamp() for t, _ in samples]),
+        columns=["rssi"],
+        values=[np.array(values)],
+    )
+    measurement_add(run=run, by=owner, name="rssi", unit="dBm", points=points)
+
+
 def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
     """Two runs of ines's run and collected, two dry runs, fixed nodes booked ahead; the
     pages to photograph, by name."""
@@ -246,6 +265,7 @@ def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
         )
     tried, waiting = _dry_runs(ines.user)
     _completed([first, second])
+    _measured(Run.objects.get(pk=first), ines.user)
     return {
         "home": "/",
         "experiment": "/experiments/new/",

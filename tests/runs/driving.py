@@ -9,11 +9,11 @@ from typing import Any
 from django.utils import timezone
 
 from portal.runs.analysis import SampleRow
-from portal.runs.models import Run
+from portal.runs.models import Run, Sample
 from portal.runs.services.collection import samples_ingest
 from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
-from tests.factories import ExperimentFactory
+from tests.factories import ExperimentFactory, MobileResourceFactory
 
 HZ = 20
 RAIL_M = 100.0
@@ -127,3 +127,45 @@ def ramped_travel(
         drive(target, duration_s)
     drive(0.0, None)
     return distance, displacement
+
+
+# A run round a rail of 120 m, a grid cell every 10 m (run_round_the_rail).
+ROUND_RAIL_M = 120.0
+CELL_M = 10.0
+
+
+def cell_of(track_m: float) -> str:
+    return f"A{int(track_m // CELL_M) + 1}"
+
+
+def run_round_the_rail(owner: Any, *, speed_mps: float = 1.0, seconds: float = 30.0) -> Any:
+    """A completed run whose samples go round the rail at ``speed_mps`` from 0 m, every 0.1 s,
+    each with its grid cell (``cell_of``)."""
+    run = completed_run(owner, MobileResourceFactory(), [(0.5, "cw", 1.0)])
+    Sample.objects.filter(run=run).delete()
+    t0_s = run.start_at.timestamp()
+    samples = []
+    for seq in range(1, int(seconds * 10) + 1):
+        t_s = (seq - 1) / 10
+        track_m = (speed_mps * t_s) % ROUND_RAIL_M
+        samples.append(
+            {
+                "seq": seq,
+                "t": t0_s + t_s,
+                "segment": 0,
+                "commanded_velocity_mps": speed_mps,
+                "velocity_mps": speed_mps,
+                "direction": "cw",
+                "battery_v": 60.0,
+                "track_m": track_m,
+                "fix_quality": None,
+                "lat_deg": None,
+                "lon_deg": None,
+                "grid_id": cell_of(track_m),
+                "lap": int(speed_mps * t_s // ROUND_RAIL_M),
+            }
+        )
+    samples_ingest(run=run, samples=samples)
+    run.rail_length_m = ROUND_RAIL_M
+    run.save(update_fields=["rail_length_m"])
+    return run

@@ -23,51 +23,10 @@ from portal.runs.measurements import (
     suggested_offset_s,
 )
 from portal.runs.models import MeasurementPoint, MeasurementSeries, Sample
-from portal.runs.services.collection import samples_ingest
-from tests.factories import MobileResourceFactory, UserFactory
-from tests.runs.driving import completed_run
+from tests.factories import UserFactory
+from tests.runs.driving import CELL_M, run_round_the_rail
 
 pytestmark = pytest.mark.django_db
-
-RAIL_M = 120.0
-CELL_M = 10.0
-
-
-def _cell(track_m: float) -> str:
-    return f"A{int(track_m // CELL_M) + 1}"
-
-
-def _run_at_constant_speed(owner, *, speed_mps: float = 1.0, seconds: float = 30.0):
-    """A completed run whose samples go round the rail at ``speed_mps`` from 0 m, every 0.1 s,
-    each with its grid cell (``_cell``)."""
-    run = completed_run(owner, MobileResourceFactory(), [(0.5, "cw", 1.0)])
-    Sample.objects.filter(run=run).delete()
-    t0_s = run.start_at.timestamp()
-    samples = []
-    for seq in range(1, int(seconds * 10) + 1):
-        t_s = (seq - 1) / 10
-        track_m = (speed_mps * t_s) % RAIL_M
-        samples.append(
-            {
-                "seq": seq,
-                "t": t0_s + t_s,
-                "segment": 0,
-                "commanded_velocity_mps": speed_mps,
-                "velocity_mps": speed_mps,
-                "direction": "cw",
-                "battery_v": 60.0,
-                "track_m": track_m,
-                "fix_quality": None,
-                "lat_deg": None,
-                "lon_deg": None,
-                "grid_id": _cell(track_m),
-                "lap": int(speed_mps * t_s // RAIL_M),
-            }
-        )
-    samples_ingest(run=run, samples=samples)
-    run.rail_length_m = RAIL_M
-    run.save(update_fields=["rail_length_m"])
-    return run
 
 
 def _iso(t_s: float) -> str:
@@ -134,7 +93,7 @@ def test_an_unknown_column_or_format_is_named():
 
 def test_points_are_placed_on_the_rail_and_summed_up_per_cell_and_metre():
     owner = UserFactory()
-    run = _run_at_constant_speed(owner, speed_mps=2.0, seconds=30.0)
+    run = run_round_the_rail(owner, speed_mps=2.0, seconds=30.0)
     t0_s = run.start_at.timestamp()
     # A point every 0.05 s, its value the position it was taken at (so each cell's mean is
     # known without the portal): track = 2 m/s * t.
@@ -163,7 +122,7 @@ def test_points_are_placed_on_the_rail_and_summed_up_per_cell_and_metre():
 
 def test_the_same_file_twice_stores_once_and_another_clock_offset_moves_the_points():
     owner = UserFactory()
-    run = _run_at_constant_speed(owner, seconds=10.0)
+    run = run_round_the_rail(owner, seconds=10.0)
     t0_s = run.start_at.timestamp()
     text = "t,rssi,snr\n" + "".join(f"{t0_s + i * 0.5},{-50 - i},{20 + i}\n" for i in range(20))
     first = measurement_add(
@@ -188,7 +147,7 @@ def test_the_same_file_twice_stores_once_and_another_clock_offset_moves_the_poin
 
 def test_bad_points_change_nothing():
     owner = UserFactory()
-    run = _run_at_constant_speed(owner, seconds=5.0)
+    run = run_round_the_rail(owner, seconds=5.0)
     t0_s = run.start_at.timestamp()
     good = read_file_points(f"t,rssi\n{t0_s},-50\n".encode(), "csv")
     measurement_add(run=run, by=owner, name="rssi", points=good)
@@ -212,7 +171,7 @@ def test_bad_points_change_nothing():
 
 def test_a_point_in_a_gap_of_the_samples_is_marked_and_deleting_takes_every_point():
     owner = UserFactory()
-    run = _run_at_constant_speed(owner, seconds=10.0)
+    run = run_round_the_rail(owner, seconds=10.0)
     Sample.objects.filter(run=run, seq__in=range(40, 60)).delete()  # 3.9 s to 5.9 s lost
     t0_s = run.start_at.timestamp()
     text = f"t,rssi\n{t0_s + 1.05},-50\n{t0_s + 5.0},-51\n{t0_s - 3},-52\n{t0_s + 60},-53\n"
