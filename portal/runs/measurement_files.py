@@ -68,12 +68,17 @@ def format_of(filename: str, declared: str = "") -> str:
 def _table(data: bytes, fmt: str) -> pa.Table:
     try:
         if fmt == "csv":
-            return pa_csv.read_csv(io.BytesIO(data))
-        if fmt == "parquet":
-            return pq.read_table(io.BytesIO(data))
-    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError) as exc:
+            table = pa_csv.read_csv(io.BytesIO(data))
+        elif fmt == "parquet":
+            table = pq.read_table(io.BytesIO(data))
+        else:
+            return _json_table(data)
+        # Its names decoded here: pyarrow takes a header's bytes as they come.
+        table.column_names  # noqa: B018
+        return table
+    except (pa.ArrowException, OSError, UnicodeDecodeError) as exc:
+        # A picture sent as CSV fails in its header's decoding, not in Arrow.
         raise MeasurementFileError(f"not a readable {fmt.upper()} file: {exc}") from None
-    return _json_table(data)
 
 
 def _json_table(data: bytes) -> pa.Table:

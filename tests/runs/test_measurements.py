@@ -89,6 +89,10 @@ def test_an_unknown_column_or_format_is_named():
         format_of("walk.xlsx")
     with pytest.raises(MeasurementRefused, match="not a readable JSON"):
         read_file_points(b"{nope", "json")
+    picture = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x01\xff\xfe"
+    for fmt in ("csv", "json", "parquet"):
+        with pytest.raises(MeasurementRefused, match=f"not a readable {fmt.upper()}"):
+            read_file_points(picture, fmt)
 
 
 def test_points_are_placed_on_the_rail_and_summed_up_per_cell_and_metre():
