@@ -91,6 +91,7 @@ def write_section(key: str, body: str) -> None:
 BENCHMARKS = (
     "telemetry",
     "bookings",
+    "measurements",
     "scheduler",
     "agent",
     "stop",
@@ -100,7 +101,7 @@ BENCHMARKS = (
     "load",
 )
 # Those that measure the portal on a scratch database of their own.
-ON_DATABASE = ("telemetry", "bookings", "scheduler", "live", "scale", "load")
+ON_DATABASE = ("telemetry", "bookings", "measurements", "scheduler", "live", "scale", "load")
 # Those that start the whole system on it: they are handed its address.
 WHOLE_SYSTEM = ("live", "scale", "load")
 # Sizes small enough to run each benchmark through in seconds, figures meaningless:
@@ -110,6 +111,7 @@ SMOKE: dict[str, dict[str, Any]] = {
     "telemetry": {"samples": 600, "repeats": 1},
     # 16 bookings a node: the refused overlaps (from the 10th hour on) find one.
     "bookings": {"existing": 24 * 16, "calls": 3},
+    "measurements": {"points": 3000, "samples": 600, "repeats": 1},
     "scheduler": {"calls": 2},
     "agent": {"duration_s": 1.0, "idle_s": 1.0, "clients": 2},
     "stop": {"stops": 2, "clients": 2},

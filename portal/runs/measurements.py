@@ -102,7 +102,7 @@ def _checked_points(run: Run, points: Points, offset_s: float) -> None:
         raise _refuse("file", f"rows {first + 1} and {second + 1} have the same time")
 
 
-def _store_column(
+def store_column(
     series: MeasurementSeries, index: int, times_us: np.ndarray, values: np.ndarray
 ) -> int:
     """Store one column's points (those with a value); how many were new."""
@@ -276,7 +276,7 @@ def measurement_add(
         times_us = np.rint(points.times_s * 1e6).astype(np.int64)
         stored = 0
         for index, values in enumerate(points.values):
-            stored += _store_column(series, index, times_us, values)
+            stored += store_column(series, index, times_us, values)
         _refresh(series)
         total = sum(int(np.count_nonzero(~np.isnan(values))) for values in points.values)
         audit_record(
@@ -396,6 +396,7 @@ __all__ = [
     "rows_points",
     "run_track",
     "series_points",
+    "store_column",
     "suggested_offset_s",
     "summary_of",
 ]

@@ -241,7 +241,7 @@ def visible_run(request: HttpRequest, pk: int, *related: str) -> Run:
     return get_object_or_404(runs.select_related(*related) if related else runs, pk=pk)
 
 
-def _measurements_context(run: Run, form: MeasurementForm | None) -> dict[str, Any]:
+def measurements_context(run: Run, form: MeasurementForm | None) -> dict[str, Any]:
     """The run page's measurements section: each series with its columns' summaries, the
     charts' data, and the form that adds one."""
     series = list(run.measurements.order_by("name"))
@@ -273,7 +273,7 @@ def run_page_response(
     context["repeats"] = list(run.repeats.order_by("start_at").values_list("pk", flat=True))
     # "Compare the two runs" links from a repeated run (`?ids=A,B`).
     context["compare_path"] = reverse("runs-compare")
-    context.update(_measurements_context(run, measurement_form))
+    context.update(measurements_context(run, measurement_form))
     return render(request, "web/run.html", context, status=status)
 
 
