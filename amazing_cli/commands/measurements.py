@@ -37,6 +37,9 @@ def _where(series: dict[str, Any]) -> str:
 def _line(series: dict[str, Any]) -> str:
     unit = f" [{series['unit']}]" if series["unit"] else ""
     offset = f", clock offset {series['clock_offset_s']:g} s" if series["clock_offset_s"] else ""
+    suggested = series["summary"].get("suggested_offset_s")
+    if suggested is not None and suggested != series["clock_offset_s"]:
+        offset += f"; your marker suggests an offset of {suggested:g} s"
     return (
         f"{series['name']}{unit}: {series['point_count']} points of "
         f"{', '.join(series['columns'])} ({_where(series)}){offset}"
@@ -72,6 +75,13 @@ def measurements_add(
         float | None,
         typer.Option(metavar="SECONDS", help="Added to the file's times (your clock's lag)."),
     ] = None,
+    marker_at: Annotated[
+        str,
+        typer.Option(
+            metavar="WHEN",
+            help="When your machine saw the first segment begin (RFC 3339): offers the offset.",
+        ),
+    ] = "",
     format: Annotated[
         str, typer.Option(metavar="FORMAT", help="csv, json or parquet (default: by the name).")
     ] = "",
@@ -92,6 +102,8 @@ def measurements_add(
         form["clock_offset_s"] = repr(clock_offset_s)
     if format:
         form["format"] = format
+    if marker_at:
+        form["marker_at"] = marker_at
     try:
         content = file.read_bytes()
     except OSError as exc:

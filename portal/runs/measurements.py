@@ -203,12 +203,27 @@ def summary_of(series: MeasurementSeries, track: Track | None = None) -> dict[st
         columns[name] = column_summary(
             shifted, values, place(shifted, track), start_s=run.start_at.timestamp()
         )
+    event_s = first_segment_start_s(track)
     return {
         "columns": columns,
         "points": len(times_seen),
         "clock_offset_s": series.clock_offset_s,
         "samples": len(track.seq),
+        # The robot's first segment began then (base station's clock); with the series's
+        # marker of that moment (its own clock), the offset that aligns the two.
+        "first_segment_at_s": event_s,
+        "suggested_offset_s": (
+            suggested_offset_s(marker_s=series.marker_at.timestamp(), robot_event_s=event_s)
+            if series.marker_at is not None and event_s is not None
+            else None
+        ),
     }
+
+
+def first_segment_start_s(track: Track) -> float | None:
+    """When the run's first program segment began: its first sample's time."""
+    started = np.flatnonzero(track.segment == 0)
+    return float(track.t_s[started[0]]) if len(started) else None
 
 
 def _refresh(series: MeasurementSeries) -> None:
@@ -247,6 +262,7 @@ def measurement_add(
     description: str = "",
     source_node: str = "",
     clock_offset_s: float | None = None,
+    marker_at: datetime | None = None,
     ip: str | None = None,
     via: str = "",
 ) -> Added:
@@ -265,6 +281,9 @@ def measurement_add(
         if series.point_count + len(points) > MAX_SERIES_POINTS:
             raise _refuse("file", f"at most {MAX_SERIES_POINTS:,} points in a series")
         series.clock_offset_s = offset_s
+        if marker_at is not None:
+            _check_marker(locked_run, marker_at)
+            series.marker_at = marker_at
         for field, given in (
             ("unit", unit),
             ("description", description),
@@ -302,36 +321,56 @@ def _digest(times_us: np.ndarray, values: list[np.ndarray]) -> str:
     return digest.hexdigest()[:16]
 
 
-def measurement_set_offset(
+def measurement_update(
     *,
     series: MeasurementSeries,
     by: User,
-    clock_offset_s: float,
+    clock_offset_s: float | None = None,
+    marker_at: datetime | None = None,
     ip: str | None = None,
     via: str = "",
 ) -> MeasurementSeries:
-    """Set the series's clock offset and place its points again."""
-    if not np.isfinite(clock_offset_s) or abs(clock_offset_s) > MAX_CLOCK_OFFSET_S:
+    """Set the series's clock offset, or its marker (when the measuring machine saw the first
+    segment begin), or both; its points are placed again."""
+    if clock_offset_s is not None and (
+        not np.isfinite(clock_offset_s) or abs(clock_offset_s) > MAX_CLOCK_OFFSET_S
+    ):
         raise _refuse("clock_offset_s", f"a clock offset is within ±{MAX_CLOCK_OFFSET_S:g} s")
     with transaction.atomic():
         locked = (
             MeasurementSeries.objects.select_for_update().select_related("run").get(pk=series.pk)
         )
-        before = locked.clock_offset_s
-        locked.clock_offset_s = float(clock_offset_s)
-        locked.save(update_fields=["clock_offset_s", "updated_at"])
+        if marker_at is not None:
+            _check_marker(locked.run, marker_at)
+        before = {"clock_offset_s": locked.clock_offset_s, "marker_at": _iso(locked.marker_at)}
+        if clock_offset_s is not None:
+            locked.clock_offset_s = float(clock_offset_s)
+        if marker_at is not None:
+            locked.marker_at = marker_at
+        locked.save(update_fields=["clock_offset_s", "marker_at", "updated_at"])
         _refresh(locked)
         audit_record(
             actor=by,
-            action="measurement.offset",
+            action="measurement.update",
             target=locked,
             ip=ip,
             via=via,
             run=locked.run_id,
-            before_s=before,
-            after_s=locked.clock_offset_s,
+            before=before,
+            after={"clock_offset_s": locked.clock_offset_s, "marker_at": _iso(locked.marker_at)},
         )
     return locked
+
+
+def _iso(value: datetime | None) -> str | None:
+    return value.isoformat() if value is not None else None
+
+
+def _check_marker(run: Run, marker_at: datetime) -> None:
+    low_s = run.start_at.timestamp() - SENSE_S
+    high_s = run.end_at.timestamp() + SENSE_S
+    if not low_s <= marker_at.timestamp() <= high_s:
+        raise _refuse("marker_at", "the marker is more than 7 days from the run")
 
 
 def measurement_delete(
@@ -391,7 +430,7 @@ __all__ = [
     "clock_state",
     "measurement_add",
     "measurement_delete",
-    "measurement_set_offset",
+    "measurement_update",
     "read_file_points",
     "rows_points",
     "run_track",

@@ -248,6 +248,9 @@ class MeasurementSeries(models.Model):
     columns = models.JSONField()
     # Added to every point's time to put it on the base station's clock.
     clock_offset_s = models.FloatField(default=0.0)
+    # When the measuring machine marked the robot's first segment beginning (on its own
+    # clock): the offset that aligns the two is offered (``summary["suggested_offset_s"]``).
+    marker_at = models.DateTimeField(null=True, blank=True)
     point_count = models.PositiveIntegerField(default=0)
     summary = models.JSONField(default=dict, blank=True)
     created_by = models.ForeignKey(

@@ -89,7 +89,7 @@ def measurement_offset_view(request: HttpRequest, pk: int, name: str) -> HttpRes
         messages.error(request, "The clock offset is a number of seconds.")
         return redirect(_back(series.run))
     try:
-        measurements.measurement_set_offset(
+        measurements.measurement_update(
             series=series,
             by=request.user,  # type: ignore[arg-type]
             clock_offset_s=form.cleaned_data["clock_offset_s"],

@@ -18,7 +18,7 @@ from portal.runs.measurements import (
     MeasurementRefused,
     measurement_add,
     measurement_delete,
-    measurement_set_offset,
+    measurement_update,
     read_file_points,
     suggested_offset_s,
 )
@@ -142,7 +142,7 @@ def test_the_same_file_twice_stores_once_and_another_clock_offset_moves_the_poin
     assert len(digests) == 2
     assert digests[0] == digests[1]
     # 10 s of samples: the last points (up to 9.5 s) are on the path; 5 s later they are after.
-    moved = measurement_set_offset(series=first.series, by=owner, clock_offset_s=5.0)
+    moved = measurement_update(series=first.series, by=owner, clock_offset_s=5.0)
     where = moved.summary["columns"]["snr"]["where"]
     assert where["after"] == 10
     assert where["placed"] == 10
@@ -192,3 +192,34 @@ def test_a_point_in_a_gap_of_the_samples_is_marked_and_deleting_takes_every_poin
     assert not MeasurementSeries.objects.filter(run=run).exists()
     assert not MeasurementPoint.objects.exists()
     assert AuditEvent.objects.filter(action="measurement.delete").count() == 1
+
+
+def test_a_marker_of_the_first_segments_start_offers_the_offset_that_aligns_the_clocks():
+    owner = UserFactory()
+    run = run_round_the_rail(owner, seconds=10.0)  # its first segment begins at its start
+    t0_s = run.start_at.timestamp()
+    # The measuring machine's clock is 2.5 s behind: it marked that start at t0 - 2.5.
+    text = "t,rssi\n" + "".join(f"{t0_s - 2.5 + 0.5 * i:.6f},{-50 - i}\n" for i in range(20))
+    added = measurement_add(
+        run=run,
+        by=owner,
+        name="rssi",
+        points=read_file_points(text.encode(), "csv"),
+        marker_at=datetime.fromtimestamp(t0_s - 2.5, UTC),
+    )
+    summary = added.series.summary
+    assert summary["suggested_offset_s"] == pytest.approx(2.5, abs=1e-6)
+    assert summary["columns"]["rssi"]["where"]["before"] == 5
+    aligned = measurement_update(
+        series=added.series, by=owner, clock_offset_s=summary["suggested_offset_s"]
+    )
+    assert aligned.summary["columns"]["rssi"]["where"] == {
+        "placed": 20,
+        "before": 0,
+        "after": 0,
+        "gap": 0,
+    }
+    with pytest.raises(MeasurementRefused, match="marker"):
+        measurement_update(
+            series=aligned, by=owner, marker_at=datetime.fromtimestamp(t0_s + 9e6, UTC)
+        )

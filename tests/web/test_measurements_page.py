@@ -105,3 +105,28 @@ def test_another_users_run_is_not_found_on_every_measurement_page(run):
     ):
         assert answer.status_code == 404
     assert MeasurementSeries.objects.get().clock_offset_s == 0.0
+
+
+def test_a_markers_suggested_offset_is_offered_and_used_with_one_button(alice, owner):
+    from datetime import UTC, datetime
+
+    from portal.runs.measurements import measurement_add, read_file_points
+    from tests.runs.driving import run_round_the_rail
+
+    run = run_round_the_rail(owner, seconds=10.0)
+    t0_s = run.start_at.timestamp()
+    text = "t,rssi\n" + "".join(f"{t0_s - 1.5 + 0.5 * i:.6f},-50\n" for i in range(10))
+    measurement_add(
+        run=run,
+        by=owner,
+        name="rssi",
+        points=read_file_points(text.encode(), "csv"),
+        marker_at=datetime.fromtimestamp(t0_s - 1.5, UTC),
+    )
+    page = alice.get(f"/runs/{run.pk}/").content.decode()
+    assert "a clock offset of <strong>1.5 s</strong> aligns the two" in page
+    assert 'data-testid="use-suggested-offset"' in page
+    alice.post(f"/runs/{run.pk}/measurements/rssi/offset/", {"clock_offset_s": "1.5"})
+    page = alice.get(f"/runs/{run.pk}/").content.decode()
+    assert "and is the one used" in page
+    assert 'data-testid="use-suggested-offset"' not in page

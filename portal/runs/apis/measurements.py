@@ -14,7 +14,7 @@ from rest_framework.request import Request
 from rest_framework.response import Response
 from rest_framework.views import APIView
 
-from core.api import request_user, valid_input
+from core.api import DateTimeInput, request_user, valid_input
 from core.audit.services import client_ip
 from core.errors import DomainError
 from core.openapi import ClosedSerializer, errors
@@ -59,6 +59,7 @@ class SeriesOutput(serializers.ModelSerializer):
             "source_node",
             "columns",
             "clock_offset_s",
+            "marker_at",
             "point_count",
             "summary",
             "created_at",
@@ -89,6 +90,10 @@ class UploadInput(serializers.Serializer):
         help_text="Value columns, comma-separated; by default every other column.",
     )
     clock_offset_s = serializers.FloatField(required=False, help_text="Added to the file's times.")
+    marker_at = DateTimeInput(
+        required=False,
+        help_text="When the measuring machine saw the robot's first segment begin, on its clock.",
+    )
 
 
 class BatchInput(ClosedSerializer):
@@ -103,8 +108,15 @@ class BatchInput(ClosedSerializer):
     source_node = serializers.CharField(max_length=64, required=False, allow_blank=True)
 
 
-class OffsetInput(ClosedSerializer):
-    clock_offset_s = serializers.FloatField(help_text="Added to every point's time.")
+class ChangeInput(ClosedSerializer):
+    clock_offset_s = serializers.FloatField(
+        required=False, help_text="Added to every point's time (seconds, within ±86400)."
+    )
+    marker_at = DateTimeInput(
+        required=False,
+        help_text="When the measuring machine saw the robot's first segment begin, on its own "
+        "clock: the summary's `suggested_offset_s` then aligns the two.",
+    )
 
 
 def _added(result: measurements.Added) -> Response:
@@ -164,6 +176,7 @@ class MeasurementListApi(APIView):
                 description=data.get("description", ""),
                 source_node=data.get("source_node", ""),
                 clock_offset_s=data.get("clock_offset_s"),
+                marker_at=data.get("marker_at"),
                 **_door(request),
             )
         )
@@ -201,14 +214,15 @@ class MeasurementApi(APIView):
             )
         )
 
-    @extend_schema(request=OffsetInput, responses={200: SeriesOutput, **errors(400, 404)})
+    @extend_schema(request=ChangeInput, responses={200: SeriesOutput, **errors(400, 404)})
     def patch(self, request: Request, pk: int, name: str) -> Response:
         series = _series(request, pk, name)
-        data = valid_input(OffsetInput, request.data)
-        updated = measurements.measurement_set_offset(
+        data = valid_input(ChangeInput, request.data)
+        updated = measurements.measurement_update(
             series=series,
             by=request_user(request),
-            clock_offset_s=data["clock_offset_s"],
+            clock_offset_s=data.get("clock_offset_s"),
+            marker_at=data.get("marker_at"),
             **_door(request),
         )
         return Response(SeriesOutput(updated).data)
