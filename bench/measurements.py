@@ -102,7 +102,7 @@ def run(*, points: int = POINTS, samples: int = SAMPLES, repeats: int = REPEATS)
 
     # The URL configuration first, as the web server loads it: its imports' order is the one
     # the portal's modules are written for.
-    get_resolver().url_patterns
+    get_resolver().url_patterns  # noqa: B018
 
     from portal.runs import measurements
     from portal.runs.measurement_files import Points
