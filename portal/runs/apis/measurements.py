@@ -25,6 +25,11 @@ from portal.runs.models import MeasurementSeries, Run
 from portal.runs.selectors import runs_visible
 
 
+# Points one batch may carry: a second of per-packet readings is a few hundred; more come as
+# more batches (each answered within a request's time, its summary made again).
+BATCH_MAX_POINTS = 1000
+
+
 class TooLarge(DomainError):
     http_status = 413
     code = "request_entity_too_large"
@@ -100,7 +105,7 @@ class BatchInput(ClosedSerializer):
     points = serializers.ListField(
         child=serializers.DictField(),
         min_length=1,
-        max_length=10_000,
+        max_length=BATCH_MAX_POINTS,
         help_text='Points as objects: {"t": RFC 3339 or Unix seconds, "<column>": number}.',
     )
     unit = serializers.CharField(max_length=32, required=False, allow_blank=True)
