@@ -196,10 +196,11 @@ def summary_of(series: MeasurementSeries, track: Track | None = None) -> dict[st
     run = series.run
     track = track if track is not None else run_track(run)
     columns: dict[str, Any] = {}
-    times_seen: set[int] = set()
-    for name, (times_s, values) in zip(series.columns, series_points(series), strict=True):
+    per_column = series_points(series)
+    every_time_us = [np.rint(times_s * 1e6).astype(np.int64) for times_s, _ in per_column]
+    times_seen = np.unique(np.concatenate([np.zeros(0, np.int64), *every_time_us]))
+    for name, (times_s, values) in zip(series.columns, per_column, strict=True):
         shifted = times_s + series.clock_offset_s
-        times_seen.update(np.rint(times_s * 1e6).astype(np.int64).tolist())
         columns[name] = column_summary(
             shifted, values, place(shifted, track), start_s=run.start_at.timestamp()
         )
