@@ -24,7 +24,6 @@ from portal.runs.measurement_files import FORMATS, format_of
 from portal.runs.models import MeasurementSeries, Run
 from portal.runs.selectors import runs_visible
 
-
 # Points one batch may carry: a second of per-packet readings is a few hundred; more come as
 # more batches (each answered within a request's time, its summary made again).
 BATCH_MAX_POINTS = 1000
