@@ -251,6 +251,26 @@ def _value(value: Any, unit: str = "") -> str:
     return f"{value:g} {unit}".strip() if isinstance(value, float) else f"{value} {unit}".strip()
 
 
+def _files_lines() -> list[str]:
+    """The README's list of the package's files."""
+    return [
+        "## Files",
+        "",
+        f"- `{SAMPLES_FILE}`: one row per telemetry sample, in sequence order; the columns "
+        "are below.",
+        f"- `{DESCRIPTOR_FILE}`: a Frictionless Data Package descriptor "
+        "(<https://datapackage.org>): the CSV's Table Schema, size and SHA-256, and under "
+        f"`amazing` the run's metadata (format `{FORMAT}`, version {FORMAT_VERSION}): the run, "
+        "the program, the reservation, the owner, how the run was made and the analysis "
+        "summary.",
+        f"- `{MEASUREMENTS_FOLDER}<name>.csv`: each measurement series of the run (if any), "
+        "placed on the robot's path: `t` (the measuring clock), `t_base` (the base station's), "
+        "the values, and `robot_*`, where the robot was then; `robot_sample_seq` is the nearer "
+        f"sample's `seq` in `{SAMPLES_FILE}`. Each one's columns are in `{DESCRIPTOR_FILE}`.",
+        f"- `{README_FILE}`: this file.",
+    ]
+
+
 def package_readme(run: Run, metadata: dict[str, Any]) -> str:
     """README.md: what the package holds, every column, and how the run was made."""
     info = metadata["run"]
@@ -268,20 +288,7 @@ def package_readme(run: Run, metadata: dict[str, Any]) -> str:
         + (f" ({info['reason']})" if info["reason"] else "")
         + f"; {info['samples']} samples.",
         "",
-        "## Files",
-        "",
-        f"- `{SAMPLES_FILE}`: one row per telemetry sample, in sequence order; the columns "
-        "are below.",
-        f"- `{DESCRIPTOR_FILE}`: a Frictionless Data Package descriptor "
-        "(<https://datapackage.org>): the CSV's Table Schema, size and SHA-256, and under "
-        f"`amazing` the run's metadata (format `{FORMAT}`, version {FORMAT_VERSION}): the run, "
-        "the program, the reservation, the owner, how the run was made and the analysis "
-        "summary.",
-        f"- `{MEASUREMENTS_FOLDER}<name>.csv`: each measurement series of the run (if any), "
-        "placed on the robot's path: `t` (the measuring clock), `t_base` (the base station's), "
-        "the values, and `robot_*`, where the robot was then; `robot_sample_seq` is the nearer "
-        f"sample's `seq` in `{SAMPLES_FILE}`. Each one's columns are in `{DESCRIPTOR_FILE}`.",
-        f"- `{README_FILE}`: this file.",
+        *_files_lines(),
         "",
         "Check the package with Frictionless: `frictionless validate datapackage.json`.",
         "",
@@ -349,6 +356,29 @@ def _open_archive(sink: _Sink) -> zipfile.ZipFile:
     )
 
 
+def _series_members(
+    archive: zipfile.ZipFile, sink: _Sink, *, run: Run, folder: str, stamp: Any
+) -> Generator[bytes, None, list[dict[str, Any]]]:
+    """Each measurement series of the run as its CSV in ``archive``; their resources."""
+    resources = []
+    track = None
+    for series in run.measurements.order_by("name"):
+        track = track if track is not None else run_track(run)
+        data = series_csv(series, track)
+        archive.writestr(
+            zipfile.ZipInfo(folder + series_file(series), date_time=stamp),
+            data,
+            compress_type=zipfile.ZIP_DEFLATED,
+        )
+        yield sink.take()
+        resources.append(
+            series_resource(
+                series, csv_bytes=len(data), csv_sha256=hashlib.sha256(data).hexdigest()
+            )
+        )
+    return resources
+
+
 def _package_members(
     archive: zipfile.ZipFile,
     sink: _Sink,
@@ -385,22 +415,7 @@ def _package_members(
             taken = sink.take()
             if taken:
                 yield taken
-    resources = []
-    track = None
-    for series in run.measurements.order_by("name"):
-        track = track if track is not None else run_track(run)
-        data = series_csv(series, track)
-        archive.writestr(
-            zipfile.ZipInfo(folder + series_file(series), date_time=stamp),
-            data,
-            compress_type=zipfile.ZIP_DEFLATED,
-        )
-        yield sink.take()
-        resources.append(
-            series_resource(
-                series, csv_bytes=len(data), csv_sha256=hashlib.sha256(data).hexdigest()
-            )
-        )
+    resources = yield from _series_members(archive, sink, run=run, folder=folder, stamp=stamp)
     descriptor = package_descriptor(
         run,
         metadata=metadata,

@@ -269,7 +269,7 @@ def test_watch_follows_a_run_to_its_end_and_download_streams_every_sample(portal
         ("no token", 3, "no token: run `amazing login` or set AMAZING_TOKEN"),
         ("portal down", 5, "cannot reach the portal at http://127.0.0.1:9"),
         ("unknown run", 4, "No Run matches the given query."),
-        ("unknown format", 2, "--format 'xml': give csv, json or zip"),
+        ("unknown format", 2, "--format 'xml': give csv, json, zip or parquet"),
         ("bad time", 2, "--start 'tomorrow'"),
     ],
 )

@@ -36,7 +36,7 @@ def _file(run, *, naive: bool = False) -> SimpleUploadedFile:
     t0_s = run.start_at.timestamp()
     if naive:
         return SimpleUploadedFile("walk.csv", b"t,rssi\n2027-01-01T10:00:00,-50\n")
-    text = "t,rssi\n" + "".join(f"{t0_s + 0.25 * i:.3f},{-50 - i}\n" for i in range(12))
+    text = "t,rssi\n" + "".join(f"{t0_s + 0.25 * i:.6f},{-50 - i}\n" for i in range(12))
     return SimpleUploadedFile("walk.csv", text.encode())
 
 
