@@ -12,16 +12,15 @@ from __future__ import annotations
 import subprocess
 import sys
 from collections import defaultdict
-from datetime import timedelta
 
 import pytest
 import requests
-from django.utils import timezone
 
 from basestation.sim.rssi import DEFAULT_NODE_AT, PathLoss, distance_m
 from basestation.telemetry.rail import Rail
 from bench.stack import REPO
-from tests.factories import MobileResourceFactory, UserFactory, api_token
+from tests.factories import MobileResourceFactory
+from tests.integration.experimenter import Experimenter
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -47,31 +46,12 @@ def _samples(web: str, run_id: int, headers: dict[str, str]) -> list[dict]:
 
 def test_synthetic_rssi_pushed_live_is_placed_in_the_cells_the_model_says(stack):
     MobileResourceFactory(agent_url=stack["agent_url"])
-    token = api_token(UserFactory(username="erin"))
-    headers = {"Authorization": f"Token {token}"}
+    erin = Experimenter(stack, "erin")
+    headers = dict(erin.session.headers)
+    token = headers["Authorization"].removeprefix("Token ")
     web = stack["web"]
     segments = [{"velocity_mps": VELOCITY_MPS, "direction": "cw", "duration_s": SEGMENT_S}]
-    experiment = requests.post(
-        f"{web}/api/v1/experiments/",
-        json={"title": "a walk past the node", "segments": segments},
-        headers=headers,
-        timeout=10,
-    )
-    assert experiment.status_code == 201, experiment.text
-    start = timezone.now() + timedelta(seconds=4)
-    booking = requests.post(
-        f"{web}/api/v1/reservations/",
-        json={
-            "resource": "mobile-1",
-            "experiment": experiment.json()["id"],
-            "start_at": start.isoformat(),
-            "end_at": (start + timedelta(seconds=SEGMENT_S + 4)).isoformat(),
-        },
-        headers=headers,
-        timeout=10,
-    )
-    assert booking.status_code == 201, booking.text
-    run_id = booking.json()["run"]["id"]
+    run_id = erin.run("mobile-1", ahead_s=4.0, program_s=SEGMENT_S, segments=segments)
     pusher = subprocess.run(
         [sys.executable, "-m", "basestation.sim.rssi", "--portal", web, "--token", token,
          "--run", str(run_id), "--seed", str(SEED), "--poll-s", "0.5"],
