@@ -19,7 +19,7 @@ from django.db.models import Q, QuerySet
 from core.accounts.models import User
 from core.errors import InvalidInput
 from portal.runs.analysis import SegmentStats
-from portal.runs.models import Run
+from portal.runs.models import MeasurementSeries, Run
 from portal.runs.selectors import RunReport, run_report, runs_visible
 
 # A download of several runs streams each CSV in turn; past this it is a job for the API.
@@ -155,3 +155,29 @@ def comparison_series(comparison: Comparison) -> list[dict[str, Any]]:
             }
         )
     return out
+
+
+def comparison_measurements(comparison: Comparison) -> list[dict[str, Any]]:
+    """The compare page's measurements overlaid by position: for each series name and value
+    column that any of the runs holds, each run's mean per metre of rail and its statistics
+    (``None`` for a run without it), in the runs' order. From the summaries stored with the
+    series, so comparing reads no point."""
+    order = {c.run.pk: index for index, c in enumerate(comparison.runs)}
+    found: dict[tuple[str, str], dict[str, Any]] = {}
+    rows = MeasurementSeries.objects.filter(run__in=list(order)).order_by("name")
+    for series in rows.only("run_id", "name", "unit", "summary"):
+        for column, summary in series.summary.get("columns", {}).items():
+            entry = found.setdefault(
+                (series.name, column),
+                {
+                    "name": series.name,
+                    "column": column,
+                    "unit": series.unit,
+                    "runs": [None] * len(order),
+                },
+            )
+            entry["runs"][order[series.run_id]] = {
+                "by_metre": [[row[0], row[2]] for row in summary.get("by_metre", [])],
+                "stats": summary.get("stats", {}),
+            }
+    return [found[key] for key in sorted(found)]

@@ -23,6 +23,7 @@ from portal.runs.listing import (
     COMPARE_MAX_RUNS,
     DOWNLOAD_MAX_RUNS,
     RunFilter,
+    comparison_measurements,
     comparison_series,
     runs_chosen,
     runs_compared,
@@ -165,6 +166,7 @@ def runs_compare(request: HttpRequest) -> HttpResponse:
         {
             "comparison": comparison,
             "series": comparison_series(comparison),
+            "measurements": comparison_measurements(comparison),
             "package_url": reverse("runs-package") + "?ids=" + ",".join(str(r.pk) for r in runs),
         },
     )

@@ -84,10 +84,11 @@ def completed_run(
     program: list[tuple[float, str, float]],
     *,
     rail_length_m: float | None = RAIL_M,
+    hours_ahead: float = 1.0,
 ) -> Any:
     """A booked run of ``program`` on ``mobile``, its samples stored, marked completed."""
     experiment = ExperimentFactory(owner=owner, segments=segments(program))
-    start = timezone.now() + timedelta(hours=1)
+    start = timezone.now() + timedelta(hours=hours_ahead)
     reservation = reservation_create(
         owner=owner,
         resource=mobile,
@@ -138,10 +139,12 @@ def cell_of(track_m: float) -> str:
     return f"A{int(track_m // CELL_M) + 1}"
 
 
-def run_round_the_rail(owner: Any, *, speed_mps: float = 1.0, seconds: float = 30.0) -> Any:
+def run_round_the_rail(
+    owner: Any, *, speed_mps: float = 1.0, seconds: float = 30.0, hours_ahead: float = 1.0
+) -> Any:
     """A completed run whose samples go round the rail at ``speed_mps`` from 0 m, every 0.1 s,
     each with its grid cell (``cell_of``)."""
-    run = completed_run(owner, MobileResourceFactory(), [(0.5, "cw", 1.0)])
+    run = completed_run(owner, MobileResourceFactory(), [(0.5, "cw", 1.0)], hours_ahead=hours_ahead)
     Sample.objects.filter(run=run).delete()
     t0_s = run.start_at.timestamp()
     samples = []

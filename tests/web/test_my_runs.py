@@ -10,7 +10,9 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
+from portal.runs.measurements import measurement_add, rows_points
 from tests.conftest import sign_in_with_second_factor
+from tests.runs.driving import run_round_the_rail
 from tests.runs.history import past_run
 
 pytestmark = pytest.mark.django_db
@@ -121,3 +123,33 @@ def test_the_comparison_shows_both_runs_curves_and_statistics(client, runs, admi
         assert [s["run"] for s in series] == [runs[0].pk, runs[1].pk]
     response = client.get(f"/runs/compare/?ids={runs[0].pk}", follow=True)
     assert "Nothing to compare: Choose at least 2 runs." in response.content.decode()
+
+
+def test_the_comparison_overlays_a_measurement_series_by_position(client, owner):
+    runs = [run_round_the_rail(owner, seconds=5.0, hours_ahead=h) for h in (1.0, 2.0)]
+    for run, offset_db in ((runs[0], 0.0), (runs[1], -10.0)):
+        t0_s = run.start_at.timestamp()
+        rows = [{"t": t0_s + 0.5 * i, "rssi": -50.0 + offset_db} for i in range(1, 8)]
+        measurement_add(run=run, by=owner, name="rssi", unit="dBm", points=rows_points(rows))
+    t0_s = runs[0].start_at.timestamp()
+    measurement_add(
+        run=runs[0], by=owner, name="snr", points=rows_points([{"t": t0_s, "snr": 20.0}])
+    )
+    client.force_login(owner)
+    html = client.get(f"/runs/compare/?ids={runs[0].pk},{runs[1].pk}").content.decode()
+    assert 'id="compare-measurements-heading"' in html
+    measured = json.loads(
+        html.split('id="compare-measurements-data" type="application/json">')[1].split("</script>")[
+            0
+        ]
+    )
+    assert [(m["name"], m["unit"]) for m in measured] == [("rssi", "dBm"), ("snr", "")]
+    rssi = measured[0]["runs"]
+    assert [r["stats"]["mean"] for r in rssi] == [-50.0, -60.0]
+    for one in rssi:
+        assert one["by_metre"]
+        assert {mean for _, mean in one["by_metre"]} == {one["stats"]["mean"]}
+    # The second run has no snr: drawn as nothing, "—" in its table.
+    assert measured[1]["runs"][1] is None
+    snr_table = html.split('data-series="snr"')[1].split("</table>")[0]
+    assert snr_table.count("<td>—</td>") == 4

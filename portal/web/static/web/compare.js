@@ -1,5 +1,6 @@
 // @ts-check
-// Compare runs: each run's measured velocity and position overlaid, from its first sample.
+// Compare runs: each run's measured velocity and position overlaid, from its first sample;
+// each measurement series overlaid by position along the rail (its mean per metre).
 (function () {
   "use strict";
   const source = document.getElementById("compare-series");
@@ -37,4 +38,28 @@
   }
   chart("compare-velocity", "velocity", "measured velocity (m/s, cw +)");
   chart("compare-position", "position", "from the start along the rail (m, cw +)");
+
+  const measured = document.getElementById("compare-measurements-data");
+  const measurements = measured ? JSON.parse(measured.textContent || "[]") : [];
+  for (const canvas of document.querySelectorAll("canvas[data-measurement]")) {
+    if (!(canvas instanceof HTMLCanvasElement) || typeof Chart === "undefined") continue;
+    const m = measurements[Number(canvas.dataset.measurement)];
+    if (!m) continue;
+    new Chart(canvas, {
+      type: "line",
+      data: {
+        datasets: m.runs.map((one, i) => ({
+          label: runs[i] ? runs[i].label : "", borderColor: colour(i), backgroundColor: colour(i),
+          borderWidth: 1.5, pointRadius: 0, spanGaps: false,
+          data: one ? one.by_metre.map((row) => ({ x: row[0] + 0.5, y: row[1] })) : [],
+        })),
+      },
+      options: {
+        animation: false, maintainAspectRatio: false, parsing: false, normalized: true,
+        interaction: { mode: "nearest", intersect: false },
+        scales: { x: { type: "linear", title: { display: true, text: "position along the rail (m)" } },
+                  y: { title: { display: true, text: m.unit ? `${m.column} (${m.unit})` : m.column } } },
+      },
+    });
+  }
 })();
