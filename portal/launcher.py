@@ -268,6 +268,13 @@ def main() -> int:
             second_agent_port=second_port,
         )
     ]
+    # The demo's node measures too: the experimenter's runs get a synthetic signal strength
+    # pushed through the API while they run (the run page's heatmap), with a token
+    # demo_setup writes.
+    rssi_token = var_dir / "demo-rssi-token"
+    portal_url = f"http://127.0.0.1:{portal_port}"
+    rssi = ["--watch", "--portal", portal_url, "--token-file", str(rssi_token)]
+    children.append(Child("rssi", [sys.executable, "-m", "basestation.sim.rssi", *rssi]))
 
     # A plain flag, not a threading.Event: Ctrl-C and a SIGTERM together (or a SIGTERM to the
     # whole group) run the handler again while it is inside Event.set, whose lock is not
@@ -287,10 +294,8 @@ def main() -> int:
             if child.name != "scheduler" and not set_up:
                 # The stand-in, if any, is up first: it lists the fixed nodes demo_setup makes.
                 _manage(env, "migrate", "--no-input", "-v", "0")
-                if second_port is not None:
-                    _manage(env, "demo_setup", "--second-robot", env["AGENT_2_URL"])
-                else:
-                    _manage(env, "demo_setup")
+                second = ["--second-robot", env["AGENT_2_URL"]] if second_port is not None else []
+                _manage(env, "demo_setup", "--rssi-token-file", str(rssi_token), *second)
                 set_up = True
             _start(child, env)
             stand_in = child.name == "scheduler" and standin_port is not None

@@ -13,6 +13,11 @@ log-normal shadowing:
 with ``d`` the distance from the fixed node to the robot's place on the rail, and ``X`` drawn
 from a generator seeded by ``--seed`` (the same run, the same values). Demos and tests use
 it; it is a model, not a measurement.
+
+``--watch`` instead of ``--run`` follows every run of the token's owner that is running, each
+as it starts (``make run``'s demo: the experimenter's runs get their signal strength and the
+run page its heatmap). ``--token-file`` reads the token from a file rather than the command
+line, where other users of the machine could see it.
 """
 
 from __future__ import annotations
@@ -21,8 +26,11 @@ import argparse
 import math
 import random
 import sys
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Final
 
 import requests
@@ -145,6 +153,42 @@ class Pusher:
         raise SystemExit(f"rssi: run {self.run} did not end within {self.timeout_s:g} s")
 
 
+def watch(portal: str, token: str, pusher_for: Callable[[int], Pusher], poll_s: float) -> None:
+    """Follow each run of the token's owner that is running, in a thread of its own, as it
+    starts; forever (the process is stopped by a signal). A portal that does not answer is
+    asked again at the next poll."""
+    session = requests.Session()
+    session.headers["Authorization"] = f"Token {token}"
+    followed: set[int] = set()
+    while True:
+        try:
+            answer = session.get(
+                f"{portal.rstrip('/')}/api/v1/runs/", params={"state": "running"}, timeout=30
+            )
+            answer.raise_for_status()
+            running = [run["id"] for run in answer.json()["results"]]
+        except (requests.RequestException, ValueError, KeyError) as exc:
+            print(f"rssi: could not list the running runs ({exc}); asking again", flush=True)
+            running = []
+        for run_id in running:
+            if run_id not in followed:
+                followed.add(run_id)
+                print(f"rssi: following run {run_id}", flush=True)
+                threading.Thread(
+                    target=_follow_one, args=(pusher_for(run_id),), daemon=True
+                ).start()
+        time.sleep(poll_s)
+
+
+def _follow_one(pusher: Pusher) -> None:
+    try:
+        sent = pusher.follow()
+    except (requests.RequestException, SystemExit) as exc:
+        print(f"rssi: run {pusher.run}: stopped following ({exc})", flush=True)
+        return
+    print(f"rssi: {sent} readings sent to run {pusher.run}'s series {pusher.series}", flush=True)
+
+
 def _xy(text: str) -> XY:
     x_text, _, y_text = text.partition(",")
     try:
@@ -156,8 +200,14 @@ def _xy(text: str) -> XY:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m basestation.sim.rssi", description=__doc__)
     parser.add_argument("--portal", required=True, help="the portal's address")
-    parser.add_argument("--token", required=True, help="an API token of the run's owner")
-    parser.add_argument("--run", type=int, required=True, help="the run to follow")
+    token = parser.add_mutually_exclusive_group(required=True)
+    token.add_argument("--token", help="an API token of the run's owner")
+    token.add_argument("--token-file", type=Path, help="or the file that holds it")
+    runs = parser.add_mutually_exclusive_group(required=True)
+    runs.add_argument("--run", type=int, help="the run to follow")
+    runs.add_argument(
+        "--watch", action="store_true", help="or every run of the token's owner, as it runs"
+    )
     parser.add_argument("--rail", help="the rail's file (default: the built-in rail)")
     parser.add_argument("--node", help="a fixed node of the rail's file, by name")
     parser.add_argument("--node-at", type=_xy, help="or its place: X,Y metres east, north")
@@ -169,18 +219,27 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     rail = Rail.configured(args.rail)
     node_at = node_place(rail, args.node, args.node_at)
-    pusher = Pusher(
-        portal=args.portal,
-        token=args.token,
-        run=args.run,
-        rail=rail,
-        node_at=node_at,
-        model=PathLoss(exponent=args.exponent, shadowing_db=args.shadowing_db),
-        rng=random.Random(args.seed),
-        series=args.series,
-        source_node=args.node or f"node at {node_at[0]:g},{node_at[1]:g} m",
-        poll_s=args.poll_s,
-    )
+    token = args.token or args.token_file.read_text().strip()
+
+    def pusher_for(run_id: int) -> Pusher:
+        return Pusher(
+            portal=args.portal,
+            token=token,
+            run=run_id,
+            rail=rail,
+            node_at=node_at,
+            model=PathLoss(exponent=args.exponent, shadowing_db=args.shadowing_db),
+            # Watching many runs: each its own values, the same again for the same run.
+            rng=random.Random(args.seed if args.run else args.seed * 1_000_003 + run_id),
+            series=args.series,
+            source_node=args.node or f"node at {node_at[0]:g},{node_at[1]:g} m",
+            poll_s=args.poll_s,
+        )
+
+    if args.watch:
+        watch(args.portal, token, pusher_for, max(args.poll_s, 1.0))
+        return 0
+    pusher = pusher_for(args.run)
     sent = pusher.follow()
     print(f"rssi: {sent} readings sent to run {args.run}'s series {args.series}", flush=True)
     return 0

@@ -8,10 +8,13 @@ from datetime import timedelta
 
 import pytest
 from django.core.management import call_command
+from django.test import Client
 from django.utils import timezone
 
+from bookings.management.commands.demo_setup import RSSI_TOKEN_NAME
 from bookings.models import Resource
 from bookings.services import reservation_create, resource_hold
+from core.accounts.models import ApiToken, User
 from core.audit.models import AuditEvent
 from core.errors import InvalidInput
 from core.fleet import SECOND_ROBOT
@@ -77,3 +80,22 @@ def test_a_start_with_the_second_robot_leaves_a_hold_of_another_cause_to_an_admi
 def test_a_first_start_without_the_second_robot_makes_none():
     _setup()
     assert not Resource.objects.filter(name=SECOND_ROBOT).exists()
+
+
+def test_the_demo_signal_strengths_token_is_new_at_each_start_and_only_its_files(tmp_path):
+    path = tmp_path / "demo-rssi-token"
+    _setup("--rssi-token-file", str(path))
+    first = path.read_text().strip()
+    _setup("--rssi-token-file", str(path))
+    second = path.read_text().strip()
+    assert first != second
+    assert path.stat().st_mode & 0o777 == 0o600
+    experimenter = User.objects.get(username="experimenter")
+    tokens = ApiToken.objects.filter(user=experimenter, name=RSSI_TOKEN_NAME)
+    assert tokens.count() == 1  # the first start's is revoked
+    me = [
+        Client().get("/api/v1/me/", HTTP_AUTHORIZATION=f"Token {token}")
+        for token in (first, second)
+    ]
+    assert [answer.status_code for answer in me] == [401, 200]
+    assert me[1].json()["username"] == "experimenter"

@@ -145,6 +145,13 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
         assert data["sample_count"] > 0
         assert len(data["series"]["measured_mps"]["t"]) == data["sample_count"]
         assert "segment-stats" in data["analysis_html"]
+        # The demo's node measured it: its synthetic signal strength was pushed while it ran,
+        # placed in the rail's grid cells (the heatmap's numbers) on the run page.
+        run_id = booked.url.rstrip("/").rsplit("/", 1)[1]
+        launcher.wait_for_line(lambda s: f"readings sent to run {run_id}'s series rssi" in s, 60)
+        series = session.get(f"{booked.url.rstrip('/')}/measurements/series/", timeout=10)
+        assert 'id="measurement-rssi"' in series.text, series.text[:3000]
+        assert "data-cell=" in series.text, series.text[:3000]
         # The run went through, so beat and the worker swept; the web process sees it.
         health = requests.get(f"{web}/healthz", timeout=10).json()
         assert health["status"] == "ok", health

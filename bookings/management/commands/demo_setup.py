@@ -3,6 +3,11 @@
 Passwords are random and printed only when the users are created; run ``changepassword``
 to set new ones later.
 
+``--rssi-token-file PATH`` writes a new API token of the demo experimenter there (the older
+one of that name revoked): the demo's synthetic signal strength (``python -m
+basestation.sim.rssi --watch``) pushes each of the experimenter's runs its series with it, as
+any script of theirs would, through the API.
+
 A start without the second robot after one with it (``make run`` after ``make run
 ROBOTS=2``) finds ``mobile-2`` with no agent running and no token for it: it is taken out of
 booking ("agent not configured"), and the next start with it puts it back.
@@ -11,6 +16,7 @@ booking ("agent not configured"), and the next start with it puts it back.
 from __future__ import annotations
 
 import secrets
+from pathlib import Path
 from typing import Any
 
 from django.conf import settings
@@ -26,8 +32,11 @@ from bookings.services import (
     resource_hold_lift,
     testbed_resources_ensure,
 )
-from core.accounts.models import User
+from core.accounts.models import ApiToken, User
+from core.accounts.services import api_token_create, api_token_revoke
 from core.fleet import SECOND_ROBOT
+
+RSSI_TOKEN_NAME = "demo: simulated signal strength"  # noqa: S105 (a token's name)
 
 
 class Command(BaseCommand):
@@ -39,6 +48,12 @@ class Command(BaseCommand):
             metavar="AGENT_URL",
             help="also create the second simulated robot (mobile-2), whose agent is here; "
             "its token is AGENT_TOKENS' mobile-2",
+        )
+        parser.add_argument(
+            "--rssi-token-file",
+            metavar="PATH",
+            help="write a new API token of the experimenter here, for the demo's synthetic "
+            "signal strength (python -m basestation.sim.rssi --watch)",
         )
 
     def handle(self, *args: Any, **options: Any) -> None:
@@ -80,6 +95,21 @@ class Command(BaseCommand):
             self.stdout.write(f"demo user created: {username} / password: {password}")
         if not created:
             self.stdout.write("demo users already exist (passwords were printed when created)")
+        if options["rssi_token_file"]:
+            self._rssi_token(Path(options["rssi_token_file"]))
+
+    def _rssi_token(self, path: Path) -> None:
+        """A fresh token of the experimenter for the demo's signal strength, only in ``path``
+        (readable by its owner only); the previous start's is revoked."""
+        experimenter = User.objects.get(username="experimenter")
+        for old in ApiToken.objects.filter(user=experimenter, name=RSSI_TOKEN_NAME):
+            api_token_revoke(user=experimenter, digest=old.digest)
+        _, token = api_token_create(user=experimenter, name=RSSI_TOKEN_NAME)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.touch(mode=0o600)
+        path.chmod(0o600)
+        path.write_text(token + "\n")
+        self.stdout.write(f"the demo's signal strength pushes with a token in {path}")
 
     def _second_robot_in_or_out(self, *, started: bool) -> None:
         """The second robot is bookable exactly when this start runs its agent."""
