@@ -122,6 +122,27 @@ RUN_DATA_V1: dict[str, Any] = {
     "additionalProperties": False,
 }
 
+RUN_MEASURED_V1: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "run": {"type": "integer"},
+        "reservation": {"type": "integer"},
+        "resource": {"type": "string"},
+        "series": {"type": "string", "description": "the series's name"},
+        "change": {
+            "type": "string",
+            "enum": ["added", "placed", "deleted"],
+            "description": "points added (a file or a batch), placed again (a new clock offset "
+            "or marker), or the series deleted",
+        },
+        "points": {"type": "integer", "minimum": 0, "description": "the series's points now"},
+        "stored": {"type": "integer", "minimum": 0, "description": "values this change stored"},
+        "via": {"type": "string", "enum": _DOORS, "description": "the door it came through"},
+    },
+    "required": ["run", "reservation", "resource", "series", "change", "points", "stored", "via"],
+    "additionalProperties": False,
+}
+
 ROBOT_V1: dict[str, Any] = {
     "type": "object",
     "properties": {
@@ -184,6 +205,10 @@ _RUN_DATA_TYPES = {
     "run.data_ready": "A run has ended and its samples are stored, complete or with the "
     "stretches it lacks counted: they can be fetched. Once per run, after its last state.",
 }
+_RUN_MEASURED_TYPES = {
+    "run.measured": "A run's measurement series changed: points added (uploaded after the run "
+    "or pushed during it), placed again on a new clock offset, or the series deleted.",
+}
 
 _ROBOT_TYPES = {
     "robot.held": "The health check took a robot out of booking.",
@@ -207,6 +232,7 @@ PAYLOADS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "ReservationFlaggedEventV1": (RESERVATION_FLAGGED_V1, _RESERVATION_FLAGGED_TYPES),
     "RunEventV1": (RUN_V1, _RUN_TYPES),
     "RunDataEventV1": (RUN_DATA_V1, _RUN_DATA_TYPES),
+    "RunMeasuredEventV1": (RUN_MEASURED_V1, _RUN_MEASURED_TYPES),
     "RobotEventV1": (ROBOT_V1, _ROBOT_TYPES),
     "SchedulerLinkEventV1": (SCHEDULER_LINK_V1, _SCHEDULER_TYPES),
     "WebhookEventV1": (WEBHOOK_V1, _WEBHOOK_TYPES),

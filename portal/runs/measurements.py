@@ -26,6 +26,7 @@ from core import sql
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import InvalidInput
+from core.events.services import event_record
 from portal.runs import queries
 from portal.runs.measurement_files import (
     MeasurementFileError,
@@ -227,6 +228,33 @@ def first_segment_start_s(track: Track) -> float | None:
     return float(track.t_s[started[0]]) if len(started) else None
 
 
+def _measured_event(
+    series: MeasurementSeries, *, change: str, stored: int = 0, via: str = ""
+) -> None:
+    """The change as an event for the run's owner, in the change's transaction: the run page
+    and its roof view redraw the series live (``portal/web/handlers.py``), webhooks hear it."""
+    reservation_id, owner_id, resource = (
+        Run.objects.filter(pk=series.run_id)
+        .values_list("reservation_id", "reservation__owner_id", "resource__name")
+        .get()
+    )
+    event_record(
+        subject=f"run:{series.run_id}",
+        type="run.measured",
+        owner_id=owner_id,
+        payload={
+            "run": series.run_id,
+            "reservation": reservation_id,
+            "resource": resource,
+            "series": series.name,
+            "change": change,
+            "points": series.point_count if change != "deleted" else 0,
+            "stored": stored,
+            "via": via,
+        },
+    )
+
+
 def _refresh(series: MeasurementSeries) -> None:
     series.summary = summary_of(series)
     series.point_count = int(series.summary["points"])
@@ -272,8 +300,6 @@ def measurement_add(
     given again with other columns is refused; ``clock_offset_s`` given changes the
     series's offset."""
     name = series_name(name)
-    if len(unit) > 32 or len(source_node) > 64 or len(description) > 2000:
-        raise _refuse("unit", "unit at most 32 characters, source node 64, description 2000")
     with transaction.atomic():
         locked_run, series = _locked_series(run, name, points, by)
         created = series.pk is None
@@ -281,23 +307,24 @@ def measurement_add(
         _checked_points(locked_run, points, offset_s)
         if series.point_count + len(points) > MAX_SERIES_POINTS:
             raise _refuse("file", f"at most {MAX_SERIES_POINTS:,} points in a series")
+        placed_again = not created and offset_s != series.clock_offset_s
         series.clock_offset_s = offset_s
-        if marker_at is not None:
-            _check_marker(locked_run, marker_at)
-            series.marker_at = marker_at
-        for field, given in (
-            ("unit", unit),
-            ("description", description),
-            ("source_node", source_node),
-        ):
-            if given:
-                setattr(series, field, given)
+        _described(
+            series,
+            unit=unit,
+            description=description,
+            source_node=source_node,
+            marker_at=marker_at,
+        )
         series.save()
         times_us = np.rint(points.times_s * 1e6).astype(np.int64)
         stored = 0
         for index, values in enumerate(points.values):
             stored += store_column(series, index, times_us, values)
         _refresh(series)
+        if stored or created or placed_again:  # the same points again: no one is told
+            change = "added" if stored or created else "placed"
+            _measured_event(series, change=change, stored=stored, via=via)
         total = sum(int(np.count_nonzero(~np.isnan(values))) for values in points.values)
         audit_record(
             actor=by,
@@ -312,6 +339,29 @@ def measurement_add(
             digest=_digest(times_us, points.values),
         )
     return Added(series=series, created=created, stored=stored, already=total - stored)
+
+
+def _described(
+    series: MeasurementSeries,
+    *,
+    unit: str,
+    description: str,
+    source_node: str,
+    marker_at: datetime | None,
+) -> None:
+    """What an upload says of its series, set on it (what it leaves empty is kept)."""
+    if len(unit) > 32 or len(source_node) > 64 or len(description) > 2000:
+        raise _refuse("unit", "unit at most 32 characters, source node 64, description 2000")
+    if marker_at is not None:
+        _check_marker(series.run, marker_at)
+        series.marker_at = marker_at
+    for field, given in (
+        ("unit", unit),
+        ("description", description),
+        ("source_node", source_node),
+    ):
+        if given:
+            setattr(series, field, given)
 
 
 def _digest(times_us: np.ndarray, values: list[np.ndarray]) -> str:
@@ -350,6 +400,7 @@ def measurement_update(
             locked.marker_at = marker_at
         locked.save(update_fields=["clock_offset_s", "marker_at", "updated_at"])
         _refresh(locked)
+        _measured_event(locked, change="placed", via=via)
         audit_record(
             actor=by,
             action="measurement.update",
@@ -389,6 +440,7 @@ def measurement_delete(
             name=series.name,
             points=series.point_count,
         )
+        _measured_event(series, change="deleted", via=via)
         MeasurementPoint.objects.filter(series=series).delete()
         series.delete()
 

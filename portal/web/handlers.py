@@ -1,7 +1,7 @@
-"""What the pages hear live of the events (``core.events.dispatch``): a run's every state on its
-stream, a robot's hold and release on its console and the calendars, a booking made, moved,
-decided or cancelled on the calendars (``core.live``). Imported when the app is ready
-(``WebConfig.ready``).
+"""What the pages hear live of the events (``core.events.dispatch``): a run's every state and
+each change of its measurement series on its stream, a robot's hold and release on its console
+and the calendars, a booking made, moved, decided or cancelled on the calendars
+(``core.live``). Imported when the app is ready (``WebConfig.ready``).
 
 Its passes run in the runs worker (``queue``), so a push never waits behind an e-mail; new to
 a database, it starts after the events already there. What is not an event is pushed where it
@@ -35,7 +35,7 @@ RESERVATION_TYPES = sorted(
 
 @handler(
     "live-pushes",
-    types=[*RUN_STATE_TYPES, *ROBOT_HOLD_TYPES, *RESERVATION_TYPES],
+    types=[*RUN_STATE_TYPES, "run.measured", *ROBOT_HOLD_TYPES, *RESERVATION_TYPES],
     queue=RUNS_QUEUE,
     from_end=True,
 )
@@ -53,6 +53,17 @@ def live_push(event: Event) -> None:
                 "label": RunState(state).label,
                 "reason": payload["reason"],
                 "live": state not in RUN_END_STATES,
+            },
+        )
+    elif event.type == "run.measured":
+        # The run page and its roof view read the series again (a batch pushed during the run).
+        live.publish(
+            live.run_channel(payload["run"]),
+            {
+                "type": "measurements",
+                "series": payload["series"],
+                "change": payload["change"],
+                "points": payload["points"],
             },
         )
     elif event.type in ROBOT_HOLD_TYPES:

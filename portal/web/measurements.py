@@ -15,13 +15,14 @@ from django.urls import reverse
 from django.views.decorators.http import require_POST
 
 from bookings.choices import Channel
+from core.api import page_throttled
 from core.audit.services import client_ip
 from core.errors import DomainError
 from portal.runs import measurements
 from portal.runs.measurement_files import format_of
 from portal.runs.models import MeasurementSeries, Run
 from portal.web.forms import MeasurementForm, MeasurementOffsetForm, form_refusal
-from portal.web.views import run_page_response, visible_run
+from portal.web.views import measurements_context, run_page_response, visible_run
 
 
 def _back(run: Run) -> str:
@@ -78,6 +79,17 @@ def measurement_add_view(request: HttpRequest, pk: int) -> HttpResponse:
             )
             return redirect(_back(run))
     return run_page_response(request, run, measurement_form=form, status=400)
+
+
+@page_throttled
+@login_required
+def measurement_series_part(request: HttpRequest, pk: int) -> HttpResponse:
+    """The run page's series, as the page has them: read again when one changes while the run
+    is live (a ``measurements`` push, web/measurements.js)."""
+    run = visible_run(request, pk)
+    response = render(request, "web/_run_measurement_series.html", measurements_context(run, None))
+    response["Cache-Control"] = "private, no-store"
+    return response
 
 
 @login_required

@@ -41,6 +41,11 @@ urlpatterns = [
         name="run-measurement-add",
     ),
     path(
+        "runs/<int:pk>/measurements/series/",
+        measurements.measurement_series_part,
+        name="run-measurement-series",
+    ),
+    path(
         "runs/<int:pk>/measurements/<slug:name>/offset/",
         measurements.measurement_offset_view,
         name="run-measurement-offset",

@@ -246,6 +246,7 @@ def measurements_context(run: Run, form: MeasurementForm | None) -> dict[str, An
     charts' data, and the form that adds one."""
     series = list(run.measurements.order_by("name"))
     return {
+        "run": run,
         "measurements": [
             {"series": s, "columns": list(s.summary.get("columns", {}).items())} for s in series
         ],

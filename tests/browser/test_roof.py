@@ -1,11 +1,15 @@
 """The roof, live, in Chromium against the real stack: the rail of the agent's own rail file
 (its grid cells and fixed nodes) on the run page and the robot console, and the robot moving
-along it while a run drives the simulated robot."""
+along it while a run drives the simulated robot; the simulated node's signal strength, pushed
+during the run, shown on the open run page and coloured on the roof's cells without a
+reload."""
 
 from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -14,6 +18,7 @@ from django.conf import settings
 from playwright.sync_api import Page, expect
 
 from basestation.telemetry.rail import DEFAULT_RAIL_PATH
+from bench.stack import REPO
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
 from tests.integration.experimenter import Experimenter
@@ -71,7 +76,25 @@ def _moves(page: Page) -> None:
     )
 
 
-def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, roof_stack):
+def _heat_shown_live(page: Page) -> None:
+    """The series the pusher sends appears on the open page (no reload: the mark set on
+    the page survives) and colours the roof's cells."""
+    page.evaluate("() => { window.openedOnce = true; }")
+    expect(page.locator("#measurement-rssi")).to_be_visible(timeout=30_000)
+    expect(page.locator("#roof-heat-choice option")).to_have_text(["rssi (dBm)"])
+    expect(page.locator("#roof .roof-heat-cell").first).to_be_attached(timeout=15_000)
+    expect(page.locator("#roof-heat-legend")).to_contain_text("dBm")
+    cells = page.locator("#roof").get_attribute("data-heat") or ""
+    assert re.fullmatch(r"[A-D]\d( [A-D]\d)*", cells), cells
+    # Each coloured cell is a row of the table the heatmap stands for.
+    table = page.locator("#measurement-rssi table.measurement-cells tbody tr")
+    assert set(cells.split()) <= set(table.evaluate_all("rows => rows.map(r => r.dataset.cell)"))
+    assert page.evaluate("() => window.openedOnce === true")
+
+
+def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(
+    browser, roof_stack, tmp_path, request
+):
     MobileResourceFactory(agent_url=roof_stack.agent_url)
     UserFactory(username="root", is_staff=True, is_superuser=True)
     one_way = [{"velocity_mps": 0.5, "direction": "cw", "duration_s": 20}]
@@ -98,11 +121,20 @@ def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, ro
     _check_map(console)
 
     run_id = ines.run("mobile-1", ahead_s=5, program_s=20, segments=one_way)
+    token = ines.session.headers["Authorization"].removeprefix("Token ")
+    pusher = subprocess.Popen(
+        [sys.executable, "-m", "basestation.sim.rssi", "--portal", roof_stack.web,
+         "--token", token, "--run", str(run_id), "--rail", str(tmp_path / "rail.json"),
+         "--node", "node-01", "--poll-s", "0.5"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    request.addfinalizer(pusher.kill)  # a test that failed early leaves no pusher behind
     page.goto(f"{roof_stack.web}/runs/{run_id}/")
     _check_map(page)
 
     expect(page.locator("#run-state")).to_have_attribute("data-state", "running", timeout=30_000)
     _moves(page)
+    _heat_shown_live(page)
     page.screenshot(path=str(SCREENSHOTS / "roof-run-page.png"), full_page=True)
     _moves(console)
     assert console.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1")
@@ -111,6 +143,8 @@ def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(browser, ro
     # At the end the map stays on the run's last sample, standing still.
     expect(page.locator("#run-state")).to_have_attribute("data-state", "completed", timeout=60_000)
     expect(page.locator("#roof-text")).to_contain_text("At the run's last sample", timeout=15_000)
+    output, _ = pusher.communicate(timeout=60)
+    assert pusher.returncode == 0, output
     assert not errors, errors
     context.close()
     console_context.close()

@@ -7,12 +7,16 @@ import io
 import json
 from datetime import UTC, datetime
 
+import jsonschema
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
 from core.audit.models import AuditEvent
+from core.events.catalogue import EVENT_TYPES
+from core.events.models import Event
+from core.events.sequence import events_sequence
 from portal.runs.measurement_files import format_of, read_points
 from portal.runs.measurements import (
     MeasurementRefused,
@@ -223,3 +227,29 @@ def test_a_marker_of_the_first_segments_start_offers_the_offset_that_aligns_the_
         measurement_update(
             series=aligned, by=owner, marker_at=datetime.fromtimestamp(t0_s + 9e6, UTC)
         )
+
+
+def test_each_change_of_a_series_is_one_event_of_the_runs_owner_and_the_same_points_none():
+    owner = UserFactory()
+    run = run_round_the_rail(owner, seconds=5.0)
+    t0_s = run.start_at.timestamp()
+    text = "t,rssi\n" + "".join(f"{t0_s + i * 0.5},{-50 - i}\n" for i in range(6))
+    points = read_file_points(text.encode(), "csv")
+    added = measurement_add(run=run, by=owner, name="rssi", points=points, via="api")
+    measurement_add(run=run, by=owner, name="rssi", points=points, via="api")  # nothing new
+    with pytest.raises(MeasurementRefused):
+        measurement_add(run=run, by=owner, name="rssi", points=points, clock_offset_s=1e9)
+    measurement_update(series=added.series, by=owner, clock_offset_s=0.25, via="web")
+    measurement_delete(series=added.series, by=owner, via="cli")
+    events_sequence()
+    events = list(Event.objects.filter(type="run.measured").order_by("position"))
+    for event in events:
+        jsonschema.validate(event.payload, EVENT_TYPES["run.measured"].payload)
+        assert event.owner_id == owner.pk
+        assert event.subject == f"run:{run.pk}"
+    assert [
+        (e.payload["change"], e.payload["points"], e.payload["stored"], e.payload["via"])
+        for e in events
+    ] == [("added", 6, 6, "api"), ("placed", 6, 0, "web"), ("deleted", 0, 0, "cli")]
+    assert events[0].payload["reservation"] == run.reservation_id
+    assert events[0].payload["resource"] == run.resource.name

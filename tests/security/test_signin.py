@@ -65,7 +65,8 @@ NOT_STAFF = {
     "runs-compare", "run", "run-data", "run-csv", "run-json", "run-package", "run-again",
     "calendar", "timeline", "calendar-events", "calendar-feeds", "api-tokens", "rail-json",
     "webhooks", "webhook", "webhook-test", "webhook-resume", "webhook-delete",
-    "run-measurement-add", "run-measurement-offset", "run-measurement-delete",
+    "run-measurement-add", "run-measurement-series", "run-measurement-offset",
+    "run-measurement-delete",
     # Live streams (ASGI only): robot_stream reads the door's mark, tests/web/test_live.py.
     "live-run", "live-robot", "live-calendar",
     "logout",  # the admin's sign-out

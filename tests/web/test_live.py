@@ -19,6 +19,7 @@ from bookings.services import resource_hold
 from core.accounts.staff import has_staff_role
 from core.events.dispatch import events_dispatch_all
 from portal.processes import RUNS_QUEUE
+from portal.runs.measurements import measurement_add, rows_points
 from portal.runs.models import Run
 from portal.runs.services.collection import samples_ingest
 from portal.runs.services.reservations import reservation_create
@@ -136,6 +137,20 @@ def test_the_run_stream_carries_its_state_changes_and_new_samples(run, owner):
     assert state.startswith("event: state\n")
     assert '"state":"collecting"' in state
     assert '"live":true' in state
+
+
+def test_the_run_stream_tells_of_a_batch_of_measurements(run, owner):
+    def measure() -> None:
+        t0_s = run.start_at.timestamp()
+        points = rows_points([{"t": t0_s + i, "rssi": -50.0 - i} for i in range(3)])
+        measurement_add(run=run, by=owner, name="rssi", points=points, via="api")
+        runs_worker_pass()
+
+    (pushed,) = _follow(owner, f"/live/runs/{run.pk}/", measure, 1)
+    assert pushed.startswith("event: measurements\n")
+    assert '"series":"rssi"' in pushed
+    assert '"change":"added"' in pushed
+    assert '"points":3' in pushed
 
 
 def test_a_robots_stream_is_for_admins_and_carries_its_hold(owner, admin_user, mobile):

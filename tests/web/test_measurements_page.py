@@ -6,6 +6,7 @@ API (its audit rows say the door)."""
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 import pytest
@@ -130,3 +131,22 @@ def test_a_markers_suggested_offset_is_offered_and_used_with_one_button(alice, o
     page = alice.get(f"/runs/{run.pk}/").content.decode()
     assert "and is the one used" in page
     assert 'data-testid="use-suggested-offset"' not in page
+
+
+def test_the_series_part_is_the_pages_own_and_only_for_who_may_see_the_run(alice, run, other):
+    empty = alice.get(f"/runs/{run.pk}/measurements/series/")
+    assert empty.status_code == 200
+    assert empty["Cache-Control"] == "private, no-store"
+    assert 'id="measurements-none"' in empty.content.decode()
+    alice.post(f"/runs/{run.pk}/measurements/", {"file": _file(run), "name": "rssi"})
+    part = alice.get(f"/runs/{run.pk}/measurements/series/").content.decode()
+    page = alice.get(f"/runs/{run.pk}/").content.decode()
+    # The same markup as the page's (but each form's masked CSRF token): the script swaps
+    # one for the other.
+    part, page = (re.sub(r'name="csrfmiddlewaretoken" value="\w+"', "", t) for t in (part, page))
+    start = page.index('<div id="measurement-series"')
+    assert page[start : start + len(part.strip())] == part.strip()
+    assert 'id="measurement-rssi"' in part
+    stranger = Client()
+    stranger.force_login(other)
+    assert stranger.get(f"/runs/{run.pk}/measurements/series/").status_code == 404

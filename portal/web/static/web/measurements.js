@@ -1,13 +1,14 @@
 // @ts-check
 // Run page: each measurement series drawn from the summary the page carries
 // (#measurements-data): the value against the position along the rail (its points, and the
-// mean per metre), and the value over time with the robot's velocity.
+// mean per metre), and the value over time with the robot's velocity. The summaries are handed
+// on ("measurements:data") to the roof's heatmap (roof.js). While the run is live, a series
+// changed ("run:measurements", pushed: run.js) has the part read again and redrawn.
 (function () {
   "use strict";
-  const data = document.getElementById("measurements-data");
-  if (!data || typeof Chart === "undefined") return;
-  /** @type {{name: string, unit: string, columns: Object<string, any>}[]} */
-  const series = JSON.parse(data.textContent || "[]");
+  if (!document.getElementById("measurement-series")) return;
+  /** @type {any[]} */
+  let charts = [];
 
   function positionChart(canvas, column, unit) {
     const scatter = column.scatter || { track_m: [], value: [] };
@@ -51,13 +52,59 @@
     });
   }
 
-  for (const canvas of document.querySelectorAll("#measurements canvas[data-kind]")) {
-    if (!(canvas instanceof HTMLCanvasElement)) continue;
-    const one = series[Number(canvas.dataset.series)];
-    const column = one && one.columns[canvas.dataset.column || ""];
-    if (!column) continue;
-    const unit = one.unit ? `${canvas.dataset.column} (${one.unit})` : canvas.dataset.column || "";
-    if (canvas.dataset.kind === "position") positionChart(canvas, column, unit);
-    else timeChart(canvas, column, unit);
+  function drawAll() {
+    const data = document.getElementById("measurements-data");
+    /** @type {{name: string, unit: string, columns: Object<string, any>}[]} */
+    const series = data ? JSON.parse(data.textContent || "[]") : [];
+    document.dispatchEvent(new CustomEvent("measurements:data", { detail: series }));
+    for (const chart of charts) chart.destroy();
+    charts = [];
+    if (typeof Chart === "undefined") return;
+    for (const canvas of document.querySelectorAll("#measurements canvas[data-kind]")) {
+      if (!(canvas instanceof HTMLCanvasElement)) continue;
+      const one = series[Number(canvas.dataset.series)];
+      const column = one && one.columns[canvas.dataset.column || ""];
+      if (!column) continue;
+      const unit = one.unit ? `${canvas.dataset.column} (${one.unit})` : canvas.dataset.column || "";
+      charts.push(canvas.dataset.kind === "position" ? positionChart(canvas, column, unit) : timeChart(canvas, column, unit));
+    }
   }
+
+  // One read at a time; pushes meanwhile cause one more after it. A part is not swapped
+  // under someone typing in it (its offset form): it waits until they leave it.
+  let loading = false;
+  let again = false;
+  let waiting = false;
+  async function reload() {
+    if (loading) { again = true; return; }
+    const part = document.getElementById("measurement-series");
+    if (!part) return;
+    if (part.contains(document.activeElement)) {
+      if (!waiting) {
+        waiting = true;
+        part.addEventListener("focusout", () => { waiting = false; setTimeout(reload, 0); }, { once: true });
+      }
+      return;
+    }
+    loading = true;
+    try {
+      const response = await fetch(part.dataset.url || "", { credentials: "same-origin", headers: { Accept: "text/html" } });
+      if (!response.ok) throw new Error("HTTP " + response.status);
+      const holder = document.createElement("template");
+      holder.innerHTML = await response.text();
+      const fresh = holder.content.getElementById("measurement-series");
+      if (!fresh) throw new Error("not the series");
+      part.replaceWith(fresh);
+      drawAll();
+    } catch (error) {
+      // The next push, or the page's next load, reads it again.
+      console.warn("measurements not refreshed:", error);
+    } finally {
+      loading = false;
+      if (again) { again = false; reload(); }
+    }
+  }
+
+  document.addEventListener("run:measurements", () => { reload(); });
+  drawAll();
 })();

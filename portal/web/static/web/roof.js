@@ -5,6 +5,10 @@
 // Where the robot is comes from the page: the run page's data ("run:data" events from run.js:
 // the last point of its series), the robot console's status ("robot:status" from robot.js).
 // Every position is also written out in words (#roof-text), the map's text alternative.
+//
+// On the run page the grid cells are coloured by a measurement's mean in each (the summaries
+// measurements.js hands on as "measurements:data"): a heatmap whose numbers are the table of
+// that column per grid cell in the measurements section.
 (function () {
   "use strict";
   const root = document.getElementById("roof");
@@ -16,6 +20,11 @@
   let rail = null; // {length_m, xyAt(track_m) -> [x, y], tangentAt(track_m) -> [dx, dy], cellAt(track_m)}
   let pending = null; // a position that came before the map
   let robot = null; // the SVG group of the robot
+  let cells = []; // the drawing's grid cells: {id, from_m, to_m}
+  let unit = 1; // a stroke's width on this roof
+  let heatLayer = null; // the SVG group the heatmap is drawn in, under the rail
+  /** @type {{key: string, label: string, unit: string, byCell: any[]}[]} */
+  let heatChoices = [];
 
   function el(name, attrs, parent) {
     const node = document.createElementNS(NS, name);
@@ -83,7 +92,7 @@
 
   function draw(drawing) {
     rail = drawing.geometry ? polylineRail(drawing) : circleRail(drawing.length_m);
-    const cells = drawing.geometry ? drawing.cells : [];
+    cells = drawing.geometry ? drawing.cells : [];
     rail.cellAt = cellFinder(cells);
     const nodes = drawing.geometry ? drawing.nodes : [];
     const all = rail.outline.concat(nodes.map((n) => [n.x_m, -n.y_m]), [[0, 0]]);
@@ -94,10 +103,11 @@
     const width = Math.max(...xs) - Math.min(...xs) + 2 * margin;
     const height = Math.max(...ys) - Math.min(...ys) + 2 * margin;
     svg.setAttribute("viewBox", `${minX} ${minY} ${width} ${height}`);
-    const unit = span / 100; // strokes and labels scale with the roof
+    unit = span / 100; // strokes and labels scale with the roof
     // Keep <title> and <desc>; redraw the rest.
     for (const child of Array.from(svg.children)) if (child.tagName !== "title" && child.tagName !== "desc") child.remove();
 
+    heatLayer = el("g", { class: "roof-heat", "aria-hidden": "true" }, svg);
     const map = el("g", { class: "roof-drawing", "aria-hidden": "true" }, svg);
     el("polygon", { class: "roof-rail", points: rail.outline.map((p) => p.join(",")).join(" "), "stroke-width": 1.6 * unit }, map);
     // Grid cells: a tick across the rail where each starts, its name outside the rail.
@@ -132,7 +142,85 @@
       ? `The rail “${drawing.name}”, ${drawing.length_m.toFixed(1)} m around, ${cells.length ? new Set(cells.map((c) => c.id)).size + " grid cells" : "no grid"}${nodes.length ? ", " + nodes.length + " fixed node" + (nodes.length === 1 ? "" : "s") : ""}. Where the robot is appears here.`
       : `A rail ${drawing.length_m.toFixed(1)} m around (its base station has no geometry; drawn as a circle). Where the robot is appears here.`;
     if (pending) { const p = pending; pending = null; place(p); }
+    heatDraw();
   }
+
+  // Viridis (perceptually even, colour-blind safe): low values dark blue, high yellow.
+  const VIRIDIS = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
+  function colourAt(f) {
+    const x = Math.max(0, Math.min(1, f)) * (VIRIDIS.length - 1);
+    const k = Math.min(VIRIDIS.length - 2, Math.floor(x));
+    const a = VIRIDIS[k], b = VIRIDIS[k + 1], t = x - k;
+    return `rgb(${a.map((v, i) => Math.round(v + t * (b[i] - v))).join(",")})`;
+  }
+  const heatSelect = /** @type {HTMLSelectElement | null} */ (document.getElementById("roof-heat-choice"));
+  const heatBox = document.getElementById("roof-heat");
+  const heatLegend = document.getElementById("roof-heat-legend");
+
+  // The cells coloured by the chosen column's mean; each cell's stretch of rail is a thick
+  // line under the rail's own.
+  function heatDraw() {
+    if (!heatLayer || !heatSelect || !heatLegend) return;
+    heatLayer.textContent = "";
+    const choice = heatChoices.find((c) => c.key === heatSelect.value);
+    root.dataset.heat = "";
+    if (!choice || !rail || !cells.length) { heatLegend.textContent = ""; return; }
+    const means = new Map(choice.byCell.filter((row) => row.mean !== null).map((row) => [row.cell, row]));
+    const values = Array.from(means.values(), (row) => row.mean);
+    if (!values.length) { heatLegend.textContent = "No point of it fell in a grid cell."; return; }
+    const low = Math.min(...values), high = Math.max(...values);
+    const shown = [];
+    for (const cell of cells) {
+      const row = means.get(cell.id);
+      if (!row) continue;
+      const steps = 12, points = [];
+      for (let k = 0; k <= steps; k++) points.push(rail.xyAt(cell.from_m + ((cell.to_m - cell.from_m) * k) / steps).join(","));
+      const line = el("polyline", { class: "roof-heat-cell", "data-cell": cell.id, points: points.join(" "), stroke: colourAt(high > low ? (row.mean - low) / (high - low) : 0.5), "stroke-width": 5 * unit }, heatLayer);
+      el("title", {}, line).textContent = `${cell.id}: mean ${row.mean.toFixed(2)} ${choice.unit} (${row.count} points)`;
+      shown.push(cell.id);
+    }
+    root.dataset.heat = shown.join(" ");
+    const gradient = VIRIDIS.map((c, i) => `rgb(${c.join(",")}) ${(i / (VIRIDIS.length - 1)) * 100}%`).join(", ");
+    heatLegend.innerHTML = "";
+    const lowText = document.createElement("span");
+    lowText.textContent = `${low.toFixed(1)} ${choice.unit}`;
+    const bar = document.createElement("span");
+    bar.className = "roof-heat-bar";
+    bar.setAttribute("aria-hidden", "true");
+    bar.style.background = `linear-gradient(to right, ${gradient})`;
+    const highText = document.createElement("span");
+    highText.textContent = `${high.toFixed(1)} ${choice.unit}`;
+    const note = document.createElement("span");
+    note.textContent = ` · mean of ${choice.label} per grid cell (${shown.length} cells); the numbers are in its table below.`;
+    heatLegend.append(lowText, bar, highText, note);
+  }
+
+  // The run page's measurements (measurements.js): one choice per series and value column
+  // that has points in grid cells; the choice made is kept when the data is read again.
+  document.addEventListener("measurements:data", (event) => {
+    if (!heatSelect || !heatBox) return;
+    const series = /** @type {any[]} */ ((/** @type {CustomEvent} */ (event)).detail || []);
+    heatChoices = [];
+    for (const one of series) {
+      for (const [column, summary] of Object.entries(one.columns || {})) {
+        if (!summary.by_cell || !summary.by_cell.length) continue;
+        const label = Object.keys(one.columns).length > 1 ? `${one.name} · ${column}` : one.name;
+        heatChoices.push({ key: `${one.name}/${column}`, label, unit: one.unit || "", byCell: summary.by_cell });
+      }
+    }
+    const kept = heatSelect.value;
+    heatSelect.textContent = "";
+    for (const choice of heatChoices) {
+      const option = document.createElement("option");
+      option.value = choice.key;
+      option.textContent = choice.label + (choice.unit ? ` (${choice.unit})` : "");
+      heatSelect.appendChild(option);
+    }
+    if (heatChoices.some((c) => c.key === kept)) heatSelect.value = kept;
+    heatBox.hidden = heatChoices.length === 0;
+    heatDraw();
+  });
+  if (heatSelect) heatSelect.addEventListener("change", heatDraw);
 
   // position: {track_m, velocity_mps (signed, cw +) or speed with direction, direction, at}
   function place(position) {

@@ -137,6 +137,8 @@
       events: {
         state: (event) => { showState(event.state, event.label, event.reason); refresh(); },
         samples: () => refresh(),
+        // A measurement series changed (measurements.js reads it again).
+        measurements: (event) => document.dispatchEvent(new CustomEvent("run:measurements", { detail: event })),
       },
       poll: refresh,
       pollMs: 3000,
