@@ -1,8 +1,14 @@
 """The roof, live, in Chromium against the real stack: the rail of the agent's own rail file
 (its grid cells and fixed nodes) on the run page and the robot console, and the robot moving
-along it while a run drives the simulated robot; the simulated node's signal strength, pushed
-during the run, shown on the open run page and coloured on the roof's cells without a
-reload."""
+along it while a run drives the simulated robot.
+
+Measurements pushed live, end to end: while the run goes on, ``python -m
+basestation.sim.rssi`` (the synthetic signal strength of a fixed node of the rail's file, a
+log-distance path loss with seeded shadowing) follows its samples through the API and sends a
+reading for each; the open run page shows the series and colours the roof's cells without a
+reload. The per-cell means the portal computes must be within the model's shadowing of the
+model's own values: those are computed here from the model and the samples' places, not with
+the portal's code."""
 
 from __future__ import annotations
 
@@ -10,14 +16,17 @@ import json
 import re
 import subprocess
 import sys
+from collections import defaultdict
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import requests
 from django.conf import settings
 from playwright.sync_api import Page, expect
 
-from basestation.telemetry.rail import DEFAULT_RAIL_PATH
+from basestation.sim.rssi import PathLoss, distance_m, node_place
+from basestation.telemetry.rail import DEFAULT_RAIL_PATH, Rail
 from bench.stack import REPO
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
@@ -92,6 +101,47 @@ def _heat_shown_live(page: Page) -> None:
     assert page.evaluate("() => window.openedOnce === true")
 
 
+def _samples(web: str, run_id: int, headers: dict[str, str]) -> list[dict]:
+    samples, after = [], 0
+    while True:
+        page = requests.get(
+            f"{web}/api/v1/runs/{run_id}/samples/",
+            params={"after": after, "limit": 1000},
+            headers=headers,
+            timeout=10,
+        ).json()
+        if not page["samples"]:
+            return samples
+        samples += page["samples"]
+        after = page["last_seq"]
+
+
+def _cells_as_the_model_says(web: str, run_id: int, headers: dict[str, str], rail: Rail) -> None:
+    """Each sample answered by one reading, placed on it; each cell's mean within the model's
+    shadowing of the model's own mean at the cell's samples."""
+    samples = _samples(web, run_id, headers)
+    series = requests.get(
+        f"{web}/api/v1/runs/{run_id}/measurements/rssi/", headers=headers, timeout=10
+    ).json()
+    summary = series["summary"]["columns"]["rssi"]
+    assert series["point_count"] == len(samples)
+    assert summary["where"] == {"placed": len(samples), "before": 0, "after": 0, "gap": 0}
+    model, node_at = PathLoss(), node_place(rail, "node-01", None)
+    expected: dict[str, list[float]] = defaultdict(list)
+    for sample in samples:
+        if sample["grid_id"]:
+            expected[sample["grid_id"]].append(
+                model.mean_dbm(distance_m(rail, node_at, sample["track_m"]))
+            )
+    cells = {row["cell"]: row for row in summary["by_cell"]}
+    assert len(cells) >= 2, summary["by_cell"]
+    assert set(cells) == set(expected)
+    for cell, values in expected.items():
+        assert cells[cell]["count"] == len(values)
+        model_mean = sum(values) / len(values)
+        assert abs(cells[cell]["mean"] - model_mean) <= model.shadowing_db, (cell, cells[cell])
+
+
 def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(
     browser, roof_stack, tmp_path, request
 ):
@@ -145,6 +195,10 @@ def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(
     expect(page.locator("#roof-text")).to_contain_text("At the run's last sample", timeout=15_000)
     output, _ = pusher.communicate(timeout=60)
     assert pusher.returncode == 0, output
+    samples = len(_samples(roof_stack.web, run_id, dict(ines.session.headers)))
+    assert f"rssi: {samples} readings sent" in output, output
+    rail = Rail.configured(str(tmp_path / "rail.json"))
+    _cells_as_the_model_says(roof_stack.web, run_id, dict(ines.session.headers), rail)
     assert not errors, errors
     context.close()
     console_context.close()
