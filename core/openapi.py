@@ -157,6 +157,11 @@ class AutoSchema(openapi.AutoSchema):
             and "pattern" not in schema
             and "format" not in schema
         ):
+            if isinstance(field, serializers.SlugField):
+                # A slug says so (a name by which rows are found, in the request's data or
+                # its query), never with DRF's text pattern in its place.
+                schema["pattern"] = "^[-\\w]+$" if field.allow_unicode else "^[-a-zA-Z0-9_]+$"
+                return schema
             # What DRF refuses in text: NUL characters, and (unless blank is allowed) text
             # that is only whitespace, which it trims to nothing.
             if field.allow_blank or not field.trim_whitespace:

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from datetime import datetime
+from datetime import datetime, timedelta
+from typing import Final
 
 from django.db import transaction
 from django.utils import timezone
@@ -14,6 +15,10 @@ from bookings.rules import aware_utc
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import InvalidInput, NotAllowed
+
+# A window may be declared when it has begun already (maintenance under way), not long after:
+# one that ended long ago changes nothing the portal does.
+BLACKOUT_MAX_PAST: Final = timedelta(days=7)
 
 
 def blackout_create(
@@ -42,6 +47,12 @@ def blackout_create(
     end_at = aware_utc(end_at, "end_at")
     if end_at <= start_at:
         raise InvalidInput.on_field("end_at", "The end must be after the start.")
+    if start_at < timezone.now() - BLACKOUT_MAX_PAST:
+        raise InvalidInput.on_field(
+            "start_at",
+            "A maintenance window starts at most 7 days ago (one long past changes "
+            "nothing; note it in the log).",
+        )
     with transaction.atomic():
         blackout = Blackout(
             start_at=start_at,

@@ -1,12 +1,13 @@
 """The one check the schemathesis run adds, loaded by schemathesis itself (``hooks``).
 
 ``positive_data_acceptance`` (a schema-valid request must not be refused with 400) is replaced,
-for the operations of :data:`DATA_DEPENDENT_FIELDS` only, by
+for the operations of :data:`DATA_DEPENDENT_FIELDS` and :data:`DATA_DEPENDENT_ERRORS` only, by
 :func:`refused_only_for_stated_reasons`. Their requests must meet conditions that JSON Schema
 cannot state: they name stored things (resources, users, a robot's limits), compare fields
 with each other or with the clock (an end after its start, a start in the future), or depend
-on the run (its rail's length). A schema-valid request may be refused with 400 there only when
-the answer names a field listed for that operation. No Django here: schemathesis runs apart.
+on the run (its rail's length). A schema-valid request may be refused there only with 400
+naming a field listed for that operation, or with 400 or 422 carrying an error code listed for
+it. No Django here: schemathesis runs apart.
 """
 
 from __future__ import annotations
@@ -34,8 +35,9 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     ("POST", "/api/v1/reservations/{id}/decision/"): frozenset({"reason"}),
     ("POST", "/api/v1/reservations/check/"): frozenset({"resources"}),
     ("POST", "/api/v1/quota/check/"): frozenset({"resources"}),  # its deprecated name
-    # resource names; the window's end after its start; some resources, or all of them
-    ("POST", "/api/v1/blackouts/"): frozenset({"resources", "end_at"}),
+    # resource names; the window's end after its start, its start not long past; some
+    # resources, or all of them
+    ("POST", "/api/v1/blackouts/"): frozenset({"resources", "start_at", "end_at"}),
     # users, groups and resources by name; a limit in hours or count needs a period
     ("POST", "/api/v1/quota-policies/"): frozenset(
         {"user", "group", "resource", "resource_group", "period"}
@@ -65,7 +67,25 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     # only with staff_events, which is staff's
     ("POST", "/api/v1/webhooks/"): frozenset({"url", "types", "staff_events"}),
     ("PATCH", "/api/v1/webhooks/{id}/"): frozenset({"url", "types"}),
+    # a fixed node has no rail
+    ("GET", "/api/v1/resources/{name}/rail/"): frozenset({"resource"}),
+    # the list's last day on or after its first
+    ("GET", "/api/v1/runs/"): frozenset({"started_to"}),
 }
+
+# Refusals of a schema-valid request by what it names that is stored, by their error code
+# alone: a user's name and password (which of the two is wrong is not told), an idempotency
+# key's earlier use for another request (422, documented on the operation).
+_KEY_REUSED = frozenset({"idempotency_key_reused"})
+DATA_DEPENDENT_ERRORS: dict[tuple[str, str], frozenset[str]] = {
+    ("POST", "/api/v1/auth/token/"): frozenset({"sign_in_failed"}),
+    ("POST", "/api/v1/reservations/"): _KEY_REUSED,
+    ("POST", "/api/v1/reservations/{id}/attach/"): _KEY_REUSED,
+    ("POST", "/api/v1/runs/{id}/again/"): _KEY_REUSED,
+}
+
+# Every operation whose positive_data_acceptance this module's check replaces.
+DATA_DEPENDENT = set(DATA_DEPENDENT_FIELDS) | set(DATA_DEPENDENT_ERRORS)
 
 
 def _field_root(path: str) -> str:
@@ -76,15 +96,22 @@ def _field_root(path: str) -> str:
 @schemathesis.check
 def refused_only_for_stated_reasons(ctx: Any, response: Any, case: Any) -> bool | None:
     meta = case.meta
-    if meta is None or not meta.generation.mode.is_positive or response.status_code != 400:
+    if meta is None or not meta.generation.mode.is_positive:
         return None
-    allowed = DATA_DEPENDENT_FIELDS.get((case.method.upper(), case.path))
-    if allowed is None:
-        return None  # positive_data_acceptance itself runs on this operation
+    operation = (case.method.upper(), case.path)
+    if operation not in DATA_DEPENDENT or response.status_code not in (400, 422):
+        return None  # positive_data_acceptance itself runs on the other operations
     try:
-        fields = {_field_root(name) for name in response.json().get("fields", {})}
+        body = response.json()
     except ValueError:
-        fields = set()
+        body = {}
+    body = body if isinstance(body, dict) else {}
+    if body.get("error") in DATA_DEPENDENT_ERRORS.get(operation, ()):
+        return None
+    allowed = DATA_DEPENDENT_FIELDS.get(operation, frozenset())
+    fields = {_field_root(name) for name in body.get("fields", {})}
+    if response.status_code != 400:
+        fields = set()  # only a 400 refuses for a field
     unexpected = (fields - allowed) if fields else {"(no field named)"}
     if unexpected:
         raise AssertionError(

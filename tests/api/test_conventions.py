@@ -369,3 +369,15 @@ def test_a_download_honours_accept_and_its_errors_stay_json(api, owner, mobile):
     assert missing.status_code == 404
     assert missing["Content-Type"] == "application/json"
     _is_envelope(missing.json(), "not_found")
+
+
+def test_a_name_that_is_a_slug_is_stated_as_one(schema, api):
+    slug = "^[-a-zA-Z0-9_]+$"
+    runs = {p["name"]: p for p in schema["paths"]["/api/v1/runs/"]["get"]["parameters"]}
+    assert runs["resource"]["schema"]["pattern"] == slug
+    booking = schema["components"]["schemas"]["ReservationRequest"]["properties"]
+    assert booking["resources"]["items"]["pattern"] == slug
+    # What the pattern refuses, the API refuses naming the field.
+    refused = api.get("/api/v1/runs/?resource=mobile%201")
+    assert refused.status_code == 400
+    assert "resource" in refused.json()["fields"]

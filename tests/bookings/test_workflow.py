@@ -107,6 +107,11 @@ def test_a_blackout_blocks_new_bookings_and_flags_existing_ones(
     existing = reservation_create(owner=owner, resource=node, start_at=start, end_at=end)
     with pytest.raises(NotAllowed):
         blackout_create(by=owner, start_at=start, end_at=end, reason="x", resources=[node])
+    # One that began under way is declared; one begun long ago refused, naming its start.
+    long_ago = timezone.now() - timedelta(days=8)
+    with pytest.raises(InvalidInput, match="at most 7 days ago") as refused:
+        blackout_create(by=admin_user, start_at=long_ago, end_at=end, reason="x", resources=[node])
+    assert "start_at" in refused.value.fields
     with django_capture_on_commit_callbacks(execute=True):
         _blackout, conflicts = blackout_create(
             by=admin_user,
