@@ -1,8 +1,11 @@
 """The OpenAPI description holds: schemathesis against a live portal, as an outside client.
 
-``schemathesis run`` against the real ASGI server on PostgreSQL, once as an experimenter and
-once as an admin (each with their token), with every check it has, a fixed seed and a bounded
-number of examples per operation; it must find nothing.
+``schemathesis run`` against the real ASGI server on PostgreSQL, once as an experimenter (every
+operation but the token's revocation) and once as an admin (the operations whose answer is
+staff's own: ``ADMIN_OPERATIONS``), each with their token, with every check it has, a fixed
+seed and a bounded number of examples per operation; it must find nothing. Each
+``[[operations]]`` entry names one operation (``include-name``): filters of different kinds in
+one entry select what any of them matches.
 
 Checks not run everywhere, and why:
 
