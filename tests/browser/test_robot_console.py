@@ -22,7 +22,7 @@ def test_an_admin_stops_and_releases_the_robot_from_the_console(browser, stack):
     login(page, stack["web"], "root-admin", "correct horse battery")
     # The robots' consoles are in the top bar's "Testbed" menu, as are the other staff pages.
     page.get_by_test_id("menu-testbed").locator("summary").click()
-    page.get_by_role("link", name="mobile-1").click()
+    page.get_by_role("link", name="Robot console (mobile-1)").click()
     expect(page.locator("#st-link")).to_contain_text("up", timeout=15_000)
     expect(page.locator("#st-battery")).to_contain_text("V")
 

@@ -89,7 +89,10 @@ def test_the_emergency_stop_latches_until_released_with_a_reason(
         format="json",
     )
     assert refused.status_code == 409
-    assert "refused" in refused.json()["detail"]
+    # In the portal's words: the agent's own name its API's path.
+    assert refused.json()["detail"] == (
+        "The base station refused: the emergency stop is latched: release it first (with a reason)"
+    )
     assert AuditEvent.objects.get(action="robot.control").data["refused"]
     assert (
         client.post("/api/v1/resources/mobile-1/robot/release/", {}, format="json").status_code
@@ -206,3 +209,5 @@ def test_the_console_page_is_served_to_admins(robot, admin_user, client):
     page = client.get("/robot/mobile-1/")
     assert page.status_code == 200
     assert b"EMERGENCY STOP" in page.content
+    # The staff menu names what the link opens, not only the robot.
+    assert b'href="/robot/mobile-1/">Robot console (mobile-1)</a>' in page.content

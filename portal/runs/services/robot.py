@@ -7,7 +7,7 @@ who, when, from where and why — including commands the agent refused.
 from __future__ import annotations
 
 from datetime import date
-from typing import Any
+from typing import Any, Final
 
 from django.core.cache import cache
 from django.db import transaction
@@ -74,7 +74,7 @@ def _call(
         audit_record(
             actor=by, action=action, target=resource, ip=ip, reason=reason, **outcome, **data
         )
-        detail = exc.body.get("detail") or exc.message
+        detail = _conflict_words(exc) or exc.body.get("detail") or exc.message
         if isinstance(exc, AgentConflict):
             raise Conflict(f"The base station refused: {detail}") from exc
         if isinstance(exc, AgentRejected):
@@ -88,6 +88,17 @@ def _call(
             if event is not None:
                 robot_event(event, resource, reason=reason, by=by)
     return result
+
+
+# The agent's refusals in the portal's words: its own name its API's paths, which are not the
+# console's nor the portal API's.
+AGENT_CONFLICT_WORDS: Final = {
+    "estop_latched": "the emergency stop is latched: release it first (with a reason)",
+}
+
+
+def _conflict_words(exc: AgentError) -> str | None:
+    return AGENT_CONFLICT_WORDS.get(exc.kind or "") if isinstance(exc, AgentConflict) else None
 
 
 def _hold_repeats(*, resource: Resource, by: User, velocity_mps: float, direction: str) -> bool:
