@@ -8,11 +8,15 @@ control loop's own tests.)"""
 from __future__ import annotations
 
 import json
+import re
 import time
 from collections.abc import Callable
+from datetime import datetime
 from pathlib import Path
+from zoneinfo import ZoneInfo
 
 import pytest
+from django.conf import settings
 from playwright.sync_api import Page, Request, Route, expect
 
 from basestation.client import AgentClient
@@ -194,6 +198,13 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     # The day's log names the admin's manual session, on screen and as a download.
     page.get_by_role("button", name="Show").click()
     expect(page.locator("#log-rows tr").first.locator("td").first).to_have_text("root")
+    # Its times on the testbed's wall clock, to the second (the agent's are UTC, to the µs).
+    start = page.locator("#log-rows tr").first.locator("td").nth(2)
+    expect(start).to_have_text(re.compile(r"^\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2}$"))
+    shown = datetime.strptime(start.inner_text(), "%Y-%m-%d %H:%M:%S")
+    utc = datetime.fromisoformat(start.get_attribute("title") or "")
+    zone = ZoneInfo(settings.TIME_ZONE)
+    assert shown == utc.astimezone(zone).replace(tzinfo=None, microsecond=0)
     with page.expect_download() as download_info:
         page.get_by_role("button", name="Download CSV").click()
     lines = Path(download_info.value.path()).read_text().splitlines()

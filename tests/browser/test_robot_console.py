@@ -37,11 +37,18 @@ def test_an_admin_stops_and_releases_the_robot_from_the_console(browser, stack):
 
     page.locator("#release-form").get_by_role("button").click()  # no reason: refused
     expect(page.locator("#console-feedback")).to_contain_text("Not released")
+    # Said once: the refusal's detail names the field, its field's message is not repeated.
+    said = page.locator("#console-feedback").inner_text()
+    assert said.count("Say why it is safe to release the stop.") == 1, said
     page.locator("#release-form input[name=reason]").fill("rail inspected")
     page.locator("#release-form").get_by_role("button").click()
     # The portal's answer (after its audit row), not the status: the base station's status can
     # say released before the portal has written down who released it.
-    expect(page.locator("#console-feedback")).to_contain_text("Emergency stop released.")
+    # Released and reopened in one step (the box is ticked): bookings are open, whether or not
+    # the health check had held the robot meanwhile.
+    expect(page.locator("#console-feedback")).to_have_text(
+        "Emergency stop released; bookings are open."
+    )
     expect(page.locator("#st-estop")).to_have_text("released", timeout=5_000)
     # The health check may also have held the robot while its stop was latched (audited as
     # resource.hold); the console's own commands are these, in order.

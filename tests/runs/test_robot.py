@@ -8,6 +8,7 @@ from datetime import UTC, timedelta
 import pytest
 from django.utils import timezone
 
+from bookings.services import resource_hold
 from core.audit.models import AuditEvent
 from tests.conftest import sign_in_with_second_factor
 
@@ -211,3 +212,34 @@ def test_the_console_page_is_served_to_admins(robot, admin_user, client):
     assert b"EMERGENCY STOP" in page.content
     # The staff menu names what the link opens, not only the robot.
     assert b'href="/robot/mobile-1/">Robot console (mobile-1)</a>' in page.content
+
+
+def test_releasing_the_stop_says_whether_bookings_are_open_and_can_reopen_them(
+    robot, agent, admin_user, client_for
+):
+    client = client_for(admin_user)
+    url = "/api/v1/resources/mobile-1/robot"
+    for reopen in (False, True):
+        assert client.post(f"{url}/stop/", {}, format="json").status_code == 200
+        _tick(agent, 0.2)
+        # What the health check does when it sees the latch.
+        resource_hold(resource_id=robot.pk, reason="emergency stop latched")
+        released = client.post(
+            f"{url}/release/", {"reason": "rail inspected", "reopen": reopen}, format="json"
+        )
+        assert released.status_code == 200, released.json()
+        body = released.json()
+        assert body["released"] is True
+        assert (body["in_service"], body["hold_reason"]) == (
+            (True, "") if reopen else (False, "emergency stop latched")
+        )
+        robot.refresh_from_db()
+        assert robot.in_service is reopen
+    # One reason, audited as both: the release and the return to service.
+    rows = AuditEvent.objects.filter(action__in=["robot.release", "resource.in_service"])
+    assert [(r.action, r.reason) for r in rows.order_by("pk")] == [
+        ("robot.release", "rail inspected"),
+        ("robot.release", "rail inspected"),
+        ("resource.in_service", "rail inspected"),
+    ]
+    assert rows.get(action="resource.in_service").data["lifted_hold"] == "emergency stop latched"

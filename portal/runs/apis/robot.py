@@ -101,6 +101,11 @@ class ReleaseInput(serializers.Serializer):
             "blank": "Say why it is safe to release the stop.",
         },
     )
+    reopen = serializers.BooleanField(
+        default=False,
+        help_text="Also put the robot back in service (bookings open), with the same reason: "
+        "the stop's hold otherwise stays until an admin lifts it.",
+    )
 
 
 class RobotStatusOutput(serializers.Serializer):
@@ -121,6 +126,8 @@ class RobotStopOutput(serializers.Serializer):
 class RobotReleaseOutput(serializers.Serializer):
     estop = serializers.DictField(help_text=AGENT_OBJECT)
     released = serializers.BooleanField()
+    in_service = serializers.BooleanField(help_text="Whether the robot can be booked now.")
+    hold_reason = serializers.CharField(help_text="Why it is held, if it is (empty if not).")
 
 
 class RobotDayLogOutput(serializers.Serializer):

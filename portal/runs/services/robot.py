@@ -16,7 +16,7 @@ from basestation.client import AgentConflict, AgentError, AgentRejected
 from basestation.contract import DIRECTIONS
 from bookings.models import Resource
 from bookings.rules import velocity_problem
-from bookings.services import robot_event
+from bookings.services import resource_set_service, robot_event
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.audit.text import storable_text
@@ -205,14 +205,18 @@ def robot_stop(
 
 
 def robot_release(
-    *, resource: Resource, by: User, reason: str, ip: str | None = None
+    *, resource: Resource, by: User, reason: str, reopen: bool = False, ip: str | None = None
 ) -> dict[str, Any]:
+    """Release the latched stop; with ``reopen``, put the robot back in service in the same
+    step, with the same reason (``resource_set_service``, the console's "Put back in service":
+    audited as both). The answer says whether bookings are open: a stop's hold stays until an
+    admin lifts it."""
     _admin(by)
     _mobile(resource)
     if not reason.strip():
         raise InvalidInput.on_field("reason", "Say why it is safe to release the stop.")
     client = agent_client_for(resource)
-    return _call(
+    result = _call(
         "robot.release",
         resource,
         by,
@@ -221,6 +225,10 @@ def robot_release(
         lambda: client.release_stop(user=by.get_username()),
         event="robot.estop_released",
     )
+    now = Resource.objects.get(pk=resource.pk)
+    if reopen and not now.in_service:
+        now = resource_set_service(resource=now, by=by, enabled=True, reason=reason, ip=ip)
+    return {**result, "in_service": now.in_service, "hold_reason": now.hold_reason}
 
 
 def robot_day_log(*, resource: Resource, by: User, day: date) -> dict[str, Any]:

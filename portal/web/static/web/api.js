@@ -52,7 +52,8 @@ window.AmazingApi = (function () {
     const parts = [data.detail || ""];
     if (data.fields) {
       for (const [field, messages] of Object.entries(data.fields)) {
-        for (const m of [].concat(messages)) if (m && m !== data.detail) parts.push(field === "quota" ? m : `${field}: ${m}`);
+        // The detail already says a field's message ("reason: Say why…") when there is one.
+        for (const m of [].concat(messages)) if (m && !String(data.detail || "").includes(m)) parts.push(field === "quota" ? m : `${field}: ${m}`);
       }
     }
     return parts.filter(Boolean).join(" ");

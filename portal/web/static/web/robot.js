@@ -88,7 +88,15 @@
   });
   document.getElementById("release-form").addEventListener("submit", async (event) => {
     event.preventDefault();
-    try { await call("POST", "/robot/release/", { reason: /** @type {HTMLFormElement & {reason: HTMLInputElement}} */ (event.target).reason.value }); say("Emergency stop released."); }
+    const form = /** @type {HTMLFormElement & {reason: HTMLInputElement, reopen: HTMLInputElement}} */ (event.target);
+    try {
+      const answer = await call("POST", "/robot/release/", { reason: form.reason.value, reopen: form.reopen.checked });
+      // Whether bookings are open is said with the release: a stop's hold outlives it.
+      say(answer.in_service
+        ? "Emergency stop released; bookings are open."
+        : "Emergency stop released. Bookings stay closed" + (answer.hold_reason ? ` (held: ${answer.hold_reason})` : "") + ": put it back in service below when it is safe.");
+      form.reason.value = "";
+    }
     catch (error) { say("Not released: " + error.message, true); }
     refresh();
   });
@@ -102,7 +110,18 @@
       say(resource.enabled ? "Back in service: bookings are open." : "Out of service: no new bookings.");
     } catch (error) { say("Not changed: " + error.message, true); }
   });
-  document.getElementById("log-form").addEventListener("submit", async (event) => {
+  // The log's instants (RFC 3339, to the microsecond, in UTC) as the testbed's wall clock
+  // reads them, to the second: 2026-11-28 09:07:40.
+  const logForm = /** @type {HTMLFormElement} */ (document.getElementById("log-form"));
+  const logClock = new Intl.DateTimeFormat("sv-SE", {
+    timeZone: logForm.dataset.zone || "UTC", year: "numeric", month: "2-digit", day: "2-digit",
+    hour: "2-digit", minute: "2-digit", second: "2-digit", hour12: false,
+  });
+  function logTime(text) {
+    const at = text ? new Date(text) : null;
+    return at && !isNaN(at.getTime()) ? logClock.format(at) : text || "";
+  }
+  logForm.addEventListener("submit", async (event) => {
     // "Download CSV" submits the form itself: the browser saves the day's log.
     if (event.submitter && event.submitter.id === "log-download") return;
     event.preventDefault();
@@ -112,7 +131,13 @@
       const log = await call("GET", `/robot/logs/${/** @type {HTMLFormElement & {day: HTMLInputElement}} */ (event.target).day.value}/`);
       for (const entry of log.entries) {
         const tr = rows.insertRow();
-        for (const key of ["user", "title", "start", "end"]) tr.insertCell().textContent = entry[key] || "";
+        tr.insertCell().textContent = entry.user || "";
+        tr.insertCell().textContent = entry.title || "";
+        for (const key of ["start", "end"]) {
+          const cell = tr.insertCell();
+          cell.textContent = logTime(entry[key]);
+          if (entry[key]) cell.title = entry[key];
+        }
       }
       if (!log.entries.length) rows.insertRow().insertCell().textContent = "Nothing that day.";
     } catch (error) { say("Log not read: " + error.message, true); }
