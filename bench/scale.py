@@ -140,6 +140,7 @@ def _round(
     )
     from portal.runs.models import Run, Sample
     from portal.runs.services.reservations import reservation_create
+    from portal.runs.states import RUN_END_STATES
 
     python = sys.executable
     round_dir = work / f"n{robots}"
@@ -209,9 +210,8 @@ def _round(
         cpu = {name: (_cpu_s(pid) - cpu_before[name]) / elapsed_s for name, pid in pids.items()}
 
         def all_ended() -> bool:
-            return not Run.objects.filter(
-                pk__in=run_ids, state__in=["staged", "running", "collecting"]
-            ).exists()
+            # A run not staged yet (its sweep late on a busy machine) has not ended either.
+            return not Run.objects.filter(pk__in=run_ids).exclude(state__in=RUN_END_STATES).exists()
 
         wait_until("every run to end", all_ended, 120 + program_s)
         connections.close_all()

@@ -69,7 +69,8 @@ class Listener:
             f"samples 1 to {seqs[-1]} announced",
             stack,
             lambda: set(self.announced()) >= set(seqs),
-            30,
+            # Bounds a hang only: a clone with other work beside it took over 30 s.
+            120,
         )
 
     def close(self) -> None:
