@@ -172,6 +172,11 @@ def _round(
             launch(spec.name, spec.argv, {**env, **spec.env})
         for port in ports:
             wait_until("an agent", partial(_healthy, f"http://127.0.0.1:{port}/healthz"), 60)
+        # The lead is counted from when the worker and beat are up (their banners, printed
+        # at any log level): on a busy machine they start seconds after the agents, and a run
+        # booked before could pass its start before anything staged it.
+        children["worker"].wait_for_line(lambda line: "[queues]" in line, 90)
+        children["beat"].wait_for_line(lambda line: "is starting." in line, 90)
 
         user = User.objects.get_or_create(username="bench-scale")[0]
         start = timezone.now() + timedelta(seconds=LEAD_S)
