@@ -30,7 +30,7 @@ from basestation.telemetry.rail import DEFAULT_RAIL_PATH, Rail
 from bench.stack import REPO
 from tests.browser.conftest import SCREENSHOTS, login
 from tests.factories import MobileResourceFactory, UserFactory
-from tests.integration.experimenter import Experimenter
+from tests.integration.experimenter import Experimenter, all_samples
 from tests.integration.stack import Stack, running_stack
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
@@ -101,25 +101,10 @@ def _heat_shown_live(page: Page) -> None:
     assert page.evaluate("() => window.openedOnce === true")
 
 
-def _samples(web: str, run_id: int, headers: dict[str, str]) -> list[dict]:
-    samples, after = [], 0
-    while True:
-        page = requests.get(
-            f"{web}/api/v1/runs/{run_id}/samples/",
-            params={"after": after, "limit": 1000},
-            headers=headers,
-            timeout=10,
-        ).json()
-        if not page["samples"]:
-            return samples
-        samples += page["samples"]
-        after = page["last_seq"]
-
-
 def _cells_as_the_model_says(web: str, run_id: int, headers: dict[str, str], rail: Rail) -> None:
     """Each sample answered by one reading, placed on it; each cell's mean within the model's
     shadowing of the model's own mean at the cell's samples."""
-    samples = _samples(web, run_id, headers)
+    samples = all_samples(web, run_id, headers)
     series = requests.get(
         f"{web}/api/v1/runs/{run_id}/measurements/rssi/", headers=headers, timeout=10
     ).json()
@@ -195,7 +180,7 @@ def test_the_roof_moves_on_the_run_page_and_the_console_during_a_run(
     expect(page.locator("#roof-text")).to_contain_text("At the run's last sample", timeout=15_000)
     output, _ = pusher.communicate(timeout=60)
     assert pusher.returncode == 0, output
-    samples = len(_samples(roof_stack.web, run_id, dict(ines.session.headers)))
+    samples = len(all_samples(roof_stack.web, run_id, dict(ines.session.headers)))
     assert f"rssi: {samples} readings sent" in output, output
     rail = Rail.configured(str(tmp_path / "rail.json"))
     _cells_as_the_model_says(roof_stack.web, run_id, dict(ines.session.headers), rail)

@@ -84,6 +84,23 @@ class Experimenter:
         return int(booking.json()["run"]["id"])
 
 
+def all_samples(web: str, run_id: int, headers: dict[str, str]) -> list[dict[str, Any]]:
+    """Every sample of the run, page after page, as the API gives them."""
+    samples: list[dict[str, Any]] = []
+    after = 0
+    while True:
+        page = requests.get(
+            f"{web}/api/v1/runs/{run_id}/samples/",
+            params={"after": after, "limit": 1000},
+            headers=headers,
+            timeout=10,
+        ).json()
+        if not page["samples"]:
+            return samples
+        samples += page["samples"]
+        after = page["last_seq"]
+
+
 def lease_robot_session(web: str, owner: str, *, ahead_s: float) -> requests.Response:
     """The testbed's scheduler (an account allowed to lease inbound) leases mobile-1 for
     ``owner`` over the lease API, without a program: 10 s from ``ahead_s`` from now, in whole

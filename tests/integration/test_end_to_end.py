@@ -19,6 +19,7 @@ from django.utils import timezone
 from prometheus_client.parser import text_string_to_metric_families
 
 from tests.factories import MobileResourceFactory, UserFactory, api_token
+from tests.integration.experimenter import all_samples
 from tests.integration.stack import METRICS_TOKEN
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
@@ -87,19 +88,7 @@ def test_a_booked_experiment_runs_on_the_simulated_robot_and_its_data_comes_back
     # 8 s of program at 20 Hz, plus the stop: at least 160 samples.
     assert run["sample_count"] >= 160
 
-    samples = []
-    after = 0
-    while True:
-        page = requests.get(
-            f"{web}/api/v1/runs/{run_id}/samples/",
-            params={"after": after, "limit": 1000},
-            headers=headers,
-            timeout=10,
-        ).json()
-        samples += page["samples"]
-        if not page["samples"]:
-            break
-        after = page["last_seq"]
+    samples = all_samples(web, run_id, headers)
     assert [s["seq"] for s in samples] == list(range(1, len(samples) + 1))
 
     # Measured velocity follows the commanded segments once the ramp is over.
