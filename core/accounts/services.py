@@ -17,7 +17,7 @@ from django.utils import timezone
 from core.accounts.mfa import mfa_code_check, mfa_enabled
 from core.accounts.models import ApiToken, User
 from core.audit.services import audit_record, client_ip
-from core.errors import DomainError, InvalidInput, NotAllowed
+from core.errors import Busy, DomainError, InvalidInput, NotAllowed
 
 TOKEN_NAME_MAX_LENGTH = ApiToken._meta.get_field("name").max_length or 100
 # Up to ten years; without a number of days a token lasts until it is revoked.
@@ -108,9 +108,15 @@ class MfaCodeRequired(DomainError):
     code = "mfa_required"
 
 
-class TooManyAttempts(DomainError):
-    http_status = 429
-    code = "throttled"
+# The sign-in limits' shortest window (ACCOUNT_RATE_LIMITS): the least a client must wait.
+SIGN_IN_RETRY_AFTER_S = 60
+
+
+class TooManyAttempts(Busy):
+    """The sign-in limits refuse: 429 with ``Retry-After``, as every other throttle."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, retry_after_s=SIGN_IN_RETRY_AFTER_S)
 
 
 def api_token_sign_in(

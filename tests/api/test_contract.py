@@ -1,6 +1,7 @@
 """The OpenAPI description holds: schemathesis against a live portal, as an outside client.
 
-``schemathesis run`` against the real ASGI server on PostgreSQL, once as an experimenter (every
+``schemathesis run`` against the real web server on PostgreSQL with production settings
+(``PRODUCTION``: DEBUG off, the sign-in limits on), once as an experimenter (every
 operation but the token's revocation) and once as an admin (the operations whose answer is
 staff's own: ``ADMIN_OPERATIONS``), each with their token, with every check it has, a fixed
 seed and a bounded number of examples per operation; it must find nothing. Each
@@ -110,6 +111,16 @@ STAFF_ONLY_OPERATIONS = frozenset(
     }
 )
 assert STAFF_ONLY_OPERATIONS <= ADMIN_OPERATIONS
+
+
+# The portal as deployed (DEBUG off), but for plain HTTP on the loopback, where nothing
+# terminates TLS, and no access line per request.
+PRODUCTION = {
+    "DJANGO_DEBUG": "0",
+    "DJANGO_SSL_REDIRECT": "0",
+    "DJANGO_ALLOWED_HOSTS": "127.0.0.1",
+    "ACCESS_LOG": "0",
+}
 
 
 def world(*, agent_url: str) -> dict:
@@ -256,7 +267,11 @@ def test_schemathesis_finds_nothing_against_a_live_portal(role, tmp_path):
     config_file.write_text(config(held, role=role, auth_file=auth_file))
     # The throttles have their own tests; a fuzzer sends far more than any client may.
     with live_portal(
-        tmp_path, agent_port=agent_port, API_THROTTLE_ANON="off", API_THROTTLE_USER="off"
+        tmp_path,
+        agent_port=agent_port,
+        API_THROTTLE_ANON="off",
+        API_THROTTLE_USER="off",
+        **PRODUCTION,
     ) as portal:
         try:
             result = _schemathesis(config_file, portal.url, tmp_path)

@@ -167,6 +167,9 @@ def test_sign_in_attempts_are_rate_limited_with_429(client, owner, settings):
         format="json",
     )
     assert api.status_code == 429
+    # As every throttle's answer, and as the API's description says: when to try again.
+    assert api["Retry-After"] == "60", api.headers
+    assert api.json()["error"] == "throttled"
     assert not ApiToken.objects.exists()
 
 
