@@ -175,13 +175,21 @@ def provenance_at_collection(*, agent_run: dict[str, Any], now: datetime) -> dic
     }
 
 
-def run_provenance_record(*, run_id: int, part: str, value: dict[str, Any]) -> None:
-    """Keep ``value`` as the run's provenance ``part`` ("staged", "collected")."""
+def run_provenance_record(
+    *, run_id: int, part: str, value: dict[str, Any], keep_first: bool = False
+) -> None:
+    """Keep ``value`` as the run's provenance ``part`` ("staged", "collected").
+
+    ``keep_first``: a part already recorded stays as it is. The record made when the run was
+    collected is the agent's final one, the same for every collection; the collector's and a
+    sweep's may both close the run, and the second must not rewrite its time."""
     with transaction.atomic():
         run = Run.objects.select_for_update().only("provenance").filter(pk=run_id).first()
         if run is None:
             return
         provenance = dict(run.provenance or {})
+        if keep_first and provenance.get(part):
+            return
         provenance["format_version"] = FORMAT_VERSION
         provenance[part] = value
         Run.objects.filter(pk=run_id).update(provenance=provenance)

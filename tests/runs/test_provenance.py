@@ -9,7 +9,11 @@ import pytest
 from django.utils import timezone
 
 from portal.runs.models import Run
-from portal.runs.provenance import PORTAL_VERSION, provenance_at_collection
+from portal.runs.provenance import (
+    PORTAL_VERSION,
+    provenance_at_collection,
+    run_provenance_record,
+)
 from portal.runs.services import collection, staging
 from portal.runs.services.reservations import reservation_create
 from tests.factories import ExperimentFactory
@@ -69,6 +73,25 @@ def test_staging_and_collection_record_how_the_run_was_made(agent, booked, api):
     assert answer["staged"]["limits"] == staged["limits"]
     assert answer["collected"]["link"]["exchanges"] == collected["link"]["exchanges"]
     assert answer["collected"]["clock_at_end"] == collected["clock_at_end"]
+
+
+def test_a_second_record_of_the_collection_keeps_the_first(agent, booked):
+    """The collector's and a sweep's collections may both meet the run still ``collecting``
+    and both record it as collected (as ``collection._close`` does, ``keep_first``): the
+    record of when and how it was collected is written once."""
+    staging.run_stage(run_id=booked.pk)
+    start_s = booked.start_at.timestamp()
+    agent.run_clock(start_s, start_s + 5.0)
+    collection.run_collect(run_id=booked.pk)
+    booked.refresh_from_db()
+    first = booked.provenance["collected"]
+    later = provenance_at_collection(agent_run={}, now=timezone.now() + timedelta(seconds=1))
+    run_provenance_record(run_id=booked.pk, part="collected", value=later, keep_first=True)
+    booked.refresh_from_db()
+    assert booked.provenance["collected"] == first
+    run_provenance_record(run_id=booked.pk, part="collected", value=later)
+    booked.refresh_from_db()
+    assert booked.provenance["collected"] == later
 
 
 def test_an_agent_that_says_nothing_of_itself_leaves_the_parts_empty():

@@ -493,6 +493,7 @@ def _close(run: Run, view: AgentRunView, final_state: RunState, now: datetime) -
             run_id=run.pk,
             part="collected",
             value=provenance_at_collection(agent_run=view.raw, now=now),
+            keep_first=True,
         )
     stored = run_sample_stats(run=run)["count"]
     if stored != view.sample_count and not _past_grace(run, now):
