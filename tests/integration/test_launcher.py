@@ -6,6 +6,7 @@ import os
 import re
 import signal
 import time
+from collections.abc import Iterator
 from datetime import timedelta
 
 import pytest
@@ -221,22 +222,21 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
     assert any("all processes stopped" in s for s in launcher.lines)
 
 
-def _sse_events(session: requests.Session, url: str, until: str, timeout_s: float) -> list[str]:
-    """The ``event:`` names of a live stream, read until one named ``until``."""
+def _sse_names(lines: Iterator[str], until: str, timeout_s: float) -> list[str]:
+    """The ``event:`` names of an open live stream's ``lines``, read until a state ``until``."""
     names: list[str] = []
     deadline = time.monotonic() + timeout_s
-    with session.get(url, stream=True, timeout=(5, timeout_s)) as response:
-        assert response.status_code == 200, response.text[:500]
-        assert response.headers["Content-Type"] == "text/event-stream"
-        for line in response.iter_lines(decode_unicode=True):
-            if line and line.startswith("data:") and f'"state":"{until}"' in line:
-                names.append(until)
+    for line in lines:
+        if line and line.startswith("data:") and f'"state":"{until}"' in line:
+            names.append(until)
+            return names
+        if line and line.startswith("event:"):
+            names.append(line.split(":", 1)[1].strip())
+            if until == "open" and names[-1] == "open":
                 return names
-            if line and line.startswith("event:"):
-                names.append(line.split(":", 1)[1].strip())
-            if time.monotonic() > deadline:
-                break
-    raise AssertionError(f"no {until} on {url}: saw {names}")
+        if time.monotonic() > deadline:
+            break
+    raise AssertionError(f"no {until}: saw {names}")
 
 
 def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
@@ -292,10 +292,11 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
             timeout=10,
         )
         experiment_id = re.search(r'href="/book/\?experiment=(\d+)"', saved.text).group(1)
-        # With its UTC offset, as above.
-        start = (timezone.now() + timedelta(seconds=6)).replace(microsecond=0)
-        run_urls = []
-        for resource in ("mobile-1", "mobile-2"):
+        # With its UTC offset, as above. Far enough ahead that the second run's stream is open
+        # before it starts on a busy machine: a stream tells only what happens after it opens.
+        start = (timezone.now() + timedelta(seconds=15)).replace(microsecond=0)
+
+        def book(resource: str) -> str:
             token = _csrf(session, f"{web}/book/")
             booked = session.post(
                 f"{web}/book/",
@@ -309,12 +310,21 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
                 timeout=10,
             )
             assert "/runs/" in booked.url, booked.text[:3000]
-            run_urls.append(booked.url.rstrip("/"))
+            return booked.url.rstrip("/")
 
-        run_id = run_urls[1].rsplit("/", 1)[1]
-        streams = f"http://127.0.0.1:{streams_port}"
-        events = _sse_events(session, f"{streams}/live/runs/{run_id}/", "completed", 60)
-        assert events[0] == "open"
+        second_url = book("mobile-2")
+        run_id = second_url.rsplit("/", 1)[1]
+        stream_url = f"http://127.0.0.1:{streams_port}/live/runs/{run_id}/"
+        with session.get(stream_url, stream=True, timeout=(5, 60)) as response:
+            assert response.status_code == 200, response.text[:500]
+            assert response.headers["Content-Type"] == "text/event-stream"
+            lines = response.iter_lines(decode_unicode=True)
+            assert _sse_names(lines, "open", 10) == ["open"]
+            data = _json(session, f"{second_url}/data.json", launcher)
+            state = data["state"]
+            assert state in ("scheduled", "staged"), f"began before its stream opened: {data}"
+            run_urls = [book("mobile-1"), second_url]
+            events = ["open", *_sse_names(lines, "completed", 60)]
         assert "samples" in events
         for url in run_urls:  # the other robot's run ends on its own, about as soon
             deadline = time.monotonic() + 30
