@@ -24,11 +24,14 @@ Two transports, chosen by ``REDIS_URL``:
 Publishing never fails its caller: a bus that is down costs the pages their pushes, never a
 run its samples.
 
-A run's new samples are announced with a mark per sequence number, set in the same Redis
-transaction as the announcement (both happen or neither): a publisher killed between storing
+A run's new samples are announced with a mark per sequence number, set by the same Redis
+script that announces them (both happen or neither): a publisher killed between storing
 samples and announcing them leaves stored samples without their mark, which the collector
-finds and announces when it takes the run up again (``samples_announce_missed``). So every
-stored sample is announced once even across a crash. The file transport keeps no marks.
+finds and announces when it takes the run up again (``samples_announce_missed``). Setting the
+mark is the claim: the script announces only the samples whose mark it set, so two publishers
+of the same samples (the sweep's commit and a restarted collector's catching up, racing) say
+each once between them. So every stored sample is announced once even across a crash. The
+file transport keeps no marks.
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import AsyncGenerator, AsyncIterator, Callable, Mapping
+from collections.abc import AsyncGenerator, AsyncIterator, Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
@@ -63,8 +66,7 @@ PUBLISH_TIMEOUT_S = 0.5
 # A run's announced-sample marks: one bit per sequence number, kept this long after the last.
 ANNOUNCED_PREFIX = "amazing:live:announced:"
 ANNOUNCED_TTL_S = 7 * 24 * 3600
-# Marks set by one BITFIELD command (a long backlog is marked in several, in one transaction).
-MARKS_PER_COMMAND = 1024
+
 
 
 def redis_channel(channel: str) -> str:
@@ -110,23 +112,67 @@ def announced_key(run_id: int) -> str:
 class _Bus(Protocol):
     def publish(self, channel: str, payload: str) -> None: ...
 
-    def publish_marked(self, channel: str, payload: str, key: str, seqs: range) -> None: ...
+    def publish_samples(
+        self, channel: str, key: str, first_seq: int, times_s: Sequence[float]
+    ) -> None: ...
 
     def marks(self, key: str) -> bytes | None: ...
 
     def subscribe(self, channels: list[str], *, idle_s: float) -> AsyncIterator[str | None]: ...
 
 
-def _whole_bytes(seqs: range) -> tuple[range, list[int]]:
-    """``seqs`` as the bits of whole bytes of the bitmap (a range of bit numbers, whole
-    bytes, maybe empty) and the rest, one by one."""
-    if seqs.step != 1 or not seqs:
-        return range(0), list(seqs)
-    first = -(-seqs.start // 8) * 8  # the first bit of the first byte wholly inside
-    end = seqs.stop // 8 * 8  # after the last bit of the last byte wholly inside
-    if end <= first:
-        return range(0), list(seqs)
-    return range(first, end), [*range(seqs.start, first), *range(end, seqs.stop)]
+def samples_event(first_seq: int, last_seq: int, last_t_s: float) -> dict[str, Any]:
+    """A ``samples`` event: the run's samples ``first_seq``…``last_seq`` are stored."""
+    return {
+        "type": "samples",
+        "count": last_seq - first_seq + 1,
+        "first_seq": first_seq,
+        "last_seq": last_seq,
+        "last_t": last_t_s,
+    }
+
+
+# KEYS[1]: the run's marks. ARGV: the channel, the marks' lifetime (s), the first sequence
+# number, then the time of each sequence number from it on. Each sample whose mark this sets
+# is claimed; each unbroken range of claimed ones is announced as one samples_event (the same
+# JSON). Samples marked already (announced by another publisher) are passed over. The usual
+# page, none of it marked, is marked a whole byte at a time where it can be (one SETRANGE,
+# not thousands of SETBITs) and announced as one event.
+_CLAIM_AND_ANNOUNCE = """
+local key, first, count = KEYS[1], tonumber(ARGV[3]), #ARGV - 3
+local last_seq = first + count - 1
+local claimed, from, last, last_t = 0, nil, nil, nil
+local function announce()
+  redis.call('PUBLISH', ARGV[1], '{"type":"samples","count":' .. (last - from + 1)
+    .. ',"first_seq":' .. from .. ',"last_seq":' .. last .. ',"last_t":' .. last_t .. '}')
+end
+if count > 0 and redis.call('BITCOUNT', key, first, last_seq, 'BIT') == 0 then
+  local whole_from, whole_end = math.ceil(first / 8), math.floor((last_seq + 1) / 8)
+  if whole_end > whole_from then
+    redis.call('SETRANGE', key, whole_from, string.rep('\\255', whole_end - whole_from))
+    for seq = first, whole_from * 8 - 1 do redis.call('SETBIT', key, seq, 1) end
+    for seq = whole_end * 8, last_seq do redis.call('SETBIT', key, seq, 1) end
+  else
+    for seq = first, last_seq do redis.call('SETBIT', key, seq, 1) end
+  end
+  from, last, last_t, claimed = first, last_seq, ARGV[#ARGV], count
+  announce()
+else
+  for i = 4, #ARGV do
+    local seq = first + i - 4
+    if redis.call('SETBIT', key, seq, 1) == 0 then
+      if from == nil then from = seq end
+      last, last_t, claimed = seq, ARGV[i], claimed + 1
+    elseif from ~= nil then
+      announce()
+      from = nil
+    end
+  end
+  if from ~= nil then announce() end
+end
+redis.call('EXPIRE', key, ARGV[2])
+return claimed
+"""
 
 
 class RedisBus:
@@ -137,26 +183,20 @@ class RedisBus:
         self._client = redis.Redis.from_url(
             url, socket_connect_timeout=PUBLISH_TIMEOUT_S, socket_timeout=PUBLISH_TIMEOUT_S
         )
+        self._claim_and_announce = self._client.register_script(_CLAIM_AND_ANNOUNCE)
 
     def publish(self, channel: str, payload: str) -> None:
         self._client.publish(self.prefix + channel, payload)
 
-    def publish_marked(self, channel: str, payload: str, key: str, seqs: range) -> None:
-        """Publish and set a bit per sequence number of ``key``, atomically (MULTI/EXEC)."""
-        pipe = self._client.pipeline(transaction=True)
-        whole, ragged = _whole_bytes(seqs)
-        if whole:
-            # Every bit of these bytes is set: one write, not a bit at a time (a page of
-            # thousands of samples cost more here than storing it).
-            pipe.setrange(key, whole.start // 8, b"\xff" * (len(whole) // 8))
-        for start in range(0, len(ragged), MARKS_PER_COMMAND):
-            ops: list[str | int] = []
-            for seq in ragged[start : start + MARKS_PER_COMMAND]:
-                ops += ["SET", "u1", seq, 1]
-            pipe.execute_command("BITFIELD", key, *ops)
-        pipe.expire(key, ANNOUNCED_TTL_S)
-        pipe.publish(self.prefix + channel, payload)
-        pipe.execute()
+    def publish_samples(
+        self, channel: str, key: str, first_seq: int, times_s: Sequence[float]
+    ) -> None:
+        """Announce the samples from ``first_seq`` on (``times_s``, one each) not announced
+        yet and mark them, in one script (atomic: both or neither, and one publisher each)."""
+        if times_s:
+            args: list[str | int] = [self.prefix + channel, ANNOUNCED_TTL_S, first_seq]
+            args += map(repr, times_s)
+            self._claim_and_announce(keys=[key], args=args)
 
     def marks(self, key: str) -> bytes | None:
         """The bitmap (bit ``n`` is sequence number ``n``, most significant bit first)."""
@@ -230,8 +270,13 @@ class FileBus:
         lines = data[:complete].decode(errors="replace").splitlines()
         return offset + complete, [line for line in lines if line.strip()]
 
-    def publish_marked(self, channel: str, payload: str, key: str, seqs: range) -> None:
-        self.publish(channel, payload)  # one machine, no crash-proof marks: see the module
+    def publish_samples(
+        self, channel: str, key: str, first_seq: int, times_s: Sequence[float]
+    ) -> None:
+        # One machine, no crash-proof marks: see the module.
+        if times_s:
+            event = samples_event(first_seq, first_seq + len(times_s) - 1, times_s[-1])
+            self.publish(channel, json.dumps(event, separators=(",", ":")))
 
     def marks(self, key: str) -> bytes | None:
         return None
@@ -290,28 +335,28 @@ def publish_on_commit(channel: str, event: Mapping[str, Any]) -> None:
     transaction.on_commit(partial(publish, channel, dict(event)))
 
 
-def samples_publish(run_id: int, event: Mapping[str, Any]) -> bool:
-    """Announce a run's stored samples ``first_seq``…``last_seq`` (a ``samples`` event) and
-    mark them announced, both or neither; False (logged) if the bus is down."""
-    payload = json.dumps(event, separators=(",", ":"), default=str)
-    seqs = range(int(event["first_seq"]), int(event["last_seq"]) + 1)
+def samples_publish(run_id: int, first_seq: int, times_s: Sequence[float]) -> bool:
+    """Announce a run's stored samples from ``first_seq`` on (``times_s``, the time of each)
+    in ``samples`` events, those not announced yet, marking them; False (logged) if the bus
+    is down."""
     channel = run_channel(run_id)
     try:
-        bus().publish_marked(channel, payload, announced_key(run_id), seqs)
+        bus().publish_samples(channel, announced_key(run_id), first_seq, times_s)
     except redis.ResponseError as exc:
-        # Redis refused the marks (not the connection): the pages still hear of the samples;
+        # Redis refused the script (not the connection): the pages still hear of the samples;
         # only a crash before the next announcement could now repeat these.
         logger.warning("live: samples of run %s announced without marks (%s)", run_id, exc)
-        return publish(channel, event)
+        last_seq = first_seq + len(times_s) - 1
+        return publish(channel, samples_event(first_seq, last_seq, times_s[-1]))
     except (redis.RedisError, OSError) as exc:
         logger.info("live: samples of run %s not published (%s)", run_id, exc)
         return False
     return True
 
 
-def samples_publish_on_commit(run_id: int, event: Mapping[str, Any]) -> None:
+def samples_publish_on_commit(run_id: int, first_seq: int, times_s: Sequence[float]) -> None:
     """:func:`samples_publish` once the samples are committed."""
-    transaction.on_commit(partial(samples_publish, run_id, dict(event)))
+    transaction.on_commit(partial(samples_publish, run_id, first_seq, list(times_s)))
 
 
 def samples_announced(run_id: int) -> Callable[[int], bool] | None:

@@ -1,7 +1,11 @@
-"""The announced-sample marks on Redis: a page's bits are set a whole byte at a time where
-they can be, with the same bitmap as setting each bit."""
+"""The announced-sample marks on Redis: marking a sample is claiming its announcement, so
+pages published in any order, overlapping or repeated, announce each sample once, and each
+event's last time is its last sample's."""
 
 from __future__ import annotations
+
+import json
+import time
 
 import redis
 from django.conf import settings
@@ -9,30 +13,53 @@ from hypothesis import given
 from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 
-from core.live import RedisBus, _whole_bytes, redis_channel
+from core.live import RedisBus, redis_channel
 
 KEY = "test:live-marks"
+CHANNEL = "test-marks"
 
 
-@given(start=st.integers(0, 100), length=st.integers(0, 100))
-def test_whole_bytes_and_the_rest_are_exactly_the_range(start, length):
-    seqs = range(start, start + length)
-    whole, ragged = _whole_bytes(seqs)
-    assert sorted([*whole, *ragged]) == list(seqs)
-    assert whole.start % 8 == 0
-    assert len(whole) % 8 == 0
+def _time_s(seq: int) -> float:
+    return 1_764_000_000 + seq / 20 + 0.000_123
 
 
 @hypothesis_settings(max_examples=60, deadline=None)
-@given(pages=st.lists(st.tuples(st.integers(1, 200), st.integers(0, 60)), max_size=4))
-def test_the_bitmap_is_the_one_setting_each_bit_would_give(pages):
+@given(pages=st.lists(st.tuples(st.integers(1, 200), st.integers(0, 60)), max_size=5))
+def test_each_sample_of_overlapping_pages_is_announced_once(pages):
     client = redis.Redis.from_url(settings.REDIS_URL)
-    client.delete(KEY, KEY + ":each")
+    client.delete(KEY)
     bus = RedisBus(settings.REDIS_URL, redis_channel(""))
-    for start, length in pages:
-        seqs = range(start, start + length)
-        bus.publish_marked("test-marks", "{}", KEY, seqs)
-        for seq in seqs:
-            client.setbit(KEY + ":each", seq, 1)
-    assert (bus.marks(KEY) or b"").rstrip(b"\0") == (bus.marks(KEY + ":each") or b"").rstrip(b"\0")
-    client.delete(KEY, KEY + ":each")
+    pubsub = client.pubsub(ignore_subscribe_messages=True)
+    pubsub.subscribe(redis_channel(CHANNEL))
+    try:
+        for start, length in pages:
+            bus.publish_samples(
+                CHANNEL, KEY, start, [_time_s(s) for s in range(start, start + length)]
+            )
+        client.publish(redis_channel(CHANNEL), "end")  # everything before it has been heard
+        events = []
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            message = pubsub.get_message(timeout=0.5)
+            if message is None:
+                continue
+            if message["data"] == b"end":
+                break
+            events.append(json.loads(message["data"]))
+        else:
+            raise AssertionError("the end marker was never heard")
+    finally:
+        pubsub.close()
+
+    announced = [seq for e in events for seq in range(e["first_seq"], e["last_seq"] + 1)]
+    expected = {seq for start, length in pages for seq in range(start, start + length)}
+    assert sorted(announced) == sorted(expected)  # each once
+    for event in events:
+        assert event["type"] == "samples"
+        assert event["count"] == event["last_seq"] - event["first_seq"] + 1
+        assert event["last_t"] == _time_s(event["last_seq"])
+    marks = bus.marks(KEY) or b""
+    assert {
+        seq for seq in range(len(marks) * 8) if marks[seq // 8] >> (7 - seq % 8) & 1
+    } == expected
+    client.delete(KEY)

@@ -98,9 +98,11 @@ def test_the_sample_columns_are_every_field_of_a_sample():
 def announced(monkeypatch) -> list[dict]:
     """The live events ``samples_ingest`` publishes (once committed)."""
     events: list[dict] = []
-    monkeypatch.setattr(
-        collection, "samples_publish_on_commit", lambda run_id, event: events.append(dict(event))
-    )
+
+    def publish(run_id: int, first_seq: int, times_s: list[float]) -> None:
+        events.append(live.samples_event(first_seq, first_seq + len(times_s) - 1, times_s[-1]))
+
+    monkeypatch.setattr(collection, "samples_publish_on_commit", publish)
     return events
 
 
@@ -168,6 +170,21 @@ def test_samples_stored_and_never_announced_are_announced_once_when_taken_up(
     assert run_channel_events(0) == []
 
 
+def test_an_announcement_late_behind_the_collectors_catching_up_repeats_nothing(
+    run, run_channel_events, django_capture_on_commit_callbacks
+):
+    # A sweep stored 1 to 20; its announcement is still on its way (after its commit) when
+    # the restarted collector takes the run up, finds them unmarked and announces them.
+    with django_capture_on_commit_callbacks(execute=False) as late:
+        samples_ingest(run=run, samples=_page(1, 20))
+    assert collection.samples_announce_missed(run=run) == 20
+    with django_capture_on_commit_callbacks(execute=False) as later:
+        samples_ingest(run=run, samples=_page(15, 30))  # 21 to 30 new
+    for announce in [*late, *later]:
+        announce()
+    assert run_channel_events(2) == [(1, 20), (21, 30)]
+
+
 def test_without_marks_on_the_bus_nothing_is_announced_again(run, settings, tmp_path):
     settings.REDIS_URL = ""  # the file transport (make run without Redis) keeps no marks
     settings.LIVE_DIR = tmp_path / "live"
@@ -176,11 +193,11 @@ def test_without_marks_on_the_bus_nothing_is_announced_again(run, settings, tmp_
 
 
 def test_marks_refused_by_redis_still_announce_the_samples(run, run_channel_events, monkeypatch):
-    def refuse(self, channel, payload, key, seqs):
-        raise redis.ResponseError("ERR unknown command 'BITFIELD'")
+    def refuse(self, channel, key, first_seq, times_s):
+        raise redis.ResponseError("NOSCRIPT scripting is disabled")
 
-    monkeypatch.setattr(live.RedisBus, "publish_marked", refuse)
-    assert live.samples_publish(run.pk, {"type": "samples", "first_seq": 1, "last_seq": 5})
+    monkeypatch.setattr(live.RedisBus, "publish_samples", refuse)
+    assert live.samples_publish(run.pk, 1, [time.time()] * 5)
     assert run_channel_events(1) == [(1, 5)]
 
 

@@ -118,23 +118,14 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
             RUNS.changed()
         t_by_seq = {r[_SEQ]: r[_T] for r in rows}
         for first, last in _consecutive(stored):
-            samples_publish_on_commit(run.pk, _samples_event(first, last, t_by_seq[last]))
+            times_s = [t_by_seq[seq] for seq in range(first, last + 1)]
+            samples_publish_on_commit(run.pk, first, times_s)
     run.last_seq = max(run.last_seq, last_seq)
     return len(stored)
 
 
 def _with_datetime(row: tuple[Any, ...]) -> tuple[Any, ...]:
     return (*row[:_T], datetime.fromtimestamp(row[_T], tz=UTC), *row[_T + 1 :])
-
-
-def _samples_event(first: int, last: int, last_t_s: float) -> dict[str, Any]:
-    return {
-        "type": "samples",
-        "count": last - first + 1,
-        "first_seq": first,
-        "last_seq": last,
-        "last_t": last_t_s,
-    }
 
 
 def samples_announce_missed(*, run: Run) -> int:
@@ -151,7 +142,8 @@ def samples_announce_missed(*, run: Run) -> int:
     ]
     t_by_seq = dict(missed)
     for first, last in _consecutive(list(t_by_seq)):
-        samples_publish(run.pk, _samples_event(first, last, t_by_seq[last].timestamp()))
+        times_s = [t_by_seq[seq].timestamp() for seq in range(first, last + 1)]
+        samples_publish(run.pk, first, times_s)
     if missed:
         logger.info("run %s: %d stored samples announced late", run.pk, len(missed))
     return len(missed)
