@@ -147,11 +147,11 @@ local function announce()
     .. ',"first_seq":' .. from .. ',"last_seq":' .. last .. ',"last_t":' .. last_t .. '}')
 end
 if count > 0 and redis.call('BITCOUNT', key, first, last_seq, 'BIT') == 0 then
-  local whole_from, whole_end = math.ceil(first / 8), math.floor((last_seq + 1) / 8)
-  if whole_end > whole_from then
-    redis.call('SETRANGE', key, whole_from, string.rep('\\255', whole_end - whole_from))
-    for seq = first, whole_from * 8 - 1 do redis.call('SETBIT', key, seq, 1) end
-    for seq = whole_end * 8, last_seq do redis.call('SETBIT', key, seq, 1) end
+  local bytes_first, bytes_stop = math.ceil(first / 8), math.floor((last_seq + 1) / 8)
+  if bytes_stop > bytes_first then
+    redis.call('SETRANGE', key, bytes_first, string.rep('\\255', bytes_stop - bytes_first))
+    for seq = first, bytes_first * 8 - 1 do redis.call('SETBIT', key, seq, 1) end
+    for seq = bytes_stop * 8, last_seq do redis.call('SETBIT', key, seq, 1) end
   else
     for seq = first, last_seq do redis.call('SETBIT', key, seq, 1) end
   end
