@@ -9,7 +9,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
-import pyarrow.parquet as pq
 import requests
 import typer
 from rich.progress import (
@@ -229,6 +228,9 @@ def _series_beside(api: Api, run: int, target: Path, *, quiet: bool) -> list[dic
 
 def _parquet_rows(path: Path) -> int:
     """The rows of a Parquet file, from its footer (a file cut short has none: refused)."""
+    # Imported here: pyarrow is a third of every command's start, and only this reads Parquet.
+    import pyarrow.parquet as pq
+
     try:
         return int(pq.ParquetFile(path).metadata.num_rows)
     except (OSError, ValueError) as exc:
