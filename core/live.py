@@ -68,7 +68,6 @@ ANNOUNCED_PREFIX = "amazing:live:announced:"
 ANNOUNCED_TTL_S = 7 * 24 * 3600
 
 
-
 def redis_channel(channel: str) -> str:
     """``channel``'s name on Redis: this database's own (a pattern too: ``run-*``)."""
     return f"{REDIS_PREFIX}{database_namespace()}:{channel}"
