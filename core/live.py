@@ -136,7 +136,9 @@ def samples_event(first_seq: int, last_seq: int, last_t_s: float) -> dict[str, A
 # is claimed; each unbroken range of claimed ones is announced as one samples_event (the same
 # JSON). Samples marked already (announced by another publisher) are passed over. The usual
 # page, none of it marked, is marked a whole byte at a time where it can be (one SETRANGE,
-# not thousands of SETBITs) and announced as one event.
+# not thousands of SETBITs) and announced as one event. (BITCOUNT's BIT unit: Redis 7, as the
+# compose file runs; an older server refuses the script and the samples are announced
+# without marks: samples_publish.)
 _CLAIM_AND_ANNOUNCE = """
 local key, first, count = KEYS[1], tonumber(ARGV[3]), #ARGV - 3
 local last_seq = first + count - 1
