@@ -43,6 +43,7 @@ import logging
 import os
 import time
 from collections.abc import AsyncGenerator, AsyncIterator, Callable, Mapping, Sequence
+from datetime import datetime
 from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
@@ -103,9 +104,12 @@ class LiveUnavailable(Exception):
     """The bus cannot be reached: the stream ends and the page polls until it is back."""
 
 
-def announced_key(run_id: int) -> str:
-    # Run ids repeat between databases (a test's, a restore) that may share one Redis.
-    return f"{ANNOUNCED_PREFIX}{database_namespace()}:{run_id}"
+def announced_key(run_id: int, created_at: datetime) -> str:
+    # Run ids repeat between databases (a test's, a restore) that may share one Redis, and in
+    # one database made again or restored from a backup: the run's creation time tells it
+    # from an earlier run of its id, whose marks would claim its samples as announced.
+    created_us = round(created_at.timestamp() * 1_000_000)
+    return f"{ANNOUNCED_PREFIX}{database_namespace()}:{run_id}:{created_us}"
 
 
 class _Bus(Protocol):
@@ -132,15 +136,16 @@ def samples_event(first_seq: int, last_seq: int, last_t_s: float) -> dict[str, A
 
 
 # KEYS[1]: the run's marks. ARGV: the channel, the marks' lifetime (s), the first sequence
-# number, then the time of each sequence number from it on. Each sample whose mark this sets
-# is claimed; each unbroken range of claimed ones is announced as one samples_event (the same
-# JSON). Samples marked already (announced by another publisher) are passed over. The usual
-# page, none of it marked, is marked a whole byte at a time where it can be (one SETRANGE,
-# not thousands of SETBITs) and announced as one event. (BITCOUNT's BIT unit: Redis 7, as the
-# compose file runs; an older server refuses the script and the samples are announced
-# without marks: samples_publish.)
+# number, how many follow it, then the time of the last of them, or of each. Each sample whose
+# mark this sets is claimed; each unbroken range of claimed ones is announced as one
+# samples_event (the same JSON). Samples marked already (announced by another publisher) are
+# passed over. The usual page, none of it marked, is marked a whole byte at a time where it
+# can be (one SETRANGE, not thousands of SETBITs) and announced as one event, for which the
+# last time is enough; otherwise, given only that, the script changes nothing and answers -1,
+# asking for every time. (BITCOUNT's BIT unit: Redis 7, as the compose file runs; an older
+# server refuses the script and the samples are announced without marks: samples_publish.)
 _CLAIM_AND_ANNOUNCE = """
-local key, first, count = KEYS[1], tonumber(ARGV[3]), #ARGV - 3
+local key, first, count = KEYS[1], tonumber(ARGV[3]), tonumber(ARGV[4])
 local last_seq = first + count - 1
 local claimed, from, last, last_t = 0, nil, nil, nil
 local function announce()
@@ -158,9 +163,11 @@ if count > 0 and redis.call('BITCOUNT', key, first, last_seq, 'BIT') == 0 then
   end
   from, last, last_t, claimed = first, last_seq, ARGV[#ARGV], count
   announce()
+elseif #ARGV - 4 < count then
+  return -1
 else
-  for i = 4, #ARGV do
-    local seq = first + i - 4
+  for i = 5, #ARGV do
+    local seq = first + i - 5
     if redis.call('SETBIT', key, seq, 1) == 0 then
       if from == nil then from = seq end
       last, last_t, claimed = seq, ARGV[i], claimed + 1
@@ -194,10 +201,13 @@ class RedisBus:
     ) -> None:
         """Announce the samples from ``first_seq`` on (``times_s``, one each) not announced
         yet and mark them, in one script (atomic: both or neither, and one publisher each)."""
-        if times_s:
-            args: list[str | int] = [self.prefix + channel, ANNOUNCED_TTL_S, first_seq]
-            args += map(repr, times_s)
-            self._claim_and_announce(keys=[key], args=args)
+        if not times_s:
+            return
+        head: list[str | int] = [self.prefix + channel, ANNOUNCED_TTL_S, first_seq, len(times_s)]
+        # The last time is enough for the usual page; the script asks for each (-1) only when
+        # some of these samples were announced already.
+        if self._claim_and_announce(keys=[key], args=[*head, repr(times_s[-1])]) == -1:
+            self._claim_and_announce(keys=[key], args=[*head, *map(repr, times_s)])
 
     def marks(self, key: str) -> bytes | None:
         """The bitmap (bit ``n`` is sequence number ``n``, most significant bit first)."""
@@ -336,13 +346,15 @@ def publish_on_commit(channel: str, event: Mapping[str, Any]) -> None:
     transaction.on_commit(partial(publish, channel, dict(event)))
 
 
-def samples_publish(run_id: int, first_seq: int, times_s: Sequence[float]) -> bool:
-    """Announce a run's stored samples from ``first_seq`` on (``times_s``, the time of each)
-    in ``samples`` events, those not announced yet, marking them; False (logged) if the bus
-    is down."""
+def samples_publish(
+    run_id: int, created_at: datetime, first_seq: int, times_s: Sequence[float]
+) -> bool:
+    """Announce the stored samples from ``first_seq`` on (``times_s``, the time of each) of
+    the run ``run_id`` created at ``created_at`` in ``samples`` events, those not announced
+    yet, marking them; False (logged) if the bus is down."""
     channel = run_channel(run_id)
     try:
-        bus().publish_samples(channel, announced_key(run_id), first_seq, times_s)
+        bus().publish_samples(channel, announced_key(run_id, created_at), first_seq, times_s)
     except redis.ResponseError as exc:
         # Redis refused the script (not the connection): the pages still hear of the samples;
         # only a crash before the next announcement could now repeat these.
@@ -355,16 +367,18 @@ def samples_publish(run_id: int, first_seq: int, times_s: Sequence[float]) -> bo
     return True
 
 
-def samples_publish_on_commit(run_id: int, first_seq: int, times_s: Sequence[float]) -> None:
+def samples_publish_on_commit(
+    run_id: int, created_at: datetime, first_seq: int, times_s: Sequence[float]
+) -> None:
     """:func:`samples_publish` once the samples are committed."""
-    transaction.on_commit(partial(samples_publish, run_id, first_seq, list(times_s)))
+    transaction.on_commit(partial(samples_publish, run_id, created_at, first_seq, list(times_s)))
 
 
-def samples_announced(run_id: int) -> Callable[[int], bool] | None:
+def samples_announced(run_id: int, created_at: datetime) -> Callable[[int], bool] | None:
     """Whether each sequence number of the run was announced; None when the bus keeps no
     marks (files) or cannot be reached."""
     try:
-        marks = bus().marks(announced_key(run_id))
+        marks = bus().marks(announced_key(run_id, created_at))
     except (redis.RedisError, OSError) as exc:
         logger.info("live: marks of run %s not read (%s)", run_id, exc)
         return None

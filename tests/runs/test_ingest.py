@@ -99,7 +99,7 @@ def announced(monkeypatch) -> list[dict]:
     """The live events ``samples_ingest`` publishes (once committed)."""
     events: list[dict] = []
 
-    def publish(run_id: int, first_seq: int, times_s: list[float]) -> None:
+    def publish(run_id: int, created_at: object, first_seq: int, times_s: list[float]) -> None:
         events.append(live.samples_event(first_seq, first_seq + len(times_s) - 1, times_s[-1]))
 
     monkeypatch.setattr(collection, "samples_publish_on_commit", publish)
@@ -127,7 +127,7 @@ def test_new_samples_around_stored_ones_are_announced_as_their_own_ranges(run, a
 def run_channel_events(run, settings):
     """What the run's channel on the real Redis bus carries from now on."""
     client = redis.Redis.from_url(settings.REDIS_URL)
-    client.delete(live.announced_key(run.pk))
+    client.delete(live.announced_key(run.pk, run.created_at))
     pubsub = client.pubsub()
     pubsub.subscribe(live.redis_channel(live.run_channel(run.pk)))
 
@@ -185,6 +185,20 @@ def test_an_announcement_late_behind_the_collectors_catching_up_repeats_nothing(
     assert run_channel_events(2) == [(1, 20), (21, 30)]
 
 
+def test_marks_left_by_an_earlier_run_of_the_same_id_claim_nothing(
+    run, run_channel_events, django_capture_on_commit_callbacks, settings
+):
+    # A database made again, or restored from a backup: a run of this id made the day before
+    # left its marks on Redis, which outlive it by a week.
+    earlier = run.created_at - timedelta(days=1)
+    assert live.samples_publish(run.pk, earlier, 1, [time.time()] * 10)
+    assert run_channel_events(1) == [(1, 10)]
+    with django_capture_on_commit_callbacks(execute=True):
+        samples_ingest(run=run, samples=_page(1, 10))
+    assert run_channel_events(1) == [(1, 10)]
+    redis.Redis.from_url(settings.REDIS_URL).delete(live.announced_key(run.pk, earlier))
+
+
 def test_without_marks_on_the_bus_nothing_is_announced_again(run, settings, tmp_path):
     settings.REDIS_URL = ""  # the file transport (make run without Redis) keeps no marks
     settings.LIVE_DIR = tmp_path / "live"
@@ -197,7 +211,7 @@ def test_marks_refused_by_redis_still_announce_the_samples(run, run_channel_even
         raise redis.ResponseError("NOSCRIPT scripting is disabled")
 
     monkeypatch.setattr(live.RedisBus, "publish_samples", refuse)
-    assert live.samples_publish(run.pk, 1, [time.time()] * 5)
+    assert live.samples_publish(run.pk, run.created_at, 1, [time.time()] * 5)
     assert run_channel_events(1) == [(1, 5)]
 
 

@@ -119,7 +119,7 @@ def samples_ingest(*, run: Run, samples: list[dict[str, Any]]) -> int:
         t_by_seq = {r[_SEQ]: r[_T] for r in rows}
         for first, last in _consecutive(stored):
             times_s = [t_by_seq[seq] for seq in range(first, last + 1)]
-            samples_publish_on_commit(run.pk, first, times_s)
+            samples_publish_on_commit(run.pk, run.created_at, first, times_s)
     run.last_seq = max(run.last_seq, last_seq)
     return len(stored)
 
@@ -132,7 +132,7 @@ def samples_announce_missed(*, run: Run) -> int:
     """Announce the run's stored samples that never were (their publisher was killed between
     its commit and its announcement); how many. Called when the collector takes a run up.
     Nothing when the bus keeps no marks (the file transport) or cannot be reached."""
-    announced = samples_announced(run.pk)
+    announced = samples_announced(run.pk, run.created_at)
     if announced is None:
         return 0
     missed = [
@@ -143,7 +143,7 @@ def samples_announce_missed(*, run: Run) -> int:
     t_by_seq = dict(missed)
     for first, last in _consecutive(list(t_by_seq)):
         times_s = [t_by_seq[seq].timestamp() for seq in range(first, last + 1)]
-        samples_publish(run.pk, first, times_s)
+        samples_publish(run.pk, run.created_at, first, times_s)
     if missed:
         logger.info("run %s: %d stored samples announced late", run.pk, len(missed))
     return len(missed)
