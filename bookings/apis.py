@@ -14,7 +14,16 @@ from rest_framework.views import APIView
 
 from bookings import services
 from bookings.choices import QuotaPeriod
-from bookings.models import CALENDAR, Blackout, QuotaPolicy, Resource, ResourceGroup
+from bookings.models import (
+    CALENDAR_SETUP,
+    Blackout,
+    QuotaPolicy,
+    Resource,
+    ResourceGroup,
+    availability_generations,
+    busy_generations,
+    own_bookings_generations,
+)
 from bookings.quotas import period_bounds, quota_summary
 from bookings.selectors import busy_slots, resource_free_intervals
 from core.accounts.models import User
@@ -63,7 +72,7 @@ class ResourceListApi(APIView):
     def get(self, request: Request) -> HttpResponse | Response:
         return cached_json(
             request,
-            (CALENDAR,),
+            (CALENDAR_SETUP,),
             (),
             lambda: ResourceOutput(Resource.objects.prefetch_related("groups"), many=True).data,
         )
@@ -96,11 +105,18 @@ class AvailabilityOutput(serializers.Serializer):
 class AvailabilityApi(APIView):
     @extend_schema(parameters=[RangeQuery], responses=AvailabilityOutput)
     def get(self, request: Request, name: str) -> HttpResponse | Response:
+        query = valid_query(RangeQuery, request.query_params)
+        resource_id = CALENDAR_SETUP.answer(
+            ("resource-id", name),
+            lambda: Resource.objects.filter(name=name).values_list("pk", flat=True).first(),
+        )
+        if resource_id is None:
+            raise Http404
+
         def available() -> dict[str, Any]:
-            query = valid_query(RangeQuery, request.query_params)
-            resource = Resource.objects.filter(name=name).first()
+            resource = Resource.objects.filter(pk=resource_id).first()
             if resource is None:
-                raise Http404  # nothing kept: an unknown name is asked for again each time
+                raise Http404  # gone since: nothing kept
             free = resource_free_intervals(
                 resource=resource, start_at=query["start"], end_at=query["end"]
             )
@@ -111,7 +127,8 @@ class AvailabilityApi(APIView):
                 "free": [{"start": s, "end": e} for s, e in free],
             }
 
-        return cached_json(request, (CALENDAR,), (), available)
+        generations = availability_generations(resource_id, query["start"], query["end"])
+        return cached_json(request, generations, (), available)
 
 
 class BusyOutput(serializers.Serializer):
@@ -131,7 +148,7 @@ class BusyApi(APIView):
         query = valid_query(RangeQuery, request.query_params)
         return cached_json(
             request,
-            (CALENDAR,),
+            busy_generations(query["start"], query["end"]),
             (),
             lambda: (
                 BusyOutput(busy_slots(start_at=query["start"], end_at=query["end"]), many=True).data
@@ -172,7 +189,7 @@ class QuotaApi(APIView):
         # one of them ends or a reservation, policy or group membership changes.
         return cached_json(
             request,
-            (CALENDAR,),
+            own_bookings_generations(user),
             (user.pk, *(period_bounds(period, now)[0] for period in QuotaPeriod.values)),
             lambda: {"policies": quota_summary(user=user, now=now)},
         )

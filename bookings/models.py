@@ -1,8 +1,9 @@
 from __future__ import annotations
 
 import uuid
-from datetime import datetime
-from typing import TypeVar
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from datetime import UTC, datetime, timedelta
+from typing import Any, TypeVar
 from urllib.parse import urlsplit
 
 from django.conf import settings
@@ -12,7 +13,15 @@ from django.db import models
 
 from bookings.choices import BookedVia, QuotaPeriod, ReservationState, ResourceKind
 from core.accounts.models import User
-from core.cache import ChangeTrackedQuerySet, Generation, track_changes, track_saves
+from core.cache import (
+    ChangeTrackedQuerySet,
+    Generation,
+    Scope,
+    ScopeTracked,
+    track_changes,
+    track_saves,
+    track_scoped_changes,
+)
 
 _Timed = TypeVar("_Timed", bound=models.Model)
 HOLD_REASON_MAX_CHARS = 300
@@ -170,7 +179,7 @@ class AgentCredential(models.Model):
         return f"agent token of {self.resource_id}"
 
 
-class Reservation(models.Model):
+class Reservation(ScopeTracked, models.Model):
     """One or more resources held by a user for ``[start_at, end_at)``."""
 
     owner = models.ForeignKey(
@@ -250,7 +259,7 @@ class Reservation(models.Model):
         return self.state in (ReservationState.REQUESTED, ReservationState.CONFIRMED)
 
 
-class ReservationItem(models.Model):
+class ReservationItem(ScopeTracked, models.Model):
     """One resource of a reservation, with the period copied so one index can guard it.
 
     On PostgreSQL an exclusion constraint (migration 0002) forbids two active items of the
@@ -377,7 +386,7 @@ class CalendarFeed(models.Model):
         return f"feed of {self.user}"
 
 
-class SchedulerLease(models.Model):
+class SchedulerLease(ScopeTracked, models.Model):
     """A lease on the testbed's scheduler, as the portal last saw it (the mirror).
 
     Leases the portal made for its bookings are linked to their reservation; the others were
@@ -431,21 +440,138 @@ class SchedulerLink(models.Model):
         return "link to the testbed scheduler"
 
 
-# Everything the calendar shows of who holds what and when (resources, busy slots,
-# availability, reservations) and what the quotas allow: its answers are cached until one of
-# these rows changes, or a group's name or its members (quota policies may name a group).
+# --- What the calendar's cached answers are kept under (``core.cache``) ---------------------
+#
+# Each answer names the generations of what it read, and a write moves on only those of the
+# rows it touched, so a booking on one node in one week leaves the other weeks, the other
+# nodes' availability and the other users' lists and quotas in the cache.
+
+# Every answer about who holds what and when, moved by every write below: the admins' lists,
+# which read everyone's bookings, are kept under it.
 CALENDAR = Generation("calendar")
-track_changes(
-    CALENDAR,
-    Resource,
-    ResourceGroup,
+# What every calendar answer reads besides the bookings: the resources and their groups,
+# blackouts, quota policies, groups of users. Rare writes, each retiring every answer.
+CALENDAR_SETUP = Generation("calendar:setup")
+_WEEK = timedelta(weeks=1)
+_WEEK_ZERO = datetime(1970, 1, 5, tzinfo=UTC)  # a Monday: weeks of UTC, whatever the zone
+# A write spanning more weeks than this (a long lease, a bulk change) moves the setup instead
+# of each week; no answer asks for more (a range is at most 62 days).
+_MAX_WEEKS = 16
+
+
+def calendar_weeks(start_at: datetime, end_at: datetime) -> range:
+    """The weeks (counted from 1970-01-05 UTC) that ``[start_at, end_at)`` shares an instant
+    with: a row overlapping a range touches one of the range's weeks."""
+    first = (start_at - _WEEK_ZERO) // _WEEK
+    last = (end_at - _WEEK_ZERO - timedelta(microseconds=1)) // _WEEK
+    return range(first, max(first, last) + 1)
+
+
+def bookings_in_week(week: int) -> Generation:
+    """Every booking and lease in the week, as the busy slots show them."""
+    return Generation(f"calendar:week:{week}")
+
+
+def resource_in_week(resource_id: int, week: int) -> Generation:
+    """One resource's holdings in the week, as its availability reads them."""
+    return Generation(f"calendar:resource:{resource_id}:week:{week}")
+
+
+def leases_in_week(week: int) -> Generation:
+    """The scheduler's leases in the week, which every resource's availability reads."""
+    return Generation(f"calendar:leases:week:{week}")
+
+
+def bookings_of(user_id: int) -> Generation:
+    """One user's bookings, as their lists and quota read them."""
+    return Generation(f"calendar:user:{user_id}")
+
+
+def _weekly(
+    rows: Iterable[Mapping[str, Any]],
+    of_week: Callable[[Mapping[str, Any], int], Iterable[Generation]],
+) -> set[Generation]:
+    """``of_week(row, week)`` for the weeks of each row's span; the setup for a span too long
+    to name its weeks."""
+    moved: set[Generation] = set()
+    for row in rows:
+        weeks = calendar_weeks(row["start_at"], row["end_at"])
+        if len(weeks) > _MAX_WEEKS:
+            moved.add(CALENDAR_SETUP)
+        else:
+            moved.update(generation for week in weeks for generation in of_week(row, week))
+    return moved
+
+
+def _owners(reservation_ids: Iterable[int | None]) -> set[int]:
+    ids = {pk for pk in reservation_ids if pk is not None}
+    if not ids:
+        return set()
+    return set(Reservation._base_manager.filter(pk__in=ids).values_list("owner_id", flat=True))
+
+
+def _reservations_moved(rows: Sequence[Mapping[str, Any]]) -> set[Generation]:
+    owners = {bookings_of(row["owner_id"]) for row in rows}
+    return {CALENDAR, *owners, *_weekly(rows, lambda _, week: (bookings_in_week(week),))}
+
+
+def _items_moved(rows: Sequence[Mapping[str, Any]]) -> set[Generation]:
+    owners = {bookings_of(owner) for owner in _owners(row["reservation_id"] for row in rows)}
+    weekly = _weekly(
+        rows,
+        lambda row, week: (bookings_in_week(week), resource_in_week(row["resource_id"], week)),
+    )
+    return {CALENDAR, *owners, *weekly}
+
+
+def _leases_moved(rows: Sequence[Mapping[str, Any]]) -> set[Generation]:
+    owners = {bookings_of(owner) for owner in _owners(row["reservation_id"] for row in rows)}
+    weekly = _weekly(rows, lambda _, week: (bookings_in_week(week), leases_in_week(week)))
+    return {CALENDAR, *owners, *weekly}
+
+
+track_scoped_changes(
     Reservation,
-    ReservationItem,
-    Blackout,
-    SchedulerLease,
-    QuotaPolicy,
+    Scope(("owner_id", "start_at", "end_at"), _reservations_moved, (CALENDAR, CALENDAR_SETUP)),
 )
-track_saves(CALENDAR, Group, User.groups.through)
+track_scoped_changes(
+    ReservationItem,
+    Scope(
+        ("reservation_id", "resource_id", "start_at", "end_at"),
+        _items_moved,
+        (CALENDAR, CALENDAR_SETUP),
+    ),
+)
+track_scoped_changes(
+    SchedulerLease,
+    Scope(("reservation_id", "start_at", "end_at"), _leases_moved, (CALENDAR, CALENDAR_SETUP)),
+)
+track_changes((CALENDAR, CALENDAR_SETUP), Resource, ResourceGroup, Blackout, QuotaPolicy)
+track_saves((CALENDAR, CALENDAR_SETUP), Group, User.groups.through)
+
+
+def busy_generations(start_at: datetime, end_at: datetime) -> tuple[Generation, ...]:
+    """What the busy slots of ``[start_at, end_at)`` are kept under."""
+    return (CALENDAR_SETUP, *(bookings_in_week(w) for w in calendar_weeks(start_at, end_at)))
+
+
+def availability_generations(
+    resource_id: int, start_at: datetime, end_at: datetime
+) -> tuple[Generation, ...]:
+    """What one resource's free time in ``[start_at, end_at)`` is kept under."""
+    weeks = calendar_weeks(start_at, end_at)
+    return (
+        CALENDAR_SETUP,
+        *(resource_in_week(resource_id, w) for w in weeks),
+        *(leases_in_week(w) for w in weeks),
+    )
+
+
+def own_bookings_generations(user: User) -> tuple[Generation, ...]:
+    """What a user's own lists and quota are kept under: an admin's lists read everyone's."""
+    return (CALENDAR,) if user.is_testbed_admin else (CALENDAR_SETUP, bookings_of(user.pk))
+
+
 # The active quota policies, read under the booking lock on every booking: kept in the cache
 # until one is written (a booking that begins in the moment between a policy's commit and this
 # counter moving on still judges by the policies before it).

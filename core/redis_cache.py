@@ -8,6 +8,7 @@ between threads, so each process keeps one per pool.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from django.core.cache.backends import redis as django_redis
@@ -32,12 +33,15 @@ class RedisCache(django_redis.RedisCache):
         super().__init__(server, params)
         self._class = RedisCacheClient
 
-    def incr_from(self, key: str, start: int) -> int:
-        """Add one to ``key``, first setting it to ``start`` if it is absent; the new value.
-        One round trip (Django's ``incr`` asks whether the key exists first, and raises when
-        it does not)."""
-        full_key = self.make_and_validate_key(key)
-        client = self._cache.get_client(full_key, write=True)  # type: ignore[attr-defined]
+    def incr_many_from(self, keys: Sequence[str], start: int) -> None:
+        """Add one to each of ``keys``, first setting one to ``start`` where it is absent.
+        One round trip for them all (Django's ``incr`` asks whether a key exists first, and
+        raises when it does not)."""
+        full_keys = [self.make_and_validate_key(key) for key in keys]
+        if not full_keys:
+            return
+        client = self._cache.get_client(full_keys[0], write=True)  # type: ignore[attr-defined]
         pipeline = client.pipeline(transaction=False)
-        _, value = pipeline.set(full_key, start, nx=True).incr(full_key).execute()
-        return int(value)
+        for full_key in full_keys:
+            pipeline.set(full_key, start, nx=True).incr(full_key)
+        pipeline.execute()

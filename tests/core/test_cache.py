@@ -13,6 +13,7 @@ from django.utils import timezone
 
 from bookings.models import (
     CALENDAR,
+    CALENDAR_SETUP,
     Blackout,
     QuotaPolicy,
     Reservation,
@@ -89,29 +90,20 @@ def test_a_flushed_cache_starts_a_generation_no_earlier_one_used(settings):
 
 
 def test_the_calendar_follows_every_model_its_answers_read():
-    tracked = {
+    setup = {
         model
-        for model in (
-            Resource,
-            ResourceGroup,
-            Reservation,
-            ReservationItem,
-            Blackout,
-            SchedulerLease,
-            QuotaPolicy,
-        )
-        if CALENDAR in getattr(model, "_generations", ())
+        for model in (Resource, ResourceGroup, Blackout, QuotaPolicy)
+        if CALENDAR_SETUP in getattr(model, "_generations", ())
+        and CALENDAR in getattr(model, "_generations", ())
     }
-    assert tracked == {
-        Resource,
-        ResourceGroup,
-        Reservation,
-        ReservationItem,
-        Blackout,
-        SchedulerLease,
-        QuotaPolicy,
+    assert setup == {Resource, ResourceGroup, Blackout, QuotaPolicy}
+    scoped = {
+        model
+        for model in (Reservation, ReservationItem, SchedulerLease)
+        if getattr(model, "_cache_scope", None) is not None
     }
-    for model in tracked:
+    assert scoped == {Reservation, ReservationItem, SchedulerLease}
+    for model in setup | scoped:
         assert isinstance(model.objects.all(), ChangeTrackedQuerySet)
 
 
@@ -185,14 +177,14 @@ def test_a_transaction_moves_the_generation_once_at_commit_and_reads_its_own_cha
 
     robot = MobileResourceFactory()
     node = FixedResourceFactory()
-    bumps: list[str] = []
-    original = cache.incr_from
+    bumps: list[list[str]] = []
+    original = cache.incr_many_from
 
-    def counted(key: str, start: int) -> int:
-        bumps.append(key)
-        return original(key, start)
+    def counted(keys: list[str], start: int) -> None:
+        bumps.append(keys)
+        original(keys, start)
 
-    monkeypatch.setattr(cache, "incr_from", counted)
+    monkeypatch.setattr(cache, "incr_many_from", counted)
 
     def holds() -> list[str]:
         return sorted(Resource.objects.values_list("hold_reason", flat=True))

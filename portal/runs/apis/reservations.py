@@ -18,7 +18,7 @@ from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from bookings.choices import Channel, ReservationState
-from bookings.models import CALENDAR, Reservation, ReservationItem, Resource
+from bookings.models import Reservation, ReservationItem, Resource, own_bookings_generations
 from bookings.rules import PROBLEM_CODES
 from core.accounts.models import User
 from core.accounts.permissions import StaffVerified
@@ -183,7 +183,12 @@ class ReservationListApi(APIView):
                 serializer_class=ReservationOutput,
             )
 
-        return cached_json(request, (CALENDAR, RUNS), (user.pk, user.is_testbed_admin), listed)
+        return cached_json(
+            request,
+            (*own_bookings_generations(user), RUNS),
+            (user.pk, user.is_testbed_admin),
+            listed,
+        )
 
     @extend_schema(
         request=ReservationInput,

@@ -12,7 +12,7 @@ from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
-from bookings.models import CALENDAR
+from bookings.models import own_bookings_generations
 from core.api import Pagination, cached_json, paginated_data, request_user, valid_query
 from core.openapi import errors
 from portal.experiments.apis import SegmentOutput
@@ -269,7 +269,12 @@ class RunListApi(APIView):
             # The search reads experiments' titles, which the runs' generation does not follow.
             return Response(listed())
         # Resource names come from the calendar's rows.
-        return cached_json(request, (RUNS, CALENDAR), (user.pk, user.is_testbed_admin), listed)
+        return cached_json(
+            request,
+            (RUNS, *own_bookings_generations(user)),
+            (user.pk, user.is_testbed_admin),
+            listed,
+        )
 
 
 class RunDetailApi(APIView):
