@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
 from django.http import Http404, HttpResponse
@@ -35,6 +35,7 @@ from core.api import (
     cached_json,
     paginated_response,
     request_user,
+    rfc3339_instant,
     valid_input,
     valid_query,
 )
@@ -90,6 +91,19 @@ class RangeQuery(serializers.Serializer):
         return attrs
 
 
+def _range_asked(request: Request) -> tuple[datetime, datetime]:
+    """The range a calendar read asks for, read cheaply: it names what the answer is kept
+    under. The query's whole check (``RangeQuery``, unknown parameters) runs when the answer
+    is computed, so a kept answer's URL was valid; a range this read cannot take is checked
+    here, and refused with the reasons."""
+    start = rfc3339_instant(request.query_params.get("start"))
+    end = rfc3339_instant(request.query_params.get("end"))
+    if start is None or end is None or not start < end <= start + MAX_RANGE:
+        query = valid_query(RangeQuery, request.query_params)
+        return query["start"], query["end"]
+    return start, end
+
+
 class IntervalOutput(serializers.Serializer):
     start = serializers.DateTimeField()
     end = serializers.DateTimeField()
@@ -105,7 +119,7 @@ class AvailabilityOutput(serializers.Serializer):
 class AvailabilityApi(APIView):
     @extend_schema(parameters=[RangeQuery], responses=AvailabilityOutput)
     def get(self, request: Request, name: str) -> HttpResponse | Response:
-        query = valid_query(RangeQuery, request.query_params)
+        start_at, end_at = _range_asked(request)
         resource_id = CALENDAR_SETUP.answer(
             ("resource-id", name),
             lambda: Resource.objects.filter(name=name).values_list("pk", flat=True).first(),
@@ -114,6 +128,7 @@ class AvailabilityApi(APIView):
             raise Http404
 
         def available() -> dict[str, Any]:
+            query = valid_query(RangeQuery, request.query_params)
             resource = Resource.objects.filter(pk=resource_id).first()
             if resource is None:
                 raise Http404  # gone since: nothing kept
@@ -127,7 +142,7 @@ class AvailabilityApi(APIView):
                 "free": [{"start": s, "end": e} for s, e in free],
             }
 
-        generations = availability_generations(resource_id, query["start"], query["end"])
+        generations = availability_generations(resource_id, start_at, end_at)
         return cached_json(request, generations, (), available)
 
 
@@ -145,15 +160,12 @@ class BusyApi(APIView):
 
     @extend_schema(parameters=[RangeQuery], responses=BusyOutput(many=True))
     def get(self, request: Request) -> HttpResponse | Response:
-        query = valid_query(RangeQuery, request.query_params)
-        return cached_json(
-            request,
-            busy_generations(query["start"], query["end"]),
-            (),
-            lambda: (
-                BusyOutput(busy_slots(start_at=query["start"], end_at=query["end"]), many=True).data
-            ),
-        )
+        def busy() -> Any:
+            query = valid_query(RangeQuery, request.query_params)
+            slots = busy_slots(start_at=query["start"], end_at=query["end"])
+            return BusyOutput(slots, many=True).data
+
+        return cached_json(request, busy_generations(*_range_asked(request)), (), busy)
 
 
 class QuotaUseOutput(serializers.Serializer):
