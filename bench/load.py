@@ -1,10 +1,13 @@
-"""The portal under load: the researcher's API mix (``bench/locustfile.py``) from many users,
-each with a token of their own, against the web server as ``docker-compose.yml`` runs it
+"""The portal under load: the API mixes of ``bench/locustfile.py`` from many users, each with
+a token of their own, against the web server as ``docker-compose.yml`` runs it
 (``portal/processes.py`` ``web_process``: granian's threads, pooled PostgreSQL connections,
 production settings, throttles as configured), with one web process and with one per core.
 
-The load generator (locust, headless) runs on the same machine and takes CPU from the server:
-the figures are a floor, and each row of one run shares it alike.
+Three mixes in each round, one after another on the same server: the least an authenticated
+call costs (the floor), the researcher's reads, and a researcher's day (reads with live
+checks, run analyses, filtered lists and bookings). Their ratios are the figures: the load
+generator (locust, headless) runs on the same machine and takes CPU from the server, so each
+absolute figure is a floor, shared alike by every row of one run.
 """
 
 from __future__ import annotations
@@ -29,20 +32,31 @@ from bench.stack import free_port
 REPO = Path(__file__).resolve().parent.parent
 USERS = (50, 200)
 WORKERS = (1, os.cpu_count() or 1)
+MIXES = ("Floor", "Reads", "Day")
+MIX_NAMES = {"Floor": "floor: `GET /me/`", "Reads": "the read mix", "Day": "a researcher's day"}
 DURATION_S = 30.0
-# A researcher's calendar: this many bookings each over the coming week.
+# A researcher's calendar: this many bookings each over the coming week, and one completed
+# run of a minute at 20 Hz the day before (what the day's mix analyses).
 BOOKINGS_PER_USER = 3
+RUN_SAMPLES = 1200
 
 
-def _seed(users: int) -> list[str]:
-    """Resources, users with their tokens and bookings, runs; the tokens."""
+def _seed(users: int) -> tuple[list[str], list[str]]:
+    """Resources, users with their tokens, bookings and a completed run each; one line per
+    user (the token and the run's id) and the fixed nodes' names."""
 
+    from bookings.choices import ResourceKind
     from bookings.models import Reservation, ReservationItem, Resource
     from bookings.services import TestbedSpec, testbed_resources_ensure
     from core.accounts.models import ApiToken, User
+    from portal.experiments.models import Experiment
+    from portal.runs.models import Run
+    from portal.runs.services.collection import samples_ingest
+    from portal.runs.states import RunState
 
     testbed_resources_ensure(TestbedSpec(agent_url="http://127.0.0.1:9"))
-    nodes = list(Resource.objects.filter(kind="fixed").order_by("name"))
+    nodes = list(Resource.objects.filter(kind=ResourceKind.FIXED).order_by("name"))
+    robot = Resource.objects.filter(kind=ResourceKind.MOBILE).order_by("name")[0]
     people = User.objects.bulk_create(User(username=f"researcher{i}") for i in range(users))
     base = datetime.now(UTC).replace(minute=0, second=0, microsecond=0) + timedelta(hours=1)
     bookings = []
@@ -60,7 +74,40 @@ def _seed(users: int) -> list[str]:
         ReservationItem(reservation=r, resource=n, start_at=r.start_at, end_at=r.end_at)
         for r, n in bookings
     )
-    return [ApiToken.objects.create(user=person, name="bench")[1] for person in people]
+    lines = []
+    duration_s = RUN_SAMPLES / 20.0
+    segments = [{"velocity_mps": 0.8, "direction": "cw", "duration_s": duration_s}]
+    yesterday = base - timedelta(days=1)
+    for i, person in enumerate(people):
+        start = yesterday + timedelta(minutes=2 * i)
+        end = start + timedelta(seconds=duration_s + 30)
+        experiment = Experiment.objects.create(owner=person, title="a lap", segments=segments)
+        reservation = Reservation.objects.create(owner=person, start_at=start, end_at=end)
+        run = Run.objects.create(
+            reservation=reservation, resource=robot, experiment=experiment, title="a lap",
+            segments=segments, start_at=start, end_at=end, rail_length_m=120.0,
+            state=RunState.COMPLETED,
+        )  # fmt: skip
+        samples_ingest(run=run, samples=_samples(start.timestamp()))
+        token = ApiToken.objects.create(user=person, name="bench")[1]
+        lines.append(f"{token} {run.pk}")
+    return lines, [node.name for node in nodes]
+
+
+def _samples(t0_s: float) -> list[dict[str, object]]:
+    samples = []
+    for seq in range(1, RUN_SAMPLES + 1):
+        t_s = (seq - 1) / 20.0
+        track_m = (0.8 * t_s) % 120.0
+        samples.append(
+            {
+                "seq": seq, "t": t0_s + t_s, "segment": 0, "commanded_velocity_mps": 0.8,
+                "velocity_mps": 0.8, "direction": "cw", "battery_v": 60.0, "track_m": track_m,
+                "fix_quality": 4, "lat_deg": 40.63, "lon_deg": -8.66, "grid_id": None,
+                "lap": int(0.8 * t_s // 120.0),
+            }
+        )  # fmt: skip
+    return samples
 
 
 def _start_web(database_url: str, workers: int, port: int, log: Path) -> subprocess.Popen[bytes]:
@@ -103,7 +150,13 @@ def _start_web(database_url: str, workers: int, port: int, log: Path) -> subproc
 # What each round calls (bench/locustfile.py), asked once before it: the first answers of a
 # process (its URLs, its pool's connections) are not what a round measures, and a busy machine
 # took its whole 3 s round to give them.
-WARM_PATHS = ("/api/v1/resources/", "/api/v1/reservations/", "/api/v1/runs/", "/api/v1/quota/")
+WARM_PATHS = (
+    "/api/v1/me/",
+    "/api/v1/resources/",
+    "/api/v1/reservations/",
+    "/api/v1/runs/",
+    "/api/v1/quota/",
+)
 
 
 def _warm(port: int, token: str, workers: int) -> None:
@@ -126,15 +179,16 @@ def _stop(process: subprocess.Popen[bytes]) -> None:
 
 
 def _locust(
-    port: int, users: int, duration_s: float, tokens: Path, prefix: Path
-) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, LOAD_TOKENS_FILE=str(tokens))
+    port: int, users: int, mix: str, duration_s: float, tokens: Path, nodes: Sequence[str],
+    prefix: Path,
+) -> subprocess.CompletedProcess[str]:  # fmt: skip
+    env = dict(os.environ, LOAD_TOKENS_FILE=str(tokens), LOAD_NODES=",".join(nodes))
     return subprocess.run(
         [
             sys.executable, "-m", "locust", "-f", str(REPO / "bench" / "locustfile.py"),
             "--headless", "--users", str(users), "--spawn-rate", str(users),
             "--run-time", f"{max(1, round(duration_s))}s", "--host", f"http://127.0.0.1:{port}",
-            "--csv", str(prefix), "--only-summary", "--loglevel", "WARNING",
+            "--csv", str(prefix), "--only-summary", "--loglevel", "WARNING", mix,
         ],
         cwd=REPO, env=env, check=False, capture_output=True, text=True,
         timeout=duration_s + 120,
@@ -151,14 +205,15 @@ def run(
     database_url: str,
     users: Sequence[int] = USERS,
     workers: Sequence[int] = WORKERS,
+    mixes: Sequence[str] = MIXES,
     duration_s: float = DURATION_S,
 ) -> str:
-    """One round per (users, web processes); the report's markdown."""
+    """One round per (web processes, users, mix); the report's markdown."""
     work = Path(tempfile.mkdtemp(prefix="bench-load-"))
     try:
         tokens_file = work / "tokens"
-        tokens = _seed(max(users))
-        tokens_file.write_text("\n".join(tokens) + "\n")
+        lines, nodes = _seed(max(users))
+        tokens_file.write_text("\n".join(lines) + "\n")
         from django.db import connections
 
         connections.close_all()
@@ -168,47 +223,53 @@ def run(
             port = free_port()
             web = _start_web(database_url, count, port, work / "web.log")
             try:
-                _warm(port, tokens[0], count)
+                _warm(port, lines[0].split()[0], count)
                 for n in users:
-                    prefix = work / f"w{count}-u{n}"
-                    locust = _locust(port, n, duration_s, tokens_file, prefix)
-                    stats = _stats(prefix)
-                    total = next(s for s in stats if s["Name"] == "Aggregated")
-                    if total["Request Count"] == "0":
-                        # Nothing measured: say what locust and the web server said instead.
-                        raise RuntimeError(
-                            f"locust made no call in {duration_s:g} s ({n} users, {count} web "
-                            f"processes; exit {locust.returncode}):\n{locust.stderr[-3000:]}\n"
-                            f"web server:\n{(work / 'web.log').read_text()[-2000:]}"
-                        )
-                    rows.append(
-                        f"| {n} | {count} | {float(total['Requests/s']):.0f} "
-                        f"| {total['50%']} ms | {total['95%']} ms "
-                        f"| {total['Failure Count']} of {total['Request Count']} |"
-                    )
-                    if count == max(workers) and n == min(users):
-                        detail = [s for s in stats if s["Name"] != "Aggregated"]
+                    measured: dict[str, dict[str, str]] = {}
+                    for mix in mixes:
+                        prefix = work / f"w{count}-u{n}-{mix}"
+                        locust = _locust(port, n, mix, duration_s, tokens_file, nodes, prefix)
+                        stats = _stats(prefix)
+                        total = next(s for s in stats if s["Name"] == "Aggregated")
+                        if total["Request Count"] == "0":
+                            # Nothing measured: say what locust and the web server said.
+                            raise RuntimeError(
+                                f"locust made no call in {duration_s:g} s ({mix}, {n} users, "
+                                f"{count} web processes; exit {locust.returncode}):\n"
+                                f"{locust.stderr[-3000:]}\n"
+                                f"web server:\n{(work / 'web.log').read_text()[-2000:]}"
+                            )
+                        measured[mix] = total
+                        if count == max(workers) and n == min(users) and mix == mixes[-1]:
+                            detail = [s for s in stats if s["Name"] != "Aggregated"]
+                    rows += _rows(n, count, measured)
             finally:
                 _stop(web)
-        lines = [
-            "## Portal under load: the researcher's API mix",
+        lines_out = [
+            "## Portal under load: the researcher's API mixes",
             "",
-            f"locust (headless, {duration_s:g} s a round, after each path was asked twice per "
-            "web process) on the same machine, each user with "
-            "a token of its own calling back to back (resources, a week of busy slots, a week "
-            "of availability, own reservations, own runs, quota — weights 1:2:2:2:2:1); the "
-            "web server as docker-compose.yml runs it (granian, WEB_THREADS threads "
-            "a process, PostgreSQL through the pool, production settings, throttles as "
-            "configured).",
+            f"locust (headless, {duration_s:g} s a round, after each read was asked twice per "
+            "web process) on the same machine, each user with a token of its own calling back "
+            "to back, the mixes one after another on the same server: the floor (`GET "
+            "/api/v1/me/` only), the read mix (resources, a week of busy slots, a week of "
+            "availability, own reservations, own runs, quota — weights 1:2:2:2:2:1) and a "
+            "researcher's day (per hundred calls: 80 of those reads, 10 live checks of a "
+            "booking, 4 analyses of a run of 1200 samples, 4 filtered run lists, 2 bookings of "
+            "half an hour on a fixed node; a booking refused as taken, 409, counts as an "
+            "answer). The web server as docker-compose.yml runs it (granian, WEB_THREADS "
+            "threads a process, PostgreSQL through the pool, production settings, throttles "
+            "as configured). Ratios are to the read mix of the same round.",
             "",
-            "| users | web processes | req/s | p50 | p95 | failures |",
-            "| --- | --- | --- | --- | --- | --- |",
+            "| users | web processes | mix | req/s | p50 | p95 | failures | req/s ÷ reads "
+            "| p95 ÷ reads |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
             *rows,
         ]
         if detail:
-            lines += [
+            lines_out += [
                 "",
-                f"Per call, {min(users)} users, {max(workers)} web processes:",
+                f"Per call of {MIX_NAMES[mixes[-1]]}, {min(users)} users, {max(workers)} web "
+                "processes:",
                 "",
                 "| call | req/s | p50 | p95 |",
                 "| --- | --- | --- | --- |",
@@ -218,6 +279,23 @@ def run(
                     for s in detail
                 ),
             ]
-        return "\n".join(lines)
+        return "\n".join(lines_out)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+def _rows(users: int, workers: int, measured: dict[str, dict[str, str]]) -> list[str]:
+    reads = measured.get("Reads")
+    rows = []
+    for mix, total in measured.items():
+        rate, p95 = float(total["Requests/s"]), float(total["95%"])
+        if reads is not None and float(reads["Requests/s"]) and float(reads["95%"]):
+            ratios = f"{rate / float(reads['Requests/s']):.2f} | {p95 / float(reads['95%']):.2f}"
+        else:
+            ratios = "— | —"
+        rows.append(
+            f"| {users} | {workers} | {MIX_NAMES[mix]} | {rate:.0f} | {total['50%']} ms "
+            f"| {total['95%']} ms | {total['Failure Count']} of {total['Request Count']} "
+            f"| {ratios} |"
+        )
+    return rows
