@@ -98,7 +98,7 @@ def _range_asked(request: Request) -> tuple[datetime, datetime]:
     here, and refused with the reasons."""
     start = rfc3339_instant(request.query_params.get("start"))
     end = rfc3339_instant(request.query_params.get("end"))
-    if start is None or end is None or not start < end <= start + MAX_RANGE:
+    if start is None or end is None or not timedelta(0) < end - start <= MAX_RANGE:
         query = valid_query(RangeQuery, request.query_params)
         return query["start"], query["end"]
     return start, end
