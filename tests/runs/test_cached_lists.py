@@ -9,6 +9,8 @@ from datetime import UTC, datetime, timedelta
 import pytest
 import time_machine
 from django.contrib.auth.models import Group
+from django.db import connection
+from django.test.utils import CaptureQueriesContext
 from django.utils import timezone
 
 from bookings.models import QuotaPolicy
@@ -157,3 +159,45 @@ def test_the_browsable_api_is_answered_afresh_and_json_stays_cached(api, owner, 
     answer = api.get("/api/v1/reservations/", **JSON)
     assert answer["Content-Type"] == "application/json"
     assert answer.json()["count"] == 1
+
+
+@pytest.mark.django_db(transaction=True)
+def test_the_runs_list_follows_its_runs_and_not_the_owners_other_bookings(
+    api, owner, mobile, experiment
+):
+    """The runs list is kept under the runs' generation and the setup's, not its owner's
+    bookings: a move or a cancel writes the run itself, and a booking of a fixed node leaves
+    the list in the cache (committed changes: the cache is really read here)."""
+    from bookings.models import CALENDAR_SETUP
+    from bookings.services import reservation_create as book_nodes
+    from portal.runs.models import RUNS
+    from portal.runs.services.reservations import reservation_cancel, reservation_reschedule
+    from tests.factories import FixedResourceFactory
+
+    node = FixedResourceFactory()  # the setup's change, before anything is kept
+    booked = _book(owner, mobile, experiment)
+    listed = api.get("/api/v1/runs/", **JSON).json()["results"]
+    assert [(row["id"], row["start_at"]) for row in listed] == [
+        (booked.run.pk, booked.start_at.astimezone(UTC).isoformat().replace("+00:00", "Z"))
+    ]
+
+    later = booked.start_at + timedelta(hours=2)
+    reservation_reschedule(
+        reservation=booked, by=owner, start_at=later, end_at=later + timedelta(minutes=30)
+    )
+    listed = api.get("/api/v1/runs/", **JSON).json()["results"]
+    assert listed[0]["start_at"] == later.astimezone(UTC).isoformat().replace("+00:00", "Z")
+
+    before = (RUNS.current(), CALENDAR_SETUP.current())
+    start = later + timedelta(hours=1)
+    book_nodes(owner=owner, resource=node, start_at=start, end_at=start + timedelta(hours=1))
+    assert (RUNS.current(), CALENDAR_SETUP.current()) == before
+    with CaptureQueriesContext(connection) as queries:
+        again = api.get("/api/v1/runs/", **JSON)
+    assert again.json()["results"] == listed
+    read = [q["sql"] for q in queries.captured_queries if '"runs_run"' in q["sql"]]
+    assert read == [], "answered from the cache"
+
+    reservation_cancel(reservation=booked, by=owner)
+    listed = api.get("/api/v1/runs/", **JSON).json()["results"]
+    assert listed[0]["state"] == "cancelled"

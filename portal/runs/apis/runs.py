@@ -12,7 +12,7 @@ from rest_framework.response import Response
 from rest_framework.views import APIView
 
 from basestation.contract import DIRECTIONS, SAMPLE_COLUMNS, SampleColumn
-from bookings.models import own_bookings_generations
+from bookings.models import CALENDAR_SETUP
 from core.api import Pagination, cached_json, paginated_data, request_user, valid_query
 from core.openapi import errors
 from portal.experiments.apis import SegmentOutput
@@ -268,12 +268,11 @@ class RunListApi(APIView):
         if "q" in request.query_params:
             # The search reads experiments' titles, which the runs' generation does not follow.
             return Response(listed())
-        # Resource names come from the calendar's rows.
+        # A run carries its own period and state (a booking moved or cancelled writes its
+        # run too); of the calendar it shows only resource names, which are the setup's: a
+        # booking of a fixed node leaves its owner's runs list in the cache.
         return cached_json(
-            request,
-            (RUNS, *own_bookings_generations(user)),
-            (user.pk, user.is_testbed_admin),
-            listed,
+            request, (RUNS, CALENDAR_SETUP), (user.pk, user.is_testbed_admin), listed
         )
 
 
