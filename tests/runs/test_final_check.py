@@ -17,10 +17,11 @@ from django.utils import timezone
 from basestation.client import AgentError
 from portal.runs.models import Run, Sample
 from portal.runs.services import collection, staging
-from portal.runs.services.collection import MissingRange, missing_described
+from portal.runs.services.collection import MissingRange, missing_described, samples_ingest
 from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.factories import ExperimentFactory
+from tests.runs.driving import drive
 from tests.sqlite import run_on_sqlite
 
 pytestmark = pytest.mark.django_db
@@ -93,6 +94,37 @@ def test_a_run_stopped_early_on_the_agent_is_interrupted_with_the_part_never_rec
     assert missing_described(staged.missing) == [tail.describe()]
     shown = api.get(f"/api/v1/runs/{staged.pk}/").json()
     assert (shown["state"], shown["missing"]) == ("interrupted", staged.missing)
+
+
+def test_a_run_stopped_early_lacks_its_tail_even_when_its_last_sample_is_past_the_reckoned_end(
+    staged,
+):
+    """The program starts on the base station a moment after the booking's start, so its
+    last samples can carry times past the end the portal reckons; stopped early there, the
+    rest is still missing."""
+    late_s = 0.5
+    t0_s = staged.start_at.timestamp() + late_s
+    rows = drive([(0.5, "cw", PROGRAM_S)])[:-2]  # stopped two samples before the end
+    samples_ingest(
+        run=staged,
+        samples=[
+            {**{k: v for k, v in r._asdict().items() if k != "t_s"}, "t": t0_s + r.t_s}
+            for r in rows
+        ],
+    )
+    program_end = staged.start_at + timedelta(seconds=PROGRAM_S)
+    last_s = late_s + rows[-1].t_s
+    assert last_s > PROGRAM_S
+    [tail] = collection.run_missing_ranges(
+        run=staged, agent_last_seq=0, program_end=program_end, stopped_early=True
+    )
+    assert (tail.first_seq, tail.last_seq) == (rows[-1].seq + 1, None)
+    assert tail.from_s == pytest.approx(last_s, abs=0.01)
+    assert tail.to_s is None
+    # Out of reach (no word from the base station): a last sample past the end is the end.
+    assert (
+        collection.run_missing_ranges(run=staged, agent_last_seq=0, program_end=program_end) == []
+    )
 
 
 def test_samples_the_agent_lost_make_the_run_interrupted_with_their_range(agent, staged):

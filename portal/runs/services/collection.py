@@ -259,10 +259,19 @@ def _since_start_s(run: Run, at: datetime | None) -> float | None:
 
 
 def run_missing_ranges(
-    *, run: Run, agent_last_seq: int, program_end: datetime | None
+    *,
+    run: Run,
+    agent_last_seq: int,
+    program_end: datetime | None,
+    stopped_early: bool = False,
 ) -> list[MissingRange]:
     """What the run lacks among sequence numbers 1 to ``agent_last_seq`` (the base station's
-    last), and — with ``program_end`` — after its last sample up to that instant."""
+    last), and — with ``program_end`` — after its last sample up to that instant.
+
+    ``stopped_early``: the base station said the program did not finish, so what follows its
+    last sample is missing even when that sample's time is past ``program_end`` (the portal
+    reckons the end from the booking's start; the program started a moment later there).
+    """
     samples = Sample.objects.filter(run=run)
     bounds = samples.aggregate(first=Min("seq"), last=Max("seq"))
     first, last = bounds["first"], bounds["last"]
@@ -292,12 +301,9 @@ def run_missing_ranges(
         ranges.append(
             MissingRange(last + 1, agent_last_seq, _since_start_s(run, times[last]), None)
         )
-    elif program_end is not None and times[last] < program_end:
-        ranges.append(
-            MissingRange(
-                last + 1, None, _since_start_s(run, times[last]), _since_start_s(run, program_end)
-            )
-        )
+    elif program_end is not None and (stopped_early or times[last] < program_end):
+        to_s = _since_start_s(run, program_end) if times[last] < program_end else None
+        ranges.append(MissingRange(last + 1, None, _since_start_s(run, times[last]), to_s))
     return ranges[:MAX_MISSING_RANGES]
 
 
@@ -505,7 +511,10 @@ def _close(run: Run, view: AgentRunView, final_state: RunState, now: datetime) -
     # Stopped early on the base station: the rest of the program was never recorded.
     early = final_state == RunState.INTERRUPTED
     missing = run_missing_ranges(
-        run=run, agent_last_seq=view.last_seq, program_end=_program_end(run) if early else None
+        run=run,
+        agent_last_seq=view.last_seq,
+        program_end=_program_end(run) if early else None,
+        stopped_early=early,
     )
     collected = f"{stored} samples collected"
     if not early and not missing and stored == view.sample_count:
