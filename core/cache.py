@@ -35,6 +35,7 @@ from django.db import connection, models, transaction
 from django.db.models.signals import m2m_changed, post_delete, post_save, pre_save
 
 from core import sql
+from core.commit_batch import CommitBatch
 
 T = TypeVar("T")
 _M = TypeVar("_M", bound=models.Model)
@@ -99,7 +100,7 @@ class Generation:
 
     def pending(self) -> bool:
         """Whether the current transaction changed rows of this generation, not yet committed."""
-        batch = _pending_batch()
+        batch = _Batch.pending()
         return batch is not None and self.name in batch.names
 
     def answer(self, parts: Iterable[object], compute: Callable[[], T]) -> T:
@@ -107,25 +108,15 @@ class Generation:
         return cached_answer((self,), parts, compute)
 
 
-class _Batch:
+class _Batch(CommitBatch):
     """The generations a transaction moves on at its commit, all in one round trip."""
 
     def __init__(self) -> None:
+        super().__init__()
         self.names: set[str] = set()
 
-    def __call__(self) -> None:
+    def run(self) -> None:
         _bump(self.names)
-
-
-def _pending_batch() -> _Batch | None:
-    # Django keeps (savepoint ids, callback, robust) for each on-commit callback; those of a
-    # savepoint rolled back are gone from it, and so is a batch begun there: the next change
-    # begins another. Names added from a savepoint later rolled back stay in an outer batch,
-    # which then moves one generation too many at the commit: never one too few.
-    for entry in connection.run_on_commit:
-        if isinstance(entry[1], _Batch):
-            return entry[1]
-    return None
 
 
 def changed_together(generations: Iterable[Generation]) -> None:
@@ -142,11 +133,7 @@ def changed_together(generations: Iterable[Generation]) -> None:
     if connection.get_autocommit():
         _bump(names)
         return
-    batch = _pending_batch()
-    if batch is None:
-        batch = _Batch()
-        transaction.on_commit(batch)
-    batch.names |= names
+    _Batch.current().names |= names
 
 
 def _bump(names: Collection[str]) -> None:

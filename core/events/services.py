@@ -5,12 +5,12 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from datetime import datetime
-from functools import partial
 from typing import Any
 
-from django.db import connection, transaction
+from django.db import connection
 from django.utils import timezone
 
+from core.commit_batch import CommitBatch
 from core.events.catalogue import EVENT_TYPES
 from core.events.models import Event
 from core.events.registry import queues_wanting
@@ -44,9 +44,23 @@ def event_record(
         owner_id=owner_id,
         occurred_at=occurred_at or timezone.now(),
     )
-    for queue in queues_wanting(type):
-        transaction.on_commit(partial(_wake_handlers, queue))
+    queues = queues_wanting(type)
+    if queues:
+        _Wakes.current().queues |= queues
     return event
+
+
+class _Wakes(CommitBatch):
+    """The handlers' queues a transaction wakes at its commit: each once, however many of
+    its events they want (a booking records several; one pass hands them all out)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.queues: set[str | None] = set()
+
+    def run(self) -> None:
+        for queue in sorted(self.queues, key=lambda q: q or ""):
+            _wake_handlers(queue)
 
 
 def _wake_handlers(queue: str | None) -> None:

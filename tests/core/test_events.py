@@ -21,7 +21,7 @@ from bookings.scheduler import config as scheduler_config
 from bookings.services import blackout_create, resource_hold, resource_set_service
 from bookings.tasks import reservations_remind
 from core.errors import Conflict
-from core.events import dispatch, registry
+from core.events import dispatch, registry, services
 from core.events.catalogue import EVENT_TYPES, PAYLOADS
 from core.events.models import Event, EventCursor
 from core.events.sequence import events_sequence
@@ -502,7 +502,32 @@ def test_only_an_event_some_handler_wants_wakes_the_handlers_at_commit(
     with django_capture_on_commit_callbacks() as wanted:
         _write(owner, ("run.failed", 2))
     assert unwanted == []
-    assert [(c.func.__name__, c.args) for c in wanted] == [("_wake_handlers", (None,))]
+    assert [c.queues for c in wanted] == [{None}]
+
+
+def test_a_transaction_wakes_each_queue_once_however_many_events_it_records(
+    owner, seen, django_capture_on_commit_callbacks, monkeypatch
+):
+    woken: list[str | None] = []
+    monkeypatch.setattr(services, "_wake_handlers", woken.append)
+    dispatch.handler("pusher", types=["run.running"], queue="runs")(lambda event: None)
+    with django_capture_on_commit_callbacks(execute=True) as callbacks:
+        _write(owner, ("run.running", 1), ("run.failed", 2), ("run.running", 3))
+    assert len(callbacks) == 1
+    assert sorted(woken, key=str) == [None, "runs"]
+    # A savepoint rolled back takes its wake with it; the next event begins another.
+    woken.clear()
+    with django_capture_on_commit_callbacks(execute=True), transaction.atomic():
+        try:
+            with transaction.atomic():
+                event_record(
+                    subject="run:4", type="run.failed", payload={"run": 4}, owner_id=owner.pk
+                )
+                raise RuntimeError("refused")
+        except RuntimeError:
+            pass
+        event_record(subject="run:5", type="run.failed", payload={"run": 5}, owner_id=owner.pk)
+    assert woken == [None]
 
 
 def test_a_handler_of_its_own_queue_is_woken_there_and_passed_by_that_queues_pass(
@@ -515,7 +540,7 @@ def test_a_handler_of_its_own_queue_is_woken_there_and_passed_by_that_queues_pas
     )
     with django_capture_on_commit_callbacks() as woken:
         _write(owner, ("run.failed", 1))
-    assert sorted(str(c.args[0]) for c in woken) == ["None", "runs"]
+    assert [sorted(str(q) for q in c.queues) for c in woken] == [["None", "runs"]]
     assert dispatch.events_dispatch_all(queue="runs") == {"pusher": 1}
     assert (pushed, handled) == ([1], [])
     assert dispatch.events_dispatch_all() == {"recorder": 1}
