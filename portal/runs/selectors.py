@@ -169,7 +169,9 @@ def report_with_passes(report: RunReport, pass_at_m: float) -> RunReport:
     return replace(report, analysis=analysis)
 
 
-def _run_report_cached(run: Run, max_points: int) -> RunReport:
+def _report_identity(run: Run) -> tuple[str, int]:
+    """What a run's report is computed from, as a cache key's part, and how long an answer
+    computed from it may be kept (s)."""
     final = run.state not in RUN_ACTIVE_STATES and run.state != RunState.SCHEDULED
     # created_at tells this run from one with the same id in the same database (a restore).
     identity: tuple[object, ...] = (
@@ -183,13 +185,39 @@ def _run_report_cached(run: Run, max_points: int) -> RunReport:
         # While samples arrive (a gap may be filled below last_seq), their count says whether
         # anything changed: every viewer's poll then costs one count, not a recomputation.
         identity += (Sample.objects.filter(run=run).count(),)
-    key = f"run-report:v2:{database_namespace()}:{identity}:{max_points}".replace(" ", "")
+    part = f"{database_namespace()}:{identity}".replace(" ", "")
+    return part, REPORT_CACHE_S if final else LIVE_REPORT_CACHE_S
+
+
+def _run_report_cached(run: Run, max_points: int) -> RunReport:
+    identity, keep_s = _report_identity(run)
+    key = f"run-report:v2:{identity}:{max_points}"
     hit = cache.get(key)
     if isinstance(hit, RunReport):
         return hit
     report = _run_report_computed(run, None, max_points)
-    cache.set(key, report, REPORT_CACHE_S if final else LIVE_REPORT_CACHE_S)
+    cache.set(key, report, keep_s)
     return report
+
+
+def run_analysis_json(*, run: Run, pass_at_m: float | None = None) -> dict[str, Any]:
+    """The run's analysis as the REST API gives it (``run_report_json``).
+
+    Without ``pass_at_m`` the answer itself is kept beside the report, under the same
+    identity: a script polling a run's analysis reads a few hundred bytes instead of the
+    report with its chart series and track, and builds nothing. Raises ``ValueError`` (with a
+    message for the user) for a position off the rail.
+    """
+    if pass_at_m is not None:
+        return run_report_json(run_report(run=run, pass_at_m=pass_at_m))
+    identity, keep_s = _report_identity(run)
+    key = f"run-analysis:v1:{identity}"
+    hit = cache.get(key)
+    if isinstance(hit, dict):
+        return hit
+    answer = run_report_json(run_report(run=run))
+    cache.set(key, answer, keep_s)
+    return answer
 
 
 def _run_report_computed(run: Run, pass_at_m: float | None, max_points: int) -> RunReport:

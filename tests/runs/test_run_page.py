@@ -9,6 +9,7 @@ from datetime import timedelta
 import pytest
 
 from portal.runs.models import Run
+from portal.runs.selectors import run_report, run_report_json
 from portal.runs.states import RunState
 from tests.factories import UserFactory
 from tests.runs.driving import RAIL_M, completed_run, ingest
@@ -118,6 +119,23 @@ def test_a_live_run_is_reanalysed_when_samples_arrive_even_below_its_last_seq(
     assert (analysis()["samples"], analysis()["missing"]) == (198, 2)
     ingest(run, [(1.0, "cw", 10.0)])  # the same 200 again: only seq 10 and 11 are new
     assert (analysis()["samples"], analysis()["missing"]) == (200, 0)
+
+
+def test_a_finished_runs_analysis_is_read_from_the_cache_as_computed_and_follows_the_run(
+    owner, mobile, client, django_assert_num_queries
+):
+    run = completed_run(owner, mobile, [(1.0, "cw", 10.0)])
+    client.force_login(owner)
+    url = f"/api/v1/runs/{run.pk}/analysis/"
+    first = client.get(url).json()
+    fresh = run_report_json(run_report(run=run, cached=False))
+    assert first == {"run": run.pk, "state": "completed", **fresh}
+    # The kept answer: the session, its user and the run are read; no sample.
+    with django_assert_num_queries(3):
+        assert client.get(url).json() == first
+    # A rail measured again (the run's own row changes): the answer is computed again.
+    Run.objects.filter(pk=run.pk).update(rail_length_m=RAIL_M / 2)
+    assert client.get(url).json()["rail_length_m"] == RAIL_M / 2
 
 
 def test_the_whole_run_downloads_as_one_json_document(owner, mobile, client):

@@ -26,7 +26,7 @@ from portal.runs.downloads import (
 )
 from portal.runs.models import RUNS, MeasurementSeries, Run
 from portal.runs.provenance import provenance_view
-from portal.runs.selectors import run_report, run_report_json, run_samples, runs_visible
+from portal.runs.selectors import run_analysis_json, run_samples, runs_visible
 from portal.runs.states import RunState
 
 MAX_SAMPLES_PAGE = 10_000
@@ -552,7 +552,7 @@ class RunAnalysisApi(APIView):
         run = _run(request, pk)
         query = valid_query(AnalysisQuery, request.query_params)
         try:
-            report = run_report(run=run, pass_at_m=query.get("pass_at_m"))
+            analysis = run_analysis_json(run=run, pass_at_m=query.get("pass_at_m"))
         except ValueError as exc:
             raise serializers.ValidationError({"pass_at_m": [str(exc)]}) from exc
-        return Response({"run": run.pk, "state": run.state, **run_report_json(report)})
+        return Response({"run": run.pk, "state": run.state, **analysis})
