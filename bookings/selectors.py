@@ -8,6 +8,7 @@ from django.db.models import Prefetch, Q, QuerySet
 
 from bookings.choices import ResourceKind
 from bookings.models import (
+    CALENDAR_SETUP,
     Blackout,
     PeriodQuerySet,
     Reservation,
@@ -17,6 +18,15 @@ from bookings.models import (
 )
 from bookings.periods import gaps
 from core.accounts.models import User
+
+
+def resources_by_name() -> dict[str, Resource]:
+    """Every resource by its name, kept under the calendar's setup generation (any write to a
+    resource moves it on, at its commit): the live check names its resources on every change
+    of the booking form. Each call gets its own copies."""
+    return CALENDAR_SETUP.answer(
+        ("resources-by-name",), lambda: {r.name: r for r in Resource.objects.all()}
+    )
 
 
 def resources_bookable() -> QuerySet[Resource]:

@@ -388,3 +388,31 @@ def test_a_reservation_can_hold_several_resources(owner):
             start_at=end,
             end_at=end + timedelta(hours=1),
         )
+
+
+def test_the_live_check_names_resources_as_they_are_now(owner, client_for):
+    """The check reads resources from a kept map: a resource renamed, taken out of service or
+    added is seen by the next check, and a name that is no resource is refused as before."""
+    node = FixedResourceFactory(name="node-07")
+    start, end = _slot()
+
+    def check(*names: object) -> dict:
+        answer = client_for(owner).post(
+            "/api/v1/reservations/check/",
+            {"resources": list(names), "start_at": start.isoformat(), "end_at": end.isoformat()},
+            format="json",
+        )
+        return {"status": answer.status_code, **answer.json()}
+
+    assert check("node-07")["fits"] is True
+    node.enabled = False
+    node.save()
+    [problem] = check("node-07")["problems"]
+    assert (problem["code"], problem["message"]) == ("out_of_service", "node-07 is out of service.")
+    FixedResourceFactory(name="node-08")
+    assert check("node-08")["fits"] is True
+    refused = check("node-99")
+    assert refused["status"] == 400
+    assert "Object with name=node-99 does not exist." in str(refused)
+    assert check({"name": "node-08"})["status"] == 400
+    assert check(True)["status"] == 400

@@ -549,7 +549,15 @@ class RunAnalysisApi(APIView):
 
     @extend_schema(parameters=[AnalysisQuery], responses=AnalysisOutput)
     def get(self, request: Request, pk: int) -> Response:
-        run = _run(request, pk)
+        # Only what the kept answer's key reads (``run_analysis_json``), without the joined
+        # booking, owner and resource: most calls are answered from the cache, and reading the
+        # whole row took most of their time. A miss loads the rest of the run as it needs it.
+        run = get_object_or_404(
+            runs_visible(user=request_user(request))
+            .select_related(None)
+            .only("id", "created_at", "state", "last_seq", "rail_length_m"),
+            pk=pk,
+        )
         query = valid_query(AnalysisQuery, request.query_params)
         try:
             analysis = run_analysis_json(run=run, pass_at_m=query.get("pass_at_m"))
