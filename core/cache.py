@@ -100,8 +100,7 @@ class Generation:
 
     def pending(self) -> bool:
         """Whether the current transaction changed rows of this generation, not yet committed."""
-        batch = _Batch.pending()
-        return batch is not None and self.name in batch.names
+        return any(self.name in batch.names for batch in _Batch.waiting())
 
     def answer(self, parts: Iterable[object], compute: Callable[[], T]) -> T:
         """``compute()``, or what it gave under the current generation for the same ``parts``."""

@@ -28,24 +28,28 @@ class CommitBatch:
         raise NotImplementedError
 
     @classmethod
-    def pending(cls) -> Self | None:
-        """The current transaction's batch of this kind, if it has begun one."""
+    def waiting(cls) -> list[Self]:
+        """The current transaction's batches of this kind that have not run yet."""
+        return [
+            c for _sids, c, _robust in connection.run_on_commit if isinstance(c, cls) and not c.ran
+        ]
+
+    @classmethod
+    def current(cls) -> Self:
+        """The batch of this kind to add to now: the current transaction's, begun now if need
+        be."""
         # Django keeps (savepoint ids, callback, robust) for each on-commit callback; those of
         # a savepoint rolled back are gone from it, and so is a batch begun there: the next
         # change begins another. What was added from a savepoint later rolled back stays in an
         # outer batch, which then does one thing too many at the commit, never one too few.
-        # A batch that ran is never reused (tests run callbacks inside a transaction that
-        # never commits, so the list keeps them).
-        for entry in connection.run_on_commit:
-            if isinstance(entry[1], cls) and not entry[1].ran:
-                return entry[1]
-        return None
-
-    @classmethod
-    def current(cls) -> Self:
-        """The current transaction's batch of this kind, begun now if need be."""
-        batch = cls.pending()
-        if batch is None:
-            batch = cls()
-            transaction.on_commit(batch)
+        # Only a batch begun in a block still open (its savepoints all active) is joined: one
+        # begun in a savepoint since released would serve, but a test's transaction never
+        # commits, and a test runs the callbacks of one block at a time; nor is a batch that
+        # ran joined.
+        active = set(connection.savepoint_ids)
+        for sids, callback, _robust in connection.run_on_commit:
+            if isinstance(callback, cls) and not callback.ran and sids <= active:
+                return callback
+        batch = cls()
+        transaction.on_commit(batch)
         return batch

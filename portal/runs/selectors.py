@@ -8,10 +8,10 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from django.core.cache import cache
-from django.db.models import QuerySet
+from django.db.models import Prefetch, QuerySet
 
 from basestation.contract import SAMPLE_FIELDS, CsvWriter
-from bookings.models import PeriodQuerySet, Reservation
+from bookings.models import PeriodQuerySet, Reservation, ReservationItem
 from bookings.rules import velocity_limit
 from bookings.selectors import mobiles_bookable, reservations_visible
 from core import sql
@@ -71,6 +71,28 @@ def runs_visible(*, user: User) -> QuerySet[Run]:
 def reservations_with_runs_visible(*, user: User) -> PeriodQuerySet[Reservation]:
     """The user's reservations (every one for admins), each with its run if it has one."""
     return reservations_visible(user=user).select_related("run")
+
+
+def reservations_listed(*, user: User) -> PeriodQuerySet[Reservation]:
+    """The user's reservations (every one for admins) with what their list shows and no more:
+    the owner's name, the resources' names and kinds, the run's id and state. A list of a
+    hundred read whole rows of four tables (the owner and the resources with every field),
+    and building them was most of the list's time."""
+    items = ReservationItem.objects.select_related("resource").only(
+        "reservation_id", "resource_id", "start_at", "end_at", "resource__name", "resource__kind"
+    )
+    return (
+        reservations_visible(user=user)
+        .prefetch_related(None)
+        .prefetch_related(Prefetch("items", items))
+        .select_related("owner", "run")
+        .only(
+            *(f.name for f in Reservation._meta.concrete_fields),
+            "owner__username",
+            "run__reservation",
+            "run__state",
+        )
+    )
 
 
 def run_ids_by_reservation(reservation_ids: list[int]) -> dict[int, int]:

@@ -39,7 +39,11 @@ from core.openapi import errors
 from portal.experiments.models import Experiment
 from portal.experiments.selectors import experiments_visible
 from portal.runs.models import RUNS
-from portal.runs.selectors import reservations_with_runs_visible, runs_visible
+from portal.runs.selectors import (
+    reservations_listed,
+    reservations_with_runs_visible,
+    runs_visible,
+)
 from portal.runs.services import reservations as with_run
 from portal.runs.states import RunState
 
@@ -165,9 +169,7 @@ class ReservationListApi(APIView):
 
         def listed() -> dict[str, Any]:
             query = valid_query(ReservationFilter, request.query_params)
-            qs = reservations_with_runs_visible(user=user).overlapping(
-                query.get("start"), query.get("end")
-            )
+            qs = reservations_listed(user=user).overlapping(query.get("start"), query.get("end"))
             if "resource" in query:
                 # A subquery, not a join: a reservation is listed once without DISTINCT.
                 qs = qs.filter(
