@@ -30,9 +30,8 @@ class CommitBatch:
     @classmethod
     def waiting(cls) -> list[Self]:
         """The current transaction's batches of this kind that have not run yet."""
-        return [
-            c for _sids, c, _robust in connection.run_on_commit if isinstance(c, cls) and not c.ran
-        ]
+        found = (entry[1] for entry in connection.run_on_commit)
+        return [c for c in found if isinstance(c, cls) and not c.ran]
 
     @classmethod
     def current(cls) -> Self:
@@ -47,8 +46,9 @@ class CommitBatch:
         # commits, and a test runs the callbacks of one block at a time; nor is a batch that
         # ran joined.
         active = set(connection.savepoint_ids)
-        for sids, callback, _robust in connection.run_on_commit:
-            if isinstance(callback, cls) and not callback.ran and sids <= active:
+        for entry in connection.run_on_commit:
+            sids, callback = entry[0], entry[1]
+            if isinstance(callback, cls) and not callback.ran and set(sids) <= active:
                 return callback
         batch = cls()
         transaction.on_commit(batch)
