@@ -37,14 +37,12 @@ class CommitBatch:
     def current(cls) -> Self:
         """The batch of this kind to add to now: the current transaction's, begun now if need
         be."""
-        # Django keeps (savepoint ids, callback, robust) for each on-commit callback; those of
-        # a savepoint rolled back are gone from it, and so is a batch begun there: the next
-        # change begins another. What was added from a savepoint later rolled back stays in an
-        # outer batch, which then does one thing too many at the commit, never one too few.
-        # Only a batch begun in a block still open (its savepoints all active) is joined: one
-        # begun in a savepoint since released would serve, but a test's transaction never
-        # commits, and a test runs the callbacks of one block at a time; nor is a batch that
-        # ran joined.
+        # Django keeps (savepoint ids, callback, robust) for each on-commit callback and drops
+        # those of a savepoint rolled back, a batch begun there included: the next change
+        # begins another. What an outer batch took from a savepoint later rolled back does
+        # one thing too many at the commit, never one too few. A batch is joined only while
+        # every savepoint it was begun in is still open, and never once it ran: a test's
+        # transaction never commits, and runs the callbacks of one block at a time.
         active = set(connection.savepoint_ids)
         for entry in connection.run_on_commit:
             sids, callback = entry[0], entry[1]

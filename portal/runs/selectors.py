@@ -211,9 +211,11 @@ def _report_identity(run: Run) -> tuple[str, int]:
     return part, REPORT_CACHE_S if final else LIVE_REPORT_CACHE_S
 
 
-def _run_report_cached(run: Run, max_points: int) -> RunReport:
-    identity, keep_s = _report_identity(run)
-    key = f"run-report:v2:{identity}:{max_points}"
+def _run_report_cached(
+    run: Run, max_points: int, identity: tuple[str, int] | None = None
+) -> RunReport:
+    identity_part, keep_s = identity or _report_identity(run)
+    key = f"run-report:v2:{identity_part}:{max_points}"
     hit = cache.get(key)
     if isinstance(hit, RunReport):
         return hit
@@ -232,13 +234,14 @@ def run_analysis_json(*, run: Run, pass_at_m: float | None = None) -> dict[str, 
     """
     if pass_at_m is not None:
         return run_report_json(run_report(run=run, pass_at_m=pass_at_m))
-    identity, keep_s = _report_identity(run)
-    key = f"run-analysis:v1:{identity}"
+    identity = _report_identity(run)
+    key = f"run-analysis:v1:{identity[0]}"
     hit = cache.get(key)
     if isinstance(hit, dict):
         return hit
-    answer = run_report_json(run_report(run=run))
-    cache.set(key, answer, keep_s)
+    # The report under the identity just read (a live run's is a count of its samples).
+    answer = run_report_json(_run_report_cached(run, CHART_MAX_POINTS, identity))
+    cache.set(key, answer, identity[1])
     return answer
 
 
