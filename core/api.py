@@ -566,10 +566,20 @@ def paginated_response(
 
 
 def paginated_data(
-    *, request: Request, queryset: Any, serializer_class: type[serializers.Serializer]
+    *,
+    request: Request,
+    queryset: Any,
+    serializer_class: type[serializers.Serializer] | None = None,
+    represent: Callable[[list[Any]], list[dict[str, Any]]] | None = None,
 ) -> dict[str, Any]:
-    """One page of ``queryset`` (ordered by the caller) as ``{count, next, previous, results}``."""
+    """One page of ``queryset`` (ordered by the caller) as ``{count, next, previous, results}``,
+    each of its rows as ``serializer_class`` shows it, or as ``represent`` shows the page's."""
     paginator = Pagination()
     page = paginator.paginate_queryset(queryset, request)
     assert page is not None  # a limit always applies
-    return paginator.get_paginated_response(serializer_class(page, many=True).data).data
+    if represent is not None:
+        results: Any = represent(page)
+    else:
+        assert serializer_class is not None, "a serializer or a representation"
+        results = serializer_class(page, many=True).data
+    return paginator.get_paginated_response(results).data

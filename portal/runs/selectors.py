@@ -8,7 +8,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from django.core.cache import cache
-from django.db.models import Prefetch, QuerySet
+from django.db.models import QuerySet
 
 from basestation.contract import SAMPLE_FIELDS, CsvWriter
 from bookings.models import PeriodQuerySet, Reservation, ReservationItem
@@ -73,26 +73,44 @@ def reservations_with_runs_visible(*, user: User) -> PeriodQuerySet[Reservation]
     return reservations_visible(user=user).select_related("run")
 
 
+# What a reservation's row in a list shows, besides its resources (``reservation_resources``):
+# read as plain values, a list of a hundred builds no model instance.
+LISTED_COLUMNS = (
+    "id",
+    "owner__username",
+    "title",
+    "start_at",
+    "end_at",
+    "state",
+    "run__id",
+    "run__state",
+    "override_reason",
+    "decision_reason",
+    "cancel_reason",
+    "conflict",
+    "created_at",
+)
+
+
 def reservations_listed(*, user: User) -> PeriodQuerySet[Reservation]:
-    """The user's reservations (every one for admins) with what their list shows and no more:
-    the owner's name, the resources' names and kinds, the run's id and state. A list of a
-    hundred read whole rows of four tables (the owner and the resources with every field),
-    and building them was most of the list's time."""
-    items = ReservationItem.objects.select_related("resource").only(
-        "reservation_id", "resource_id", "start_at", "end_at", "resource__name", "resource__kind"
+    """The user's reservations (every one for admins), to be filtered, then read as
+    ``.values(*LISTED_COLUMNS)`` with ``reservation_resources`` for the page read. Building
+    model instances, their owners, runs and a prefetch per reservation was most of a list's
+    time (14 ms for a hundred)."""
+    return reservations_visible(user=user).select_related(None).prefetch_related(None)
+
+
+def reservation_resources(reservation_ids: list[int]) -> dict[int, list[tuple[str, str]]]:
+    """Each of these reservations' resources as (name, kind), in the order they were booked."""
+    resources: dict[int, list[tuple[str, str]]] = {pk: [] for pk in reservation_ids}
+    items = (
+        ReservationItem.objects.filter(reservation_id__in=reservation_ids)
+        .order_by("pk")
+        .values_list("reservation_id", "resource__name", "resource__kind")
     )
-    return (
-        reservations_visible(user=user)
-        .prefetch_related(None)
-        .prefetch_related(Prefetch("items", items))
-        .select_related("owner", "run")
-        .only(
-            *(f.name for f in Reservation._meta.concrete_fields),
-            "owner__username",
-            "run__reservation",
-            "run__state",
-        )
-    )
+    for reservation_id, name, kind in items:
+        resources[reservation_id].append((name, kind))
+    return resources
 
 
 def run_ids_by_reservation(reservation_ids: list[int]) -> dict[int, int]:

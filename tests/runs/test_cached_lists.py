@@ -3,6 +3,7 @@ row they show changes, and never show one user's answer to another (``core.api.c
 
 from __future__ import annotations
 
+import json
 import time
 from datetime import UTC, datetime, timedelta
 
@@ -201,3 +202,78 @@ def test_the_runs_list_follows_its_runs_and_not_the_owners_other_bookings(
     reservation_cancel(reservation=booked, by=owner)
     listed = api.get("/api/v1/runs/", **JSON).json()["results"]
     assert listed[0]["state"] == "cancelled"
+
+
+def test_the_list_shows_each_reservation_as_the_reservations_serializer_does(
+    client_for, owner, other, admin_user, mobile, experiment
+):
+    """The list builds its rows from plain values (``reservations_represented``); each must be
+    what ``ReservationOutput`` makes of the reservation, key for key and in the same order: a
+    mobile node's booking with its run, one without a run yet, fixed nodes alone (no run even
+    if one existed), the robot with a fixed node, a cancelled booking with its reasons, and
+    another user's booking, which only the admin sees."""
+    from bookings.choices import ReservationState
+    from bookings.models import Reservation, ReservationItem
+    from portal.runs.apis.reservations import ReservationOutput
+    from tests.factories import FixedResourceFactory
+
+    node, other_node = FixedResourceFactory(), FixedResourceFactory()
+    start = datetime(2030, 1, 7, 10, tzinfo=UTC)
+
+    def reservation(who, resources, hours, **fields):
+        at = start + timedelta(hours=hours)
+        booked = Reservation.objects.create(
+            owner=who, start_at=at, end_at=at + timedelta(minutes=30), **fields
+        )
+        for resource in resources:
+            ReservationItem.objects.create(
+                reservation=booked, resource=resource, start_at=at, end_at=booked.end_at
+            )
+        return booked
+
+    with_run = reservation(owner, [mobile], 0, title="sweep", state=ReservationState.CONFIRMED)
+    Run.objects.create(
+        reservation=with_run,
+        resource=mobile,
+        experiment=experiment,
+        title="sweep",
+        start_at=with_run.start_at,
+        end_at=with_run.end_at,
+        state=RunState.STAGED,
+        segments=experiment.segments,
+    )
+    reservation(owner, [mobile], 1, override_reason="a demo", state=ReservationState.REQUESTED)
+    fixed_only = reservation(owner, [node, other_node], 2)
+    Run.objects.create(
+        reservation=fixed_only,
+        resource=mobile,
+        experiment=experiment,
+        title="stray",
+        start_at=fixed_only.start_at,
+        end_at=fixed_only.end_at,
+        segments=experiment.segments,
+    )
+    reservation(owner, [node, mobile], 3, conflict="moved by the scheduler")
+    reservation(
+        owner,
+        [mobile],
+        4,
+        state=ReservationState.CANCELLED,
+        cancel_reason="rain",
+        decision_reason="fine",
+    )
+    reservation(other, [other_node], 5, title="theirs")
+
+    for user in (owner, admin_user):
+        listed = client_for(user).get("/api/v1/reservations/", **JSON).json()["results"]
+        shown = Reservation.objects.order_by("start_at", "pk")
+        if user == owner:
+            shown = shown.filter(owner=owner)
+        expected = json.loads(json.dumps(ReservationOutput(shown, many=True).data))
+        assert len(listed) == (5 if user == owner else 6)
+        for got, want in zip(listed, expected, strict=True):
+            assert list(got) == list(want)
+            assert got == want
+    assert listed[0]["run"]["state"] == "staged"
+    assert listed[2]["run"] is None  # fixed nodes only
+    assert listed[2]["resources"] == [node.name, other_node.name]
