@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 
 from core.events.catalogue import EVENT_TYPES
@@ -63,13 +63,29 @@ def registration(name: str) -> Registration:
     return _HANDLERS[name]
 
 
-def queues_wanting(type: str) -> set[str | None]:
-    """The queues (``Registration.queue``) of the handlers that want events of ``type`` now."""
-    return {
-        registration.queue
-        for registration in _HANDLERS.values()
-        if type in registration.types and (registration.active is None or registration.active())
-    }
+def queues_wanting(
+    type: str, *, woken: Collection[str | None] = (), inactive: set[str] | None = None
+) -> set[str | None]:
+    """The queues (``Registration.queue``) of the handlers that want events of ``type`` now.
+
+    Asking a handler whether it is active may be a query (the webhooks': does any webhook
+    exist?), and a booking records several events. So a handler whose queue is in ``woken``
+    (already to be woken) is not asked, nor one named in ``inactive`` (found inactive earlier
+    in the transaction); those found inactive now are added to ``inactive``. A handler that
+    becomes active later in that transaction is passed its events by beat's pass."""
+    wanting: set[str | None] = set()
+    for name, registration in _HANDLERS.items():
+        if type not in registration.types or registration.queue in woken:
+            continue
+        if registration.active is not None:
+            if inactive is not None and name in inactive:
+                continue
+            if not registration.active():
+                if inactive is not None:
+                    inactive.add(name)
+                continue
+        wanting.add(registration.queue)
+    return wanting
 
 
 def handled(type: str) -> bool:

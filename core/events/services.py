@@ -44,9 +44,18 @@ def event_record(
         owner_id=owner_id,
         occurred_at=occurred_at or timezone.now(),
     )
-    queues = queues_wanting(type)
-    if queues:
-        _Wakes.current().queues |= queues
+    wakes = _Wakes.joinable()
+    inactive = set(wakes.inactive) if wakes is not None else set()
+    queues = queues_wanting(
+        type, woken=wakes.queues if wakes is not None else (), inactive=inactive
+    )
+    if queues or (inactive and wakes is None):
+        # Begun for what it remembers too: without a handler to wake, each of a booking's
+        # events asked the webhooks again whether any webhook existed.
+        wakes = wakes or _Wakes.current()
+    if wakes is not None:
+        wakes.queues |= queues
+        wakes.inactive |= inactive
     return event
 
 
@@ -57,6 +66,8 @@ class _Wakes(CommitBatch):
     def __init__(self) -> None:
         super().__init__()
         self.queues: set[str | None] = set()
+        # Handlers found inactive in this transaction, not asked again (``queues_wanting``).
+        self.inactive: set[str] = set()
 
     def run(self) -> None:
         for queue in sorted(self.queues, key=lambda q: q or ""):

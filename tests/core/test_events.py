@@ -530,6 +530,47 @@ def test_a_transaction_wakes_each_queue_once_however_many_events_it_records(
     assert woken == [None]
 
 
+def test_a_savepoint_released_wakes_with_its_transaction_and_a_block_beside_on_its_own(
+    owner, seen, django_capture_on_commit_callbacks, monkeypatch
+):
+    # A booking writes its reservation in a block of its own, then its run: one wake.
+    woken: list[str | None] = []
+    monkeypatch.setattr(services, "_wake_handlers", woken.append)
+    with django_capture_on_commit_callbacks(execute=True) as callbacks, transaction.atomic():
+        _write(owner, ("run.failed", 1))
+        event_record(subject="run:2", type="run.failed", payload={"run": 2}, owner_id=owner.pk)
+    assert len(callbacks) == 1
+    assert woken == [None]
+    # A block beside an earlier one whose batch has not run (a test's "transactions" inside
+    # its own) begins its own, which its caller sees and runs.
+    woken.clear()
+    with django_capture_on_commit_callbacks() as earlier:
+        _write(owner, ("run.failed", 3))
+    with django_capture_on_commit_callbacks(execute=True) as later:
+        _write(owner, ("run.failed", 4))
+    assert (len(earlier), len(later), woken) == (1, 1, [None])
+
+
+def test_a_handler_found_inactive_is_asked_once_per_transaction(
+    owner, seen, django_capture_on_commit_callbacks
+):
+    asked: list[str] = []
+
+    def active() -> bool:
+        asked.append("asked")
+        return False
+
+    dispatch.handler("hooks", types=["run.staged", "run.running"], queue="hooks", active=active)(
+        lambda event: None
+    )
+    with django_capture_on_commit_callbacks() as woken:
+        _write(owner, ("run.staged", 1), ("run.staged", 2), ("run.running", 3))
+    assert asked == ["asked"]
+    assert [c.queues for c in woken] == [{None}]  # the recorder's, for run.running
+    _write(owner, ("run.staged", 4))  # another transaction asks again
+    assert asked == ["asked", "asked"]
+
+
 def test_a_handler_of_its_own_queue_is_woken_there_and_passed_by_that_queues_pass(
     owner, seen, django_capture_on_commit_callbacks
 ):
