@@ -157,6 +157,15 @@ def test_the_web_killed_between_lease_and_commit_leaves_an_orphan_the_sweep_or_a
     _until("the orphan's cancellation", lambda: not _live(stack), 15, stack)
     [cancelled] = [x for x in _broker_leases(stack) if x["uuid"] == orphan["uuid"]]
     assert cancelled["status"] == "cancelled"
+    # The sweep counts what it cancelled after cancelling it (bookings/leases.py): read the
+    # count before the next part once the sweep has written it, or a count written late by
+    # this sweep looks like a sweep in the next part.
+    _until(
+        "the sweep's count of the orphan",
+        lambda: SchedulerLink.objects.get(pk=1).orphans_cancelled >= 1,
+        15,
+        stack,
+    )
 
     # Again, the robot and a node with an idempotency key, and no sweep this time: the
     # client's retry with the same key, as soon as a web process answers, clears the orphan
