@@ -21,6 +21,7 @@ from amazing_cli.commands import (
     events,
     experiments,
     measurements,
+    queue,
     resources,
     runs,
     webhooks,
@@ -45,6 +46,11 @@ measurements_app = typer.Typer(
     help="Your own measurements on a run, placed where the robot was.", no_args_is_help=True
 )
 app.add_typer(measurements_app, name="measurements")
+queue_app = typer.Typer(
+    help="The queue: runs asked for as soon as possible, booked in fair-share order.",
+    no_args_is_help=True,
+)
+app.add_typer(queue_app, name="queue")
 
 
 @app.callback()
@@ -91,6 +97,9 @@ measurements_app.command("add")(measurements.measurements_add)
 measurements_app.command("list")(measurements.measurements_list)
 measurements_app.command("offset")(measurements.measurements_offset)
 measurements_app.command("delete")(measurements.measurements_delete)
+queue_app.command("list")(queue.queue_list)
+queue_app.command("add")(queue.queue_add)
+queue_app.command("cancel")(queue.queue_cancel)
 
 
 def main() -> int:

@@ -46,3 +46,5 @@ class Channel(models.TextChoices):
     ADMIN = "admin", "in the portal's admin site"
     # The REST API as the ``amazing`` command calls it (it says so in a header).
     CLI = "cli", "with the amazing command"
+    # Booked by the queue for its owner, in the first slot that fitted (portal/queue).
+    QUEUE = "queue", "by the queue"

@@ -191,6 +191,28 @@ MEASUREMENT_MAX_UPLOAD_BYTES: Final = Tunable(
     shown="`67108864` (64 MiB)",
 )
 
+QUEUE_HORIZON_S: Final = Tunable(
+    "QUEUE_HORIZON_S",
+    7 * 86400.0,
+    "the queue books at most this far ahead, so that it does not fill the calendar while "
+    "others book by hand",
+)
+QUEUE_FAIR_SHARE_WINDOW_S: Final = Tunable(
+    "QUEUE_FAIR_SHARE_WINDOW_S",
+    14 * 86400.0,
+    "the queue serves first who used the robot least in this past window (and up to the horizon)",
+)
+QUEUE_LEAD_S: Final = Tunable(
+    "QUEUE_LEAD_S",
+    120.0,
+    "the queue books no slot starting sooner than this from now (time to stage the run)",
+)
+QUEUE_PASS_INTERVAL_S: Final = Tunable(
+    "QUEUE_PASS_INTERVAL_S",
+    60.0,
+    "beat's pass of the queue's allocator (a request, a freed slot or a resume wakes it too)",
+)
+
 TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     RUN_SWEEP_INTERVAL_S,
     COLLECTOR_SCAN_INTERVAL_S,
@@ -219,6 +241,10 @@ TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     WEBHOOK_RETRY_FOR_S,
     WEBHOOKS_PER_USER_MAX,
     MEASUREMENT_MAX_UPLOAD_BYTES,
+    QUEUE_HORIZON_S,
+    QUEUE_FAIR_SHARE_WINDOW_S,
+    QUEUE_LEAD_S,
+    QUEUE_PASS_INTERVAL_S,
 )
 
 

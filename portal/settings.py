@@ -133,6 +133,7 @@ INSTALLED_APPS = [
     "core.accounts",
     "portal.experiments",
     "portal.runs",
+    "portal.queue",
     "core.audit",
     "core.events",
     "core.webhooks",
@@ -372,6 +373,10 @@ COLLECTOR_SCAN_INTERVAL_S = conf.COLLECTOR_SCAN_INTERVAL_S.read()
 COLLECTOR_WAIT_S = conf.COLLECTOR_WAIT_S.read()
 RUN_STAGE_LEAD_S = conf.RUN_STAGE_LEAD_S.read()
 RUN_REPEAT_LEAD_S = conf.RUN_REPEAT_LEAD_S.read()
+QUEUE_HORIZON_S = conf.QUEUE_HORIZON_S.read()
+QUEUE_FAIR_SHARE_WINDOW_S = conf.QUEUE_FAIR_SHARE_WINDOW_S.read()
+QUEUE_LEAD_S = conf.QUEUE_LEAD_S.read()
+QUEUE_PASS_INTERVAL_S = conf.QUEUE_PASS_INTERVAL_S.read()
 RUN_START_GRACE_S = conf.RUN_START_GRACE_S.read()
 RUN_COLLECT_GRACE_S = conf.RUN_COLLECT_GRACE_S.read()
 RESERVATION_REMINDER_LEAD_S = conf.RESERVATION_REMINDER_LEAD_S.read()
@@ -409,6 +414,10 @@ CELERY_BEAT_SCHEDULE = {
         "schedule": HEALTH_POLL_INTERVAL_S,
     },
     "reservations-remind": {"task": "bookings.tasks.reservations_remind", "schedule": 60.0},
+    "queue-allocate": {
+        "task": "portal.queue.tasks.queue_allocate_task",
+        "schedule": QUEUE_PASS_INTERVAL_S,
+    },
     # The handlers are woken after every commit that wrote events they want; this pass only
     # catches what a lost wake-up left (a process that died between its commit and the call).
     "events-dispatch": {"task": "core.events.tasks.events_dispatch_all", "schedule": 60.0},

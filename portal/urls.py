@@ -19,6 +19,7 @@ urlpatterns = [
     ),
     path("api/v1/", include("portal.experiments.urls")),
     path("api/v1/", include("portal.runs.urls")),
+    path("api/v1/", include("portal.queue.urls")),
     path("api/v1/", include("bookings.urls")),
     path("api/v1/", include("core.audit.urls")),
     path("api/v1/", include("core.events.urls")),

@@ -121,6 +121,7 @@ NOT_OVERLAP = {
     ),
     ("basestation/program.py", "parse_run_body", "end_at <= start_at"),
     ("portal/web/calendars.py", "_range", "end <= start"),
+    ("portal/queue/slots.py", "allowed_periods", "start >= end"),
     # The stand-in broker plays the testbed's omf_sfa broker and models that broker's own
     # rule (half-open too, docs/integration.md); borrowing ours would hide a disagreement.
     (

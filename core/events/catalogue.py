@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 _TIME = {"type": "string", "format": "date-time"}
-_DOORS = ["web", "api", "cli", "lease_api", "admin", ""]
+_DOORS = ["web", "api", "cli", "lease_api", "admin", "queue", ""]
 
 RESERVATION_V1: dict[str, Any] = {
     "type": "object",
@@ -226,6 +226,41 @@ _WEBHOOK_TYPES = {
     "sent to it until its owner resumes it.",
 }
 
+QUEUE_REQUEST_V1: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "request": {"type": "integer", "description": "the queued request"},
+        "state": {"type": "string", "enum": ["waiting", "booked", "expired", "cancelled"]},
+        "robot": {"type": "string"},
+        "title": {"type": "string"},
+        "earliest_at": _TIME,
+        "latest_end_at": _TIME,
+        "reservation": {
+            "type": ["integer", "null"],
+            "description": "the reservation the queue made (booked only)",
+        },
+        "reason": {"type": "string", "description": "why it expired or was withdrawn"},
+    },
+    "required": [
+        "request",
+        "state",
+        "robot",
+        "title",
+        "earliest_at",
+        "latest_end_at",
+        "reservation",
+        "reason",
+    ],
+    "additionalProperties": False,
+}
+_QUEUE_TYPES = {
+    "queue.booked": "The queue booked a request in the first slot that fitted (the same change "
+    "records its reservation.created).",
+    "queue.expired": "A queued request could not be booked before its latest end; the reason "
+    "says what held it back.",
+    "queue.cancelled": "A waiting request was withdrawn.",
+}
+
 # Each payload shape and version, as a component of the OpenAPI description, with its types.
 PAYLOADS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "ReservationEventV1": (RESERVATION_V1, _RESERVATION_TYPES),
@@ -236,6 +271,7 @@ PAYLOADS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "RobotEventV1": (ROBOT_V1, _ROBOT_TYPES),
     "SchedulerLinkEventV1": (SCHEDULER_LINK_V1, _SCHEDULER_TYPES),
     "WebhookEventV1": (WEBHOOK_V1, _WEBHOOK_TYPES),
+    "QueueRequestEventV1": (QUEUE_REQUEST_V1, _QUEUE_TYPES),
 }
 
 # Types that happen at most once to a subject (a unique index holds it: ``Event``).

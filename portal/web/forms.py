@@ -11,6 +11,7 @@ from django.forms.fields import BaseTemporalField
 from django.utils import timezone
 from django.utils.dateparse import parse_datetime
 
+from bookings.choices import ResourceKind
 from bookings.models import Resource
 from bookings.selectors import resources_bookable
 from core.accounts.models import User
@@ -115,6 +116,43 @@ class BookingForm(forms.Form):
         super().__init__(*args, **kwargs)
         self.fields["resource"].queryset = resources_bookable()  # type: ignore[attr-defined]
         self.fields["experiment"].queryset = experiments_visible(user=user).filter(owner=user)  # type: ignore[attr-defined]
+
+
+class ExperimentChoiceField(forms.ModelChoiceField):
+    """An experiment by its title and its program's length, as the booking dialog names it."""
+
+    def label_from_instance(self, obj: Any) -> str:
+        return f"{obj.title} ({obj.duration_s:g} s)"
+
+
+class QueueRequestForm(forms.Form):
+    """A run as soon as possible (``portal.queue``): the service checks the rest."""
+
+    experiment = ExperimentChoiceField(queryset=Experiment.objects.none())
+    robot = forms.ModelChoiceField(queryset=Resource.objects.none(), to_field_name="name")
+    earliest_at = LocalDateTimeField(label="No sooner than", required=False)
+    latest_end_at = LocalDateTimeField(label="Ended by")
+    duration_s = forms.IntegerField(
+        label="Duration (s)",
+        min_value=1,
+        required=False,
+        help_text="Default: the program, to a whole minute.",
+    )
+    hours_from = forms.IntegerField(
+        label="Allowed from (hour)", min_value=0, max_value=23, required=False
+    )
+    hours_to = forms.IntegerField(
+        label="Allowed until (hour)",
+        min_value=1,
+        max_value=24,
+        required=False,
+        help_text="The testbed's hours; 22 to 6 is nights only. Empty: any hour.",
+    )
+
+    def __init__(self, *args: Any, user: User, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.fields["experiment"].queryset = experiments_visible(user=user).filter(owner=user)  # type: ignore[attr-defined]
+        self.fields["robot"].queryset = resources_bookable().filter(kind=ResourceKind.MOBILE)  # type: ignore[attr-defined]
 
 
 class ApiTokenForm(forms.Form):

@@ -8,6 +8,7 @@ from portal.web import (
     live,
     measurements,
     my_runs,
+    queue,
     roof,
     timeline,
     views,
@@ -22,6 +23,8 @@ urlpatterns = [
     path("dry-runs/<int:pk>/", dry_runs.dry_run_page, name="dry-run"),
     path("dry-runs/<int:pk>/data.json", dry_runs.dry_run_data, name="dry-run-data"),
     path("book/", views.book, name="book"),
+    path("queue/", queue.queue_page, name="queue"),
+    path("queue/<int:pk>/cancel/", queue.queue_cancel_view, name="queue-cancel"),
     path("reservations/<int:pk>/cancel/", views.reservation_cancel_view, name="reservation-cancel"),
     path(
         "reservations/<int:pk>/attach/", attach.reservation_attach_view, name="reservation-attach"

@@ -71,6 +71,15 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     ("GET", "/api/v1/resources/{name}/rail/"): frozenset({"resource"}),
     # the list's last day on or after its first
     ("GET", "/api/v1/runs/"): frozenset({"started_to"}),
+    # a robot and nodes by name, the experiment's length within the duration and its
+    # velocities within the robot's limit, room for the run between the earliest start and
+    # the latest end, both allowed hours or neither
+    ("POST", "/api/v1/queue/"): frozenset(
+        {"robot", "nodes", "experiment", "duration_s", "latest_end_at", "hours_to"}
+    ),
+    # a pause and a reordering say why
+    ("POST", "/api/v1/queue/pause/"): frozenset({"reason"}),
+    ("POST", "/api/v1/queue/{id}/reorder/"): frozenset({"reason"}),
 }
 
 # Refusals of a schema-valid request by what it names that is stored, by their error code
@@ -82,6 +91,7 @@ DATA_DEPENDENT_ERRORS: dict[tuple[str, str], frozenset[str]] = {
     ("POST", "/api/v1/reservations/"): _KEY_REUSED,
     ("POST", "/api/v1/reservations/{id}/attach/"): _KEY_REUSED,
     ("POST", "/api/v1/runs/{id}/again/"): _KEY_REUSED,
+    ("POST", "/api/v1/queue/"): _KEY_REUSED,
 }
 
 # Every operation whose positive_data_acceptance this module's check replaces.

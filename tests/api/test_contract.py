@@ -93,6 +93,11 @@ ADMIN_OPERATIONS = frozenset(
         "GET /api/v1/runs/",
         "GET /api/v1/runs/{id}/",
         "POST /api/v1/webhooks/",
+        "GET /api/v1/queue/",
+        "DELETE /api/v1/queue/{id}/",
+        "POST /api/v1/queue/pause/",
+        "POST /api/v1/queue/resume/",
+        "POST /api/v1/queue/{id}/reorder/",
     }
 )
 
@@ -108,6 +113,9 @@ STAFF_ONLY_OPERATIONS = frozenset(
         "POST /api/v1/resources/{name}/robot/release/",
         "POST /api/v1/resources/{name}/robot/stop/",
         "POST /api/v1/resources/{name}/service/",
+        "POST /api/v1/queue/pause/",
+        "POST /api/v1/queue/resume/",
+        "POST /api/v1/queue/{id}/reorder/",
     }
 )
 assert STAFF_ONLY_OPERATIONS <= ADMIN_OPERATIONS

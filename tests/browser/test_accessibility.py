@@ -29,7 +29,9 @@ from playwright.sync_api import Browser, Page, Request, expect
 from basestation.dryrun import dry_run
 from basestation.sim.rssi import DEFAULT_NODE_AT, PathLoss, distance_m
 from basestation.telemetry.rail import Rail
+from bookings.models import Resource
 from core.accounts.models import User
+from portal.queue.services import queue_request_submit
 from portal.runs.measurement_files import Points
 from portal.runs.measurements import measurement_add
 from portal.runs.models import DryRun, Run
@@ -266,10 +268,22 @@ def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
     tried, waiting = _dry_runs(ines.user)
     _completed([first, second])
     _measured(Run.objects.get(pk=first), ines.user)
+    # A request waiting in the queue, beyond its horizon: the queue page's table.
+    later = timezone.now() + timedelta(days=30)
+    queue_request_submit(
+        owner=ines.user,
+        experiment=Run.objects.get(pk=first).experiment,
+        robot=Resource.objects.get(name="mobile-1"),
+        earliest_at=later,
+        latest_end_at=later + timedelta(days=2),
+        hours_from=22,
+        hours_to=6,
+    )
     return {
         "home": "/",
         "experiment": "/experiments/new/",
         "book": "/book/",
+        "queue": "/queue/",
         "calendar": "/calendar/",
         "timeline": "/calendar/timeline/",
         "calendar-feeds": "/calendar/feeds/",

@@ -53,6 +53,7 @@ COVERED = {
     "core.audit.tasks.idempotency_keys_delete_expired",
     "core.events.tasks.events_dispatch_all",
     "core.webhooks.tasks.webhooks_send",
+    "portal.queue.tasks.queue_allocate_task",
     # Run twice in tests/bookings/scheduler/test_booking_flow.py (they need the stand-in).
     "bookings.tasks.scheduler_sweep",
     "bookings.tasks.lease_cancel",
@@ -279,6 +280,25 @@ def test_deleting_expired_dry_runs_twice_deletes_them_once(owner, settings):
                                  ended_at=timezone.now())  # fmt: skip
     twice(tasks.dry_runs_delete_expired)
     assert list(DryRun.objects.values_list("pk", flat=True)) == [kept.pk]
+
+
+def test_allocating_the_queue_twice_books_each_request_once(owner, mobile):
+    from portal.queue.models import QueueRequest, RequestState
+    from portal.queue.services import queue_request_submit
+    from portal.queue.tasks import queue_allocate_task
+
+    queued = queue_request_submit(
+        owner=owner,
+        experiment=ExperimentFactory(owner=owner),
+        robot=mobile,
+        latest_end_at=timezone.now() + timedelta(days=1),
+    )
+    twice(queue_allocate_task)
+    queued.refresh_from_db()
+    assert queued.state == RequestState.BOOKED
+    assert Reservation.objects.count() == 1
+    assert AuditEvent.objects.filter(action="queue.book").count() == 1
+    assert QueueRequest.objects.count() == 1
 
 
 def test_every_task_the_workers_know_is_run_twice_here():

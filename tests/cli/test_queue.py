@@ -1,0 +1,70 @@
+"""`amazing queue`: ask for a run as soon as possible, see its place and estimated start,
+withdraw it; against the real web process."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime, timedelta
+
+import pytest
+from typer.testing import CliRunner
+
+from amazing_cli.main import app
+from bookings.models import Reservation, ReservationItem
+from portal.queue.models import QueueRequest, RequestState
+from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory, api_token
+
+pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
+
+
+def amazing(*args: str):
+    return CliRunner().invoke(app, list(args), catch_exceptions=False)
+
+
+@pytest.fixture
+def fay(live_web, monkeypatch, tmp_path):
+    fay = UserFactory(username="fay")
+    monkeypatch.setenv("AMAZING_URL", live_web.url)
+    monkeypatch.setenv("AMAZING_TOKEN", api_token(fay))
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("COLUMNS", "200")
+    return fay
+
+
+def test_a_request_is_queued_listed_with_its_estimate_and_withdrawn(fay):
+    robot = MobileResourceFactory(agent_url="http://127.0.0.1:9")
+    experiment = ExperimentFactory(owner=fay, title="sweep 0.5")
+    # A far-off day whose morning is taken until 10:00 UTC: the estimate is then.
+    day = datetime(2031, 3, 4, tzinfo=UTC)
+    taken = Reservation.objects.create(
+        owner=UserFactory(username="gil"), start_at=day, end_at=day + timedelta(hours=10)
+    )
+    ReservationItem.objects.create(
+        reservation=taken, resource=robot, start_at=taken.start_at, end_at=taken.end_at
+    )
+    made = amazing(
+        "queue", "add", str(experiment.pk), "--earliest", "2031-03-04T00:00Z",
+        "--by", "2031-03-06T00:00Z", "--json",
+    )  # fmt: skip
+    assert made.exit_code == 0, made.stderr
+    body = json.loads(made.stdout)
+    assert (body["state"], body["position"]) == ("waiting", 1)
+    assert body["estimated_start_at"] == "2031-03-04T10:00:00Z"
+
+    listed = amazing("queue", "list")
+    assert listed.exit_code == 0, listed.stderr
+    assert (
+        f"{body['id']}  sweep 0.5 on mobile-1: waiting, place 1, estimated start" in listed.stdout
+    )
+
+    bad = amazing("queue", "add", str(experiment.pk), "--by", "2031-03-06T00:00Z", "--hours", "x")
+    assert bad.exit_code == 2
+    refused = amazing("queue", "add", str(experiment.pk), "--by", "+1s")
+    assert refused.exit_code == 2, (refused.stdout, refused.stderr)
+    assert "latest end" in refused.stderr
+    assert QueueRequest.objects.count() == 1
+
+    gone = amazing("queue", "cancel", str(body["id"]), "--reason", "done by hand")
+    assert gone.exit_code == 0, gone.stderr
+    assert QueueRequest.objects.get().state == RequestState.CANCELLED
+    assert "Nothing waiting" in amazing("queue", "list").stdout

@@ -1,0 +1,72 @@
+"""Two allocators at once (PostgreSQL, real transactions): each request is booked once, and no
+two bookings share the robot; the booking's lock and constraint, and the request held while it
+is booked, do it (``portal/queue/services.py``)."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+from datetime import UTC, datetime, timedelta
+
+import pytest
+from django.db import connection
+
+from bookings.models import ReservationItem
+from portal.queue.allocation import Pass, queue_allocate
+from portal.queue.models import QueueRequest, RequestState
+from portal.queue.services import queue_request_submit
+from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
+
+pytestmark = pytest.mark.django_db(transaction=True)
+
+NOW = datetime(2030, 1, 7, 9, 0, tzinfo=UTC)
+
+
+def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(settings):
+    assert connection.vendor == "postgresql"
+    settings.QUEUE_LEAD_S = 0
+    robot = MobileResourceFactory()
+    for name in ("ana", "ben", "cai"):
+        user = UserFactory(username=name)
+        for _ in range(3):
+            queue_request_submit(
+                owner=user,
+                experiment=ExperimentFactory(owner=user),
+                robot=robot,
+                duration_s=600,
+                latest_end_at=NOW + timedelta(days=1),
+                now=NOW,
+            )
+    start = threading.Barrier(2)
+    passes: list[Pass] = []
+    failures: list[BaseException] = []
+
+    def allocator() -> None:
+        try:
+            start.wait(timeout=30)
+            passes.append(queue_allocate(now=NOW))
+        except BaseException as exc:
+            failures.append(exc)
+        finally:
+            connection.close()
+
+    threads = [threading.Thread(target=allocator) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=120)
+    assert not any(t.is_alive() for t in threads), "an allocator hung"
+    assert not failures, failures
+
+    booked = [pk for done in passes for pk in done.booked]
+    assert sorted(booked) == sorted(set(booked)), "a request was booked twice"
+    assert QueueRequest.objects.filter(state=RequestState.BOOKED).count() == 9
+    assert len(booked) == 9
+    items = sorted(
+        ReservationItem.objects.filter(resource=robot, active=True).values_list(
+            "start_at", "end_at"
+        )
+    )
+    assert len(items) == 9
+    for (_, end), (next_start, _) in itertools.pairwise(items):
+        assert end <= next_start, "two bookings share the robot"
