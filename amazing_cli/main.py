@@ -18,6 +18,7 @@ import typer
 from amazing_cli.commands import (
     account,
     bookings,
+    campaigns,
     events,
     experiments,
     measurements,
@@ -51,6 +52,10 @@ queue_app = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(queue_app, name="queue")
+campaign_app = typer.Typer(
+    help="Campaigns: a sweep over parameter values, queued as one.", no_args_is_help=True
+)
+app.add_typer(campaign_app, name="campaign")
 
 
 @app.callback()
@@ -100,6 +105,9 @@ measurements_app.command("delete")(measurements.measurements_delete)
 queue_app.command("list")(queue.queue_list)
 queue_app.command("add")(queue.queue_add)
 queue_app.command("cancel")(queue.queue_cancel)
+campaign_app.command("create")(campaigns.campaign_create)
+campaign_app.command("status")(campaigns.campaign_status)
+campaign_app.command("cancel")(campaigns.campaign_cancel)
 
 
 def main() -> int:

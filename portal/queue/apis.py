@@ -7,7 +7,7 @@ from typing import Any
 
 from django.shortcuts import get_object_or_404
 from django.utils import timezone
-from drf_spectacular.utils import extend_schema
+from drf_spectacular.utils import extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.request import Request
 from rest_framework.response import Response
@@ -18,10 +18,24 @@ from core.accounts.permissions import StaffVerified
 from core.api import DateTimeInput, Pagination, paginated_data, request_user, valid_input
 from core.audit.idempotency import idempotent
 from core.audit.services import client_ip
-from core.openapi import errors
+from core.openapi import ClosedSerializer, errors
 from portal.experiments.selectors import experiments_visible
-from portal.queue.models import QueueControl, QueueRequest, RequestState
-from portal.queue.selectors import Place, queue_control, queue_places, queue_requests_visible
+from portal.queue.campaigns import (
+    campaign_cancel,
+    campaign_create,
+    campaign_pause,
+    campaign_progress,
+    campaign_requests,
+    campaign_resume,
+)
+from portal.queue.models import Campaign, QueueControl, QueueRequest, RequestState
+from portal.queue.selectors import (
+    Place,
+    campaigns_visible,
+    queue_control,
+    queue_places,
+    queue_requests_visible,
+)
 from portal.queue.services import (
     queue_pause,
     queue_request_cancel,
@@ -29,6 +43,7 @@ from portal.queue.services import (
     queue_request_submit,
     queue_resume,
 )
+from portal.queue.sweep import ORDERS
 
 
 class QueueRequestOutput(serializers.ModelSerializer):
@@ -245,3 +260,137 @@ class QueueResumeApi(APIView):
             by=request_user(request), reason=data.get("reason", ""), ip=client_ip(request)
         )
         return Response(QueueStateOutput(control).data)
+
+
+class CampaignParametersInput(serializers.Serializer):
+    velocity_mps = serializers.JSONField(
+        help_text="m/s: a value, a list, or a range {from, to, step} (both ends included)."
+    )
+    direction = serializers.JSONField(help_text="cw, ccw, or a list of both.")
+    duration_s = serializers.JSONField(help_text="Seconds: a value, a list or a range.")
+
+
+class CampaignInput(ClosedSerializer):
+    """A campaign file (YAML or JSON for ``amazing campaign create``): a one-segment program
+    swept over its parameters' values, every combination ``repeats`` times."""
+
+    title = serializers.CharField(max_length=150)
+    robot = serializers.CharField()
+    nodes = serializers.ListField(child=serializers.CharField(), required=False)
+    parameters = CampaignParametersInput()
+    repeats = serializers.IntegerField(required=False, min_value=1, max_value=100)
+    order = serializers.ChoiceField(choices=ORDERS, required=False)
+    seed = serializers.IntegerField(required=False, allow_null=True)
+    earliest_at = DateTimeInput(required=False)
+    latest_end_at = DateTimeInput()
+    hours = serializers.ListField(
+        child=serializers.IntegerField(min_value=0, max_value=24),
+        min_length=2,
+        max_length=2,
+        required=False,
+        help_text="Allowed hours of the testbed's day [from, to]; [22, 6] is nights only.",
+    )
+
+
+class CampaignRunOutput(serializers.Serializer):
+    request = serializers.IntegerField(source="pk")
+    parameters = serializers.JSONField()
+    state = serializers.CharField(help_text="The queued request's: waiting, booked, expired…")
+    reason = serializers.CharField()
+    reservation = serializers.IntegerField(source="reservation_id", allow_null=True)
+    run = serializers.SerializerMethodField()
+
+    @extend_schema_field(serializers.DictField(allow_null=True))
+    def get_run(self, request: QueueRequest) -> dict[str, Any] | None:
+        run = getattr(request.reservation, "run", None) if request.reservation else None
+        return {"id": run.pk, "state": run.state} if run is not None else None
+
+
+class CampaignOutput(serializers.ModelSerializer):
+    owner = serializers.CharField(source="owner.username")
+    robot = serializers.CharField(source="robot.name")
+    progress = serializers.SerializerMethodField()
+    runs = serializers.SerializerMethodField()
+
+    class Meta:
+        model = Campaign
+        fields = ["id", "title", "owner", "robot", "state", "progress", "runs", "created_at"]
+
+    @extend_schema_field(serializers.DictField())
+    def get_progress(self, campaign: Campaign) -> dict[str, Any]:
+        return campaign_progress(campaign)
+
+    @extend_schema_field(CampaignRunOutput(many=True))
+    def get_runs(self, campaign: Campaign) -> Any:
+        return CampaignRunOutput(campaign_requests(campaign), many=True).data
+
+
+class CampaignCancelInput(serializers.Serializer):
+    cancel_booked = serializers.BooleanField(
+        default=False, help_text="Also cancel the runs already booked (not those ended)."
+    )
+    reason = serializers.CharField(required=False, allow_blank=True, max_length=1000)
+
+
+def _campaign(request: Request, pk: int) -> Campaign:
+    return get_object_or_404(campaigns_visible(user=request_user(request)), pk=pk)
+
+
+class CampaignListApi(APIView):
+    pagination_class = Pagination
+
+    @extend_schema(responses=CampaignOutput(many=True))
+    def get(self, request: Request) -> Response:
+        qs = campaigns_visible(user=request_user(request)).order_by("-created_at", "-pk")
+
+        def represent(page: list[Any]) -> list[dict[str, Any]]:
+            return list(CampaignOutput(page, many=True).data)
+
+        return Response(paginated_data(request=request, queryset=qs, represent=represent))
+
+    @extend_schema(request=CampaignInput, responses={201: CampaignOutput})
+    @idempotent
+    def post(self, request: Request) -> Response:
+        valid_input(CampaignInput, request.data)  # the shape; the service reads the file
+        campaign = campaign_create(
+            owner=request_user(request), spec=dict(request.data), ip=client_ip(request)
+        )
+        return Response(CampaignOutput(campaign).data, status=status.HTTP_201_CREATED)
+
+
+class CampaignDetailApi(APIView):
+    @extend_schema(responses=CampaignOutput)
+    def get(self, request: Request, pk: int) -> Response:
+        return Response(CampaignOutput(_campaign(request, pk)).data)
+
+
+class CampaignPauseApi(APIView):
+    @extend_schema(request=None, responses={200: CampaignOutput, **errors(409)})
+    def post(self, request: Request, pk: int) -> Response:
+        paused = campaign_pause(
+            campaign=_campaign(request, pk), by=request_user(request), ip=client_ip(request)
+        )
+        return Response(CampaignOutput(paused).data)
+
+
+class CampaignResumeApi(APIView):
+    @extend_schema(request=None, responses={200: CampaignOutput, **errors(409)})
+    def post(self, request: Request, pk: int) -> Response:
+        resumed = campaign_resume(
+            campaign=_campaign(request, pk), by=request_user(request), ip=client_ip(request)
+        )
+        return Response(CampaignOutput(resumed).data)
+
+
+class CampaignCancelApi(APIView):
+    @extend_schema(request=CampaignCancelInput, responses=CampaignOutput)
+    def post(self, request: Request, pk: int) -> Response:
+        data = valid_input(CampaignCancelInput, request.data)
+        cancelled = campaign_cancel(
+            campaign=_campaign(request, pk),
+            by=request_user(request),
+            cancel_booked=data["cancel_booked"],
+            reason=data.get("reason", ""),
+            ip=client_ip(request),
+        )
+        return Response(CampaignOutput(cancelled).data)

@@ -17,6 +17,35 @@ class RequestState(models.TextChoices):
     CANCELLED = "cancelled", "cancelled"
 
 
+class CampaignState(models.TextChoices):
+    ACTIVE = "active", "active"
+    PAUSED = "paused", "paused"
+    CANCELLED = "cancelled", "cancelled"
+
+
+class Campaign(models.Model):
+    """A sweep of one-segment programs over parameter values, each run a queued request
+    (``portal/queue/sweep.py``). ``spec`` is the campaign file as given."""
+
+    owner = models.ForeignKey(
+        settings.AUTH_USER_MODEL, on_delete=models.CASCADE, related_name="campaigns"
+    )
+    title = models.CharField(max_length=150)
+    robot = models.ForeignKey(Resource, on_delete=models.PROTECT, related_name="+")
+    spec = models.JSONField()
+    state = models.CharField(
+        max_length=16, choices=CampaignState.choices, default=CampaignState.ACTIVE
+    )
+    created_at = models.DateTimeField(auto_now_add=True)
+    updated_at = models.DateTimeField(auto_now=True)
+
+    class Meta:
+        ordering = ["-created_at", "-pk"]
+
+    def __str__(self) -> str:
+        return self.title
+
+
 class QueueRequest(models.Model):
     """Run ``experiment`` on ``robot`` (with ``nodes``, fixed nodes held with it) for
     ``duration_s``, starting no sooner than ``earliest_at`` and ending by ``latest_end_at``,
@@ -49,6 +78,11 @@ class QueueRequest(models.Model):
         on_delete=models.SET_NULL,
         related_name="queue_request",
     )
+    # A campaign's run: its campaign and its parameters' values (``SweepRun.parameters``).
+    campaign = models.ForeignKey(
+        Campaign, null=True, blank=True, on_delete=models.CASCADE, related_name="requests"
+    )
+    parameters = models.JSONField(null=True, blank=True)
     submitted_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
 

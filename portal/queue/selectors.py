@@ -15,7 +15,7 @@ from bookings.periods import overlap_s
 from bookings.quotas import testbed_zone
 from bookings.selectors import resource_free_intervals
 from core.accounts.models import User
-from portal.queue.models import QueueControl, QueueRequest, RequestState
+from portal.queue.models import Campaign, CampaignState, QueueControl, QueueRequest, RequestState
 from portal.queue.slots import Period, allowed_periods, first_fit, intersection, without
 
 # Robot time that counts as use: booked and not withdrawn (a completed booking was used).
@@ -31,6 +31,12 @@ def queue_requests_visible(*, user: User) -> QuerySet[QueueRequest]:
     """The user's requests (every one for admins)."""
     qs = QueueRequest.objects.select_related("owner", "experiment", "robot", "reservation")
     qs = qs.prefetch_related("nodes")
+    return qs if user.is_testbed_admin else qs.filter(owner=user)
+
+
+def campaigns_visible(*, user: User) -> QuerySet[Campaign]:
+    """The user's campaigns (every one for admins)."""
+    qs = Campaign.objects.select_related("owner", "robot")
     return qs if user.is_testbed_admin else qs.filter(owner=user)
 
 
@@ -75,6 +81,7 @@ def waiting_in_order(*, now: datetime) -> list[Waiting]:
     """The waiting requests in the order the queue serves them (the fair-share rule)."""
     requests = list(
         QueueRequest.objects.filter(state=RequestState.WAITING)
+        .exclude(campaign__state=CampaignState.PAUSED)  # held back by its owner
         .select_related("owner", "experiment", "robot")
         .prefetch_related("nodes")
     )

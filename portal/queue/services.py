@@ -7,6 +7,7 @@ import logging
 import math
 from collections.abc import Sequence
 from datetime import datetime, timedelta
+from typing import Any
 
 from django.conf import settings
 from django.db import transaction
@@ -16,10 +17,11 @@ from bookings.models import Resource
 from bookings.rules import aware_utc, velocity_problem
 from core.accounts.models import User
 from core.audit.services import audit_record
+from core.commit_batch import CommitBatch
 from core.errors import Conflict, InvalidInput, NotAllowed
 from portal.experiments.models import Experiment
 from portal.queue.events import queue_request_event_record
-from portal.queue.models import QueueControl, QueueRequest, RequestState
+from portal.queue.models import Campaign, QueueControl, QueueRequest, RequestState
 from portal.queue.selectors import queue_control
 from portal.queue.tasks import queue_allocate_task
 
@@ -29,15 +31,20 @@ logger = logging.getLogger(__name__)
 REQUEST_SPAN_MAX = timedelta(days=92)
 
 
-def _wake_allocator() -> None:
-    transaction.on_commit(_send_wake)
+class _AllocatorWake(CommitBatch):
+    """One wake of the allocator per transaction, however many requests it queued (a
+    campaign queues them all in one)."""
+
+    def run(self) -> None:
+        try:
+            queue_allocate_task.delay()
+        except Exception:
+            logger.exception("waking the queue's allocator failed; beat's next pass books")
 
 
-def _send_wake() -> None:
-    try:
-        queue_allocate_task.delay()
-    except Exception:
-        logger.exception("waking the queue's allocator failed; beat's next pass books")
+def allocator_wake() -> None:
+    """Wake the allocator once the current transaction commits (at once outside one)."""
+    _AllocatorWake.current()
 
 
 def default_duration_s(experiment: Experiment) -> int:
@@ -59,6 +66,8 @@ def queue_request_submit(
     title: str = "",
     ip: str | None = None,
     now: datetime | None = None,
+    campaign: Campaign | None = None,
+    parameters: dict[str, Any] | None = None,
 ) -> QueueRequest:
     """Queue ``experiment`` on ``robot`` as soon as possible; the allocator is woken at the
     commit. Refused at once, with nothing queued, when it could never be booked as asked."""
@@ -87,22 +96,28 @@ def queue_request_submit(
             latest_end_at=latest_end_at,
             hours_from=hours_from,
             hours_to=hours_to,
+            campaign=campaign,
+            parameters=parameters,
         )
         request.nodes.set(nodes)
-        audit_record(
-            actor=owner,
-            action="queue.submit",
-            target=request,
-            ip=ip,
-            experiment=experiment.pk,
-            robot=robot.name,
-            nodes=[n.name for n in nodes],
-            duration_s=duration_s,
-            earliest_at=earliest_at.isoformat(),
-            latest_end_at=latest_end_at.isoformat(),
-        )
-        _wake_allocator()
+        _submit_audit(request, nodes=nodes, ip=ip)
+        allocator_wake()
     return request
+
+
+def _submit_audit(request: QueueRequest, *, nodes: Sequence[Resource], ip: str | None) -> None:
+    audit_record(
+        actor=request.owner,
+        action="queue.submit",
+        target=request,
+        ip=ip,
+        experiment=request.experiment_id,
+        robot=request.robot.name,
+        nodes=[n.name for n in nodes],
+        duration_s=request.duration_s,
+        earliest_at=request.earliest_at.isoformat(),
+        latest_end_at=request.latest_end_at.isoformat(),
+    )
 
 
 def _refuse_unbookable(
@@ -214,7 +229,7 @@ def _queue_switch(*, by: User, paused: bool, reason: str, ip: str | None) -> Que
             ip=ip,
         )
         if not paused:
-            _wake_allocator()
+            allocator_wake()
     return control
 
 
@@ -245,5 +260,5 @@ def queue_request_reorder(
             priority_before=before,
             priority=priority,
         )
-        _wake_allocator()
+        allocator_wake()
     return locked

@@ -77,6 +77,27 @@ DATA_DEPENDENT_FIELDS: dict[tuple[str, str], frozenset[str]] = {
     ("POST", "/api/v1/queue/"): frozenset(
         {"robot", "nodes", "experiment", "duration_s", "latest_end_at", "hours_to"}
     ),
+    # a campaign file: the robot and nodes by name, each parameter's values (JSON Schema
+    # cannot say what a sweep holds), not too many runs, each run's program and its room
+    # between the earliest start and the latest end, the allowed hours
+    ("POST", "/api/v1/campaigns/"): frozenset(
+        {
+            "robot",
+            "nodes",
+            "parameters",
+            "velocity_mps",
+            "direction",
+            "duration_s",
+            "latest_end_at",
+            "hours",
+            "hours_to",
+            "repeats",
+            "seed",
+            "title",
+            "segments",
+            "experiment",
+        }
+    ),
     # a pause and a reordering say why
     ("POST", "/api/v1/queue/pause/"): frozenset({"reason"}),
     ("POST", "/api/v1/queue/{id}/reorder/"): frozenset({"reason"}),
@@ -92,6 +113,7 @@ DATA_DEPENDENT_ERRORS: dict[tuple[str, str], frozenset[str]] = {
     ("POST", "/api/v1/reservations/{id}/attach/"): _KEY_REUSED,
     ("POST", "/api/v1/runs/{id}/again/"): _KEY_REUSED,
     ("POST", "/api/v1/queue/"): _KEY_REUSED,
+    ("POST", "/api/v1/campaigns/"): _KEY_REUSED,
 }
 
 # Every operation whose positive_data_acceptance this module's check replaces.

@@ -98,6 +98,9 @@ ADMIN_OPERATIONS = frozenset(
         "POST /api/v1/queue/pause/",
         "POST /api/v1/queue/resume/",
         "POST /api/v1/queue/{id}/reorder/",
+        "GET /api/v1/campaigns/",
+        "GET /api/v1/campaigns/{id}/",
+        "POST /api/v1/campaigns/{id}/cancel/",
     }
 )
 

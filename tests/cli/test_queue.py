@@ -68,3 +68,38 @@ def test_a_request_is_queued_listed_with_its_estimate_and_withdrawn(fay):
     assert gone.exit_code == 0, gone.stderr
     assert QueueRequest.objects.get().state == RequestState.CANCELLED
     assert "Nothing waiting" in amazing("queue", "list").stdout
+
+
+def test_a_campaign_file_is_queued_followed_and_cancelled(fay, tmp_path):
+    MobileResourceFactory(agent_url="http://127.0.0.1:9")
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(
+        "title: velocity sweep\n"
+        "robot: mobile-1\n"
+        "parameters:\n"
+        "  velocity_mps: {from: 0.5, to: 1.0, step: 0.5}\n"
+        "  direction: [cw, ccw]\n"
+        "  duration_s: 5\n"
+        "repeats: 2\n"
+        "earliest_at: 2031-03-04T00:00:00Z\n"  # a YAML timestamp: sent as RFC 3339
+        "latest_end_at: '2031-03-06T00:00:00+00:00'\n"
+    )
+    made = amazing("campaign", "create", str(sweep), "--json")
+    assert made.exit_code == 0, made.stderr
+    campaign = json.loads(made.stdout)
+    assert campaign["progress"] == {"runs": 8, "queue": {"waiting": 8}, "run_states": {}}
+    status = amazing("campaign", "status", str(campaign["id"]))
+    assert status.exit_code == 0, status.stderr
+    assert "8 runs; queue: 8 waiting" in status.stdout
+    assert "0.5 m/s cw 5 s, repeat 1: waiting" in status.stdout
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(sweep.read_text().replace("repeats: 2", "repeats: 2\ngain: 3"))
+    refused = amazing("campaign", "create", str(bad))
+    assert refused.exit_code == 2, (refused.stdout, refused.stderr)
+    assert "gain" in refused.stderr
+    assert QueueRequest.objects.count() == 8
+
+    gone = amazing("campaign", "cancel", str(campaign["id"]))
+    assert gone.exit_code == 0, gone.stderr
+    assert "8 cancelled" in gone.stdout

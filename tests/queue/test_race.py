@@ -60,8 +60,12 @@ def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(s
 
     booked = [pk for done in passes for pk in done.booked]
     assert sorted(booked) == sorted(set(booked)), "a request was booked twice"
-    assert QueueRequest.objects.filter(state=RequestState.BOOKED).count() == 9
+    # A request one allocator held while the other took the slots it looked at may be left
+    # for the next pass (it says why); the next pass books it, and nothing twice.
+    booked += queue_allocate(now=NOW).booked
+    assert sorted(booked) == sorted(set(booked)), "a request was booked twice"
     assert len(booked) == 9
+    assert QueueRequest.objects.filter(state=RequestState.BOOKED).count() == 9
     items = sorted(
         ReservationItem.objects.filter(resource=robot, active=True).values_list(
             "start_at", "end_at"

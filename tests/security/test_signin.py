@@ -67,6 +67,11 @@ NOT_STAFF = {
     "webhooks", "webhook", "webhook-test", "webhook-resume", "webhook-delete",
     "run-measurement-add", "run-measurement-series", "run-measurement-offset",
     "run-measurement-delete",
+    # The queue and campaigns: one's own requests (an admin's branch by the door's mark);
+    # pausing, resuming and reordering the queue are staff actions (StaffVerified).
+    "api-queue", "api-queue-state", "api-queue-request", "queue", "queue-cancel",
+    "api-campaigns", "api-campaign", "api-campaign-pause", "api-campaign-resume",
+    "api-campaign-cancel",
     # Live streams (ASGI only): robot_stream reads the door's mark, tests/web/test_live.py.
     "live-run", "live-robot", "live-calendar",
     "logout",  # the admin's sign-out
