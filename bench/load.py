@@ -180,9 +180,12 @@ def _stop(process: subprocess.Popen[bytes]) -> None:
 
 def _locust(
     port: int, users: int, mix: str, duration_s: float, tokens: Path, nodes: Sequence[str],
-    prefix: Path,
+    prefix: Path, each_first: bool,
 ) -> subprocess.CompletedProcess[str]:  # fmt: skip
     env = dict(os.environ, LOAD_TOKENS_FILE=str(tokens), LOAD_NODES=",".join(nodes))
+    env.pop("LOAD_EACH_FIRST", None)
+    if each_first:
+        env["LOAD_EACH_FIRST"] = "1"
     return subprocess.run(
         [
             sys.executable, "-m", "locust", "-f", str(REPO / "bench" / "locustfile.py"),
@@ -207,8 +210,11 @@ def run(
     workers: Sequence[int] = WORKERS,
     mixes: Sequence[str] = MIXES,
     duration_s: float = DURATION_S,
+    each_first: bool = False,
 ) -> str:
-    """One round per (web processes, users, mix); the report's markdown."""
+    """One round per (web processes, users, mix); the report's markdown. ``each_first``: every
+    user of the day's mix first makes one call of each kind (a smoke's round, too short to
+    show each kind by chance)."""
     work = Path(tempfile.mkdtemp(prefix="bench-load-"))
     try:
         tokens_file = work / "tokens"
@@ -228,7 +234,9 @@ def run(
                     measured: dict[str, dict[str, str]] = {}
                     for mix in mixes:
                         prefix = work / f"w{count}-u{n}-{mix}"
-                        locust = _locust(port, n, mix, duration_s, tokens_file, nodes, prefix)
+                        locust = _locust(
+                            port, n, mix, duration_s, tokens_file, nodes, prefix, each_first
+                        )
                         stats = _stats(prefix)
                         total = next(s for s in stats if s["Name"] == "Aggregated")
                         if total["Request Count"] == "0":
