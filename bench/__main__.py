@@ -114,7 +114,9 @@ SMOKE: dict[str, dict[str, Any]] = {
     "measurements": {"points": 3000, "samples": 600, "repeats": 1},
     "scheduler": {"calls": 2},
     "agent": {"duration_s": 1.0, "idle_s": 1.0, "clients": 2},
-    "stop": {"stops": 2, "clients": 2},
+    # The agent as it runs only: each further variant starts two more processes for the same
+    # path with other flags (a third of the smoke's longest test on a busy machine each).
+    "stop": {"stops": 2, "clients": 2, "variants": 1},
     "timing": {"starts": 1, "stops": 2},
     "live": {"program_s": 3.0, "open_streams": 3, "probes": 3},
     "scale": {"robots": [1], "program_s": 3.0},
