@@ -14,9 +14,10 @@ of them. Which database answers is asked here and nowhere else (:func:`is_postgr
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from typing import ParamSpec, TypeVar
 
@@ -146,6 +147,23 @@ def advisory_xact_lock(key: int) -> None:
     if is_postgresql():
         with connection.cursor() as cursor:
             cursor.execute("SELECT pg_advisory_xact_lock(%s)", [key])
+
+
+@contextlib.contextmanager
+def advisory_session_lock(key: int) -> Iterator[None]:
+    """Hold the lock ``key`` for the block, across the transactions in it, waiting while
+    another session holds it (PostgreSQL); a session that dies lets it go with its
+    connection. Nothing to take on SQLite, as :func:`advisory_xact_lock` says why."""
+    if not is_postgresql():
+        yield
+        return
+    with connection.cursor() as cursor:
+        cursor.execute("SELECT pg_advisory_lock(%s)", [key])
+    try:
+        yield
+    finally:
+        with connection.cursor() as cursor:
+            cursor.execute("SELECT pg_advisory_unlock(%s)", [key])
 
 
 def try_advisory_xact_lock(key: int) -> bool:

@@ -3,7 +3,12 @@ the horizon, in fair-share order, through the same service as every booking
 (``portal.runs.services.reservations.reservation_create``), which checks every rule under its
 locks; it expires what can no longer be met. It holds only the request it is booking
 (``SELECT … FOR UPDATE SKIP LOCKED``): two allocators never book one request twice, and the
-booking's lock and constraint keep them from booking one slot twice."""
+booking's lock and constraint keep them from booking one slot twice.
+
+Passes take turns (:func:`queue_allocate`, a session's advisory lock held for the pass): two
+passes at once would each skip the request the other holds and book the next in line, so
+that the slots went out of fair-share order. A pass woken meanwhile waits and then books
+what the first left, so no wake is lost."""
 
 from __future__ import annotations
 
@@ -18,6 +23,7 @@ from django.utils import timezone
 from bookings.choices import Channel
 from core.audit.services import audit_record
 from core.errors import DomainError
+from core.sql import advisory_key, advisory_session_lock
 from portal.queue.events import queue_request_event_record
 from portal.queue.models import QueueRequest, RequestState
 from portal.queue.selectors import (
@@ -34,6 +40,8 @@ logger = logging.getLogger(__name__)
 
 # How often one pass tries a request whose slot was taken between the look and the booking.
 BOOK_ATTEMPTS = 3
+# The allocator's turn (``queue_allocate``).
+PASS_LOCK = advisory_key(b"queue-allocate-pass")
 
 
 @dataclass
@@ -47,9 +55,16 @@ class Pass:
 
 
 def queue_allocate(*, now: datetime | None = None) -> Pass:
+    """One pass, in its turn: no other pass runs meanwhile (see the module's text)."""
+    with advisory_session_lock(PASS_LOCK):
+        return allocation_pass(now=now)
+
+
+def allocation_pass(*, now: datetime | None = None) -> Pass:
     """One pass: expire what can no longer be met, then book every waiting request whose
     first slot lies within the horizon, in fair-share order (the order is read again after
-    each booking: the use it adds counts at once)."""
+    each booking: the use it adds counts at once). Safe beside another pass (nothing is
+    booked twice), fair only alone: :func:`queue_allocate` takes the turn."""
     now = now or timezone.now()
     if queue_control().paused:
         waiting = QueueRequest.objects.filter(state=RequestState.WAITING).count()

@@ -1,18 +1,21 @@
 """Two allocators at once (PostgreSQL, real transactions): each request is booked once, and no
 two bookings share the robot; the booking's lock and constraint, and the request held while it
-is booked, do it (``portal/queue/services.py``)."""
+is booked, do it (``portal/queue/allocation.py``). The passes race without their turn
+(``allocation_pass``), so that those guards alone are what is tested; with it
+(``queue_allocate``) they take turns and the slots go out in fair-share order."""
 
 from __future__ import annotations
 
 import itertools
 import threading
+from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 
 import pytest
 from django.db import connection
 
-from bookings.models import ReservationItem
-from portal.queue.allocation import Pass, queue_allocate
+from bookings.models import ReservationItem, Resource
+from portal.queue.allocation import Pass, allocation_pass, queue_allocate
 from portal.queue.models import QueueRequest, RequestState
 from portal.queue.services import queue_request_submit
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
@@ -22,9 +25,7 @@ pytestmark = pytest.mark.django_db(transaction=True)
 NOW = datetime(2030, 1, 7, 9, 0, tzinfo=UTC)
 
 
-def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(settings):
-    assert connection.vendor == "postgresql"
-    settings.QUEUE_LEAD_S = 0
+def _three_people_three_requests_each() -> Resource:
     robot = MobileResourceFactory()
     for name in ("ana", "ben", "cai"):
         user = UserFactory(username=name)
@@ -37,6 +38,11 @@ def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(s
                 latest_end_at=NOW + timedelta(days=1),
                 now=NOW,
             )
+    return robot
+
+
+def _at_once(allocate: Callable[..., Pass]) -> list[Pass]:
+    """Two passes started together, each in a thread with its own connection."""
     start = threading.Barrier(2)
     passes: list[Pass] = []
     failures: list[BaseException] = []
@@ -44,7 +50,7 @@ def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(s
     def allocator() -> None:
         try:
             start.wait(timeout=30)
-            passes.append(queue_allocate(now=NOW))
+            passes.append(allocate(now=NOW))
         except BaseException as exc:
             failures.append(exc)
         finally:
@@ -57,6 +63,14 @@ def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(s
         thread.join(timeout=120)
     assert not any(t.is_alive() for t in threads), "an allocator hung"
     assert not failures, failures
+    return passes
+
+
+def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(settings):
+    assert connection.vendor == "postgresql"
+    settings.QUEUE_LEAD_S = 0
+    robot = _three_people_three_requests_each()
+    passes = _at_once(allocation_pass)
 
     booked = [pk for done in passes for pk in done.booked]
     assert sorted(booked) == sorted(set(booked)), "a request was booked twice"
@@ -74,3 +88,15 @@ def test_two_allocators_racing_book_each_request_once_and_never_one_slot_twice(s
     assert len(items) == 9
     for (_, end), (next_start, _) in itertools.pairwise(items):
         assert end <= next_start, "two bookings share the robot"
+
+
+def test_two_passes_woken_at_once_take_turns_and_keep_the_fair_share_order(settings):
+    settings.QUEUE_LEAD_S = 0
+    _three_people_three_requests_each()
+    passes = _at_once(queue_allocate)
+    # The first books all nine; the second, after it, finds none waiting.
+    assert sorted(len(done.booked) for done in passes) == [0, 9]
+    booked = QueueRequest.objects.order_by("reservation__start_at")
+    # Equal use each time round: who asked first; so one request of each person in turn.
+    people = [r.owner.username for r in booked.select_related("owner")]
+    assert people == ["ana", "ben", "cai"] * 3
