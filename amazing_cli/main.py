@@ -108,6 +108,9 @@ queue_app.command("cancel")(queue.queue_cancel)
 campaign_app.command("create")(campaigns.campaign_create)
 campaign_app.command("status")(campaigns.campaign_status)
 campaign_app.command("cancel")(campaigns.campaign_cancel)
+campaign_app.command("pause")(campaigns.campaign_pause)
+campaign_app.command("resume")(campaigns.campaign_resume)
+campaign_app.command("download")(campaigns.campaign_download)
 
 
 def main() -> int:

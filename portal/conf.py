@@ -207,6 +207,11 @@ QUEUE_LEAD_S: Final = Tunable(
     120.0,
     "the queue books no slot starting sooner than this from now (time to stage the run)",
 )
+QUEUE_SLOT_S: Final = Tunable(
+    "QUEUE_SLOT_S",
+    60,
+    "a queued request's booking lasts its program rounded up to a whole number of these",
+)
 QUEUE_PASS_INTERVAL_S: Final = Tunable(
     "QUEUE_PASS_INTERVAL_S",
     60.0,
@@ -244,6 +249,7 @@ TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     QUEUE_HORIZON_S,
     QUEUE_FAIR_SHARE_WINDOW_S,
     QUEUE_LEAD_S,
+    QUEUE_SLOT_S,
     QUEUE_PASS_INTERVAL_S,
 )
 

@@ -188,7 +188,9 @@ def download(
     operation = FORMATS[format]
     response = api.stream(operation, path={"id": run})
     total = details["sample_count"] if format == "csv" else None
-    newlines, size = _save(response, target, run=run, format=format, total=total, quiet=as_json)
+    newlines, size = save_download(
+        response, target, what=f"run {run}", format=format, total=total, quiet=as_json
+    )
     samples = _samples(target, format, newlines)
     if (
         details["state"] in RUN_END_STATES
@@ -221,7 +223,7 @@ def _series_beside(api: Api, run: int, target: Path, *, quiet: bool) -> list[dic
     for series in api.call("measurements", path={"id": run}):
         path = target.with_name(f"{target.stem}-{series['name']}.parquet")
         response = api.stream("measurement_parquet", path={"id": run, "name": series["name"]})
-        _save(response, path, run=run, format="parquet", total=None, quiet=quiet)
+        save_download(response, path, what=f"run {run}", format="parquet", total=None, quiet=quiet)
         written.append({"name": series["name"], "path": str(path), "rows": _parquet_rows(path)})
     return written
 
@@ -237,17 +239,18 @@ def _parquet_rows(path: Path) -> int:
         raise CliError(f"{path} is not a whole Parquet file: {exc}", exit_code=UNAVAILABLE) from exc
 
 
-def _save(
+def save_download(
     response: requests.Response,
     target: Path,
     *,
-    run: int,
+    what: str,
     format: str,
     total: int | None,
     quiet: bool,
 ) -> tuple[int, int]:
     """Write the streamed answer to ``target`` (a ``.part`` file until it is whole), with a
-    progress bar of samples (``total``) or bytes; its newlines and bytes."""
+    progress bar of samples (``total``) or bytes; its newlines and bytes. ``what`` names the
+    download in its progress and its errors ("run 12")."""
     to_stdout = str(target) == "-"
     newlines = 0
     size = 0
@@ -269,7 +272,7 @@ def _save(
     partial = target.with_name(target.name + ".part") if not to_stdout else None
     try:
         with Progress(*columns, TimeElapsedColumn(), console=err, disable=quiet) as progress:
-            task = progress.add_task(f"run {run} {format}", total=total)
+            task = progress.add_task(f"{what} {format}", total=total)
             sink = sys.stdout.buffer if to_stdout else open(partial, "wb")  # type: ignore[arg-type]  # noqa: SIM115
             try:
                 for chunk in response.iter_content(chunk_size=64 * 1024):
@@ -288,9 +291,7 @@ def _save(
             partial.unlink(missing_ok=True)
         if isinstance(exc, CliError):
             raise
-        raise CliError(
-            f"the download of run {run} broke off: {exc}", exit_code=UNAVAILABLE
-        ) from exc
+        raise CliError(f"the download of {what} broke off: {exc}", exit_code=UNAVAILABLE) from exc
     finally:
         response.close()
     if partial is not None:

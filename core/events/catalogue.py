@@ -260,6 +260,28 @@ _QUEUE_TYPES = {
     "says what held it back.",
     "queue.cancelled": "A waiting request was withdrawn.",
 }
+CAMPAIGN_V1: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "campaign": {"type": "integer"},
+        "title": {"type": "string"},
+        "state": {"type": "string", "enum": ["active", "paused", "cancelled"]},
+        "robot": {"type": "string"},
+        "runs": {"type": "integer", "minimum": 1, "description": "the campaign's runs"},
+        "ended": {
+            "type": "object",
+            "description": "how many runs ended how: a run's end state (completed, failed, "
+            "interrupted, cancelled) or the queue's (expired, cancelled before booking)",
+            "additionalProperties": {"type": "integer", "minimum": 1},
+        },
+    },
+    "required": ["campaign", "title", "state", "robot", "runs", "ended"],
+    "additionalProperties": False,
+}
+_CAMPAIGN_TYPES = {
+    "campaign.done": "Every run of a campaign has ended (completed, failed, expired or "
+    "withdrawn): its results and download are final. Once per campaign.",
+}
 
 # Each payload shape and version, as a component of the OpenAPI description, with its types.
 PAYLOADS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
@@ -272,6 +294,7 @@ PAYLOADS: dict[str, tuple[dict[str, Any], dict[str, str]]] = {
     "SchedulerLinkEventV1": (SCHEDULER_LINK_V1, _SCHEDULER_TYPES),
     "WebhookEventV1": (WEBHOOK_V1, _WEBHOOK_TYPES),
     "QueueRequestEventV1": (QUEUE_REQUEST_V1, _QUEUE_TYPES),
+    "CampaignEventV1": (CAMPAIGN_V1, _CAMPAIGN_TYPES),
 }
 
 # Types that happen at most once to a subject (a unique index holds it: ``Event``).

@@ -6,9 +6,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from django.http import StreamingHttpResponse
 from django.shortcuts import get_object_or_404
 from django.utils import timezone
-from drf_spectacular.utils import extend_schema, extend_schema_field
+from drf_spectacular.utils import OpenApiResponse, extend_schema, extend_schema_field
 from rest_framework import serializers, status
 from rest_framework.request import Request
 from rest_framework.response import Response
@@ -30,6 +31,13 @@ from portal.queue.campaigns import (
     campaign_resume,
 )
 from portal.queue.models import Campaign, QueueControl, QueueRequest, RequestState
+from portal.queue.package import campaign_package_response
+from portal.queue.results import (
+    METRICS,
+    campaign_results,
+    campaign_results_json,
+    campaign_runs_completed,
+)
 from portal.queue.selectors import (
     Place,
     campaigns_visible,
@@ -45,6 +53,7 @@ from portal.queue.services import (
     queue_resume,
 )
 from portal.queue.sweep import ORDERS
+from portal.runs.apis.runs import DownloadApi, ZipRenderer
 
 
 class QueueRequestOutput(serializers.ModelSerializer):
@@ -394,3 +403,65 @@ class CampaignCancelApi(APIView):
             ip=client_ip(request),
         )
         return Response(CampaignOutput(cancelled).data)
+
+
+class SpreadOutput(serializers.Serializer):
+    mean = serializers.FloatField()
+    sd = serializers.FloatField(allow_null=True, help_text="Sample sd over the repeats.")
+    n = serializers.IntegerField(help_text="Repeats with samples in the segment.")
+
+
+class ResultGroupOutput(serializers.Serializer):
+    velocity_mps = serializers.FloatField()
+    direction = serializers.CharField()
+    duration_s = serializers.FloatField()
+    runs = serializers.ListField(child=serializers.IntegerField())
+    metrics = serializers.DictField(
+        child=SpreadOutput(), help_text="Per statistic (see `metrics`): mean and spread."
+    )
+
+
+class CampaignResultsOutput(serializers.Serializer):
+    campaign = serializers.IntegerField()
+    completed = serializers.IntegerField(help_text="Completed runs the results come from.")
+    metrics = serializers.DictField(
+        child=serializers.CharField(), help_text="Each statistic's name and what it is."
+    )
+    groups = ResultGroupOutput(many=True)
+
+
+class CampaignResultsApi(APIView):
+    """Per combination of the campaign's values: its completed runs' segment statistics,
+    the mean over the repeats and their sample sd."""
+
+    @extend_schema(responses=CampaignResultsOutput)
+    def get(self, request: Request, pk: int) -> Response:
+        campaign = _campaign(request, pk)
+        completed = campaign_runs_completed(campaign)
+        groups = campaign_results(completed)
+        return Response(
+            {
+                "campaign": campaign.pk,
+                "completed": len(completed),
+                "metrics": dict(METRICS),
+                "groups": campaign_results_json(groups),
+            }
+        )
+
+
+class CampaignPackageApi(DownloadApi):
+    """Every completed run's package in a folder of its own, `manifest.json`, and
+    `campaign.json`: a Frictionless Data Package of every run's parameters and the results
+    (docs/run-package.md)."""
+
+    renderer_classes = [*APIView.renderer_classes, ZipRenderer]
+
+    @extend_schema(
+        responses={
+            (200, "application/zip"): OpenApiResponse(
+                bytes, description="run-<id>/ folders, manifest.json, then campaign.json."
+            )
+        }
+    )
+    def get(self, request: Request, pk: int) -> StreamingHttpResponse:
+        return campaign_package_response(request, _campaign(request, pk))

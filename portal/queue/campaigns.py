@@ -8,6 +8,7 @@ from collections import Counter
 from typing import Any
 
 from django.db import transaction
+from django.utils import timezone
 from django.utils.dateparse import parse_datetime
 
 from bookings.choices import Channel
@@ -16,11 +17,13 @@ from bookings.selectors import resources_bookable
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.errors import Conflict, InvalidInput, NotAllowed
+from core.events.services import event_record
 from portal.experiments.services import experiment_create
 from portal.queue.models import Campaign, CampaignState, QueueRequest, RequestState
 from portal.queue.services import allocator_wake, queue_request_cancel, queue_request_submit
 from portal.queue.sweep import Sweep, sweep_parse
 from portal.runs.services import reservations as with_run
+from portal.runs.states import RUN_END_STATES, RunState
 
 
 def _instant(field: str, value: Any) -> Any:
@@ -171,3 +174,52 @@ def campaign_requests(campaign: Campaign) -> list[QueueRequest]:
     return list(
         campaign.requests.select_related("reservation__run", "robot").order_by("submitted_at", "pk")
     )
+
+
+def _settled(request: QueueRequest) -> str | None:
+    """How a campaign's run ended (its run's end state, or the queue's), or None while it may
+    still run."""
+    if request.state in (RequestState.EXPIRED, RequestState.CANCELLED):
+        return str(request.state)
+    if request.state == RequestState.WAITING:
+        return None
+    run = getattr(request.reservation, "run", None) if request.reservation else None
+    if run is not None:
+        return str(run.state) if run.state in RUN_END_STATES else None
+    if request.reservation is None or request.reservation.state not in ("requested", "confirmed"):
+        return RunState.CANCELLED.value  # its booking gone or ended without a run
+    return None
+
+
+def campaign_done_check(campaign_id: int) -> bool:
+    """Record ``campaign.done`` once every run of the campaign has settled; whether it was
+    recorded now. Under the campaign's lock: two checks at once record it once."""
+    with transaction.atomic():
+        campaign = (
+            Campaign.objects.select_for_update()
+            .filter(pk=campaign_id, done_at__isnull=True)
+            .select_related("robot")
+            .first()
+        )
+        if campaign is None:
+            return False
+        ends = [_settled(r) for r in campaign_requests(campaign)]
+        if not ends or None in ends:
+            return False
+        campaign.done_at = timezone.now()
+        campaign.save(update_fields=["done_at", "updated_at"])
+        counts = Counter(ends)
+        event_record(
+            subject=f"campaign:{campaign.pk}",
+            type="campaign.done",
+            owner_id=campaign.owner_id,
+            payload={
+                "campaign": campaign.pk,
+                "title": campaign.title,
+                "state": campaign.state,
+                "robot": campaign.robot.name,
+                "runs": len(ends),
+                "ended": {str(k): v for k, v in sorted(counts.items())},
+            },
+        )
+    return True

@@ -38,6 +38,9 @@ class Campaign(models.Model):
     )
     created_at = models.DateTimeField(auto_now_add=True)
     updated_at = models.DateTimeField(auto_now=True)
+    # When its last run settled (completed, failed, expired or withdrawn): ``campaign.done``
+    # was recorded then, once (``campaigns.campaign_done_check``).
+    done_at = models.DateTimeField(null=True, blank=True)
 
     class Meta:
         ordering = ["-created_at", "-pk"]

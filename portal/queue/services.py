@@ -48,8 +48,9 @@ def allocator_wake() -> None:
 
 
 def default_duration_s(experiment: Experiment) -> int:
-    """The program's length, rounded up to a whole minute."""
-    return max(60, math.ceil(experiment.duration_s / 60) * 60)
+    """The program's length, rounded up to a whole number of ``QUEUE_SLOT_S`` (a minute)."""
+    slot_s = settings.QUEUE_SLOT_S
+    return max(slot_s, math.ceil(experiment.duration_s / slot_s) * slot_s)
 
 
 def queue_request_submit(

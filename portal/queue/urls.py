@@ -11,6 +11,16 @@ urlpatterns = [
     path("queue/<int:pk>/reorder/", apis.QueueReorderApi.as_view(), name="api-queue-reorder"),
     path("campaigns/", apis.CampaignListApi.as_view(), name="api-campaigns"),
     path("campaigns/<int:pk>/", apis.CampaignDetailApi.as_view(), name="api-campaign"),
+    path(
+        "campaigns/<int:pk>/results/",
+        apis.CampaignResultsApi.as_view(),
+        name="api-campaign-results",
+    ),
+    path(
+        "campaigns/<int:pk>/package.zip",
+        apis.CampaignPackageApi.as_view(),
+        name="api-campaign-package",
+    ),
     path("campaigns/<int:pk>/pause/", apis.CampaignPauseApi.as_view(), name="api-campaign-pause"),
     path(
         "campaigns/<int:pk>/resume/", apis.CampaignResumeApi.as_view(), name="api-campaign-resume"

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import zlib
-from collections.abc import AsyncIterator, Callable, Iterable, Iterator, Sequence
+from collections.abc import AsyncIterator, Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 from asgiref.sync import sync_to_async
@@ -87,18 +87,24 @@ def series_parquet_response(
 
 
 def runs_package_response(
-    request: HttpRequest | Request, runs: Sequence[Run]
+    request: HttpRequest | Request,
+    runs: Sequence[Run],
+    *,
+    name: str | None = None,
+    extra: Mapping[str, dict[str, Any]] | None = None,
 ) -> StreamingHttpResponse:
-    """Several runs as one zip: each run's package in a folder, and a manifest
-    (``portal/runs/package.py`` ``runs_package_zip``), streamed."""
+    """Several runs as one zip: each run's package in a folder, a manifest and ``extra``'s
+    documents (``portal/runs/package.py`` ``runs_package_zip``), streamed; ``name`` the
+    file's, without its extension."""
     urls = {run.pk: request.build_absolute_uri(reverse("run", args=[run.pk])) for run in runs}
-    name = "amazing-runs-" + "-".join(str(run.pk) for run in runs[:5])
-    if len(runs) > 5:
-        name += f"-and-{len(runs) - 5}-more"
+    if name is None:
+        name = "amazing-runs-" + "-".join(str(run.pk) for run in runs[:5])
+        if len(runs) > 5:
+            name += f"-and-{len(runs) - 5}-more"
     return _download(
         request,
-        runs_package_zip(runs=runs, urls=urls),
-        runs[0],
+        runs_package_zip(runs=runs, urls=urls, extra=extra),
+        runs[0] if runs else None,
         "zip",
         "application/zip",
         gzip=False,
@@ -138,7 +144,7 @@ def gzipped(chunks: Iterable[bytes], level: int = GZIP_LEVEL) -> Iterator[bytes]
 def _download(
     request: HttpRequest | Request,
     chunks: Iterator[bytes],
-    run: Run,
+    run: Run | None,
     extension: str,
     media_type: str,
     *,
@@ -158,7 +164,10 @@ def _download(
     )
     charset = "" if media_type in BINARY_TYPES else "; charset=utf-8"
     response = StreamingHttpResponse(content, content_type=f"{media_type}{charset}")
-    filename = f"{name or f'amazing-run-{run.pk}'}.{extension}"
+    if name is None:
+        assert run is not None, "a download of no run is named by its caller"
+        name = f"amazing-run-{run.pk}"
+    filename = f"{name}.{extension}"
     response["Content-Disposition"] = f'attachment; filename="{filename}"'
     if compress:
         response["Content-Encoding"] = "gzip"

@@ -447,12 +447,46 @@ def run_folder(run: Run) -> str:
     return f"run-{run.pk}/"
 
 
+def _manifest_entry(
+    run: Run, folder: str, url: str | None, descriptor: dict[str, Any]
+) -> dict[str, Any]:
+    """A run's line in ``manifest.json``: its folder, files, and its CSV's size and hash."""
+    samples = descriptor["resources"][0]
+    info = descriptor["amazing"]["run"]
+    return {
+        "folder": folder,
+        "run": run.pk,
+        "url": url,
+        "title": info["title"],
+        "resource": info["resource"],
+        "state": info["state"],
+        "start_at": info["start_at"],
+        "end_at": info["end_at"],
+        "samples": info["samples"],
+        "files": [
+            folder + name
+            for name in (
+                README_FILE,
+                SAMPLES_FILE,
+                *(r["path"] for r in descriptor["resources"][1:]),
+                DESCRIPTOR_FILE,
+            )
+        ],
+        "samples_bytes": samples["bytes"],
+        "samples_hash": samples["hash"],
+    }
+
+
 def runs_package_zip(
-    *, runs: Sequence[Run], urls: Mapping[int, str] | None = None
+    *,
+    runs: Sequence[Run],
+    urls: Mapping[int, str] | None = None,
+    extra: Mapping[str, dict[str, Any]] | None = None,
 ) -> Iterator[bytes]:
     """Several runs as one zip, streamed: each run's package in a folder of its own
     (:func:`run_folder`), then ``manifest.json`` listing every folder with the run it holds
-    and its CSV's size and hash (known only once the CSVs are written, so it goes last)."""
+    and its CSV's size and hash (known only once the CSVs are written, so it goes last), then
+    each of ``extra``'s documents as JSON under its name (a campaign's ``campaign.json``)."""
     now = timezone.now()
     sink = _Sink()
     archive = _open_archive(sink)
@@ -463,32 +497,7 @@ def runs_package_zip(
         descriptor = yield from _package_members(
             archive, sink, run=run, url=url, now=now, folder=folder
         )
-        samples = descriptor["resources"][0]
-        info = descriptor["amazing"]["run"]
-        entries.append(
-            {
-                "folder": folder,
-                "run": run.pk,
-                "url": url,
-                "title": info["title"],
-                "resource": info["resource"],
-                "state": info["state"],
-                "start_at": info["start_at"],
-                "end_at": info["end_at"],
-                "samples": info["samples"],
-                "files": [
-                    folder + name
-                    for name in (
-                        README_FILE,
-                        SAMPLES_FILE,
-                        *(r["path"] for r in descriptor["resources"][1:]),
-                        DESCRIPTOR_FILE,
-                    )
-                ],
-                "samples_bytes": samples["bytes"],
-                "samples_hash": samples["hash"],
-            }
-        )
+        entries.append(_manifest_entry(run, folder, url, descriptor))
     manifest = {
         "format": MANIFEST_FORMAT,
         "format_version": FORMAT_VERSION,
@@ -496,10 +505,11 @@ def runs_package_zip(
         "generated_by": {"portal_version": PORTAL_VERSION},
         "runs": entries,
     }
-    archive.writestr(
-        zipfile.ZipInfo(MANIFEST_FILE, date_time=now.astimezone(UTC).timetuple()[:6]),
-        json.dumps(manifest, indent=2, ensure_ascii=False) + "\n",
-        compress_type=zipfile.ZIP_DEFLATED,
-    )
+    for name, document in {MANIFEST_FILE: manifest, **(extra or {})}.items():
+        archive.writestr(
+            zipfile.ZipInfo(name, date_time=now.astimezone(UTC).timetuple()[:6]),
+            json.dumps(document, indent=2, ensure_ascii=False) + "\n",
+            compress_type=zipfile.ZIP_DEFLATED,
+        )
     archive.close()
     yield sink.take()

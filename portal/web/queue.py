@@ -15,7 +15,13 @@ from django.views.decorators.http import require_POST
 
 from core.audit.services import client_ip
 from core.errors import DomainError
-from portal.queue.selectors import queue_control, queue_places, queue_requests_visible
+from portal.queue.campaigns import campaign_progress
+from portal.queue.selectors import (
+    campaigns_visible,
+    queue_control,
+    queue_places,
+    queue_requests_visible,
+)
 from portal.queue.services import queue_request_cancel, queue_request_submit
 from portal.web.forms import QueueRequestForm, form_refusal
 
@@ -42,10 +48,23 @@ def queue_page(request: HttpRequest) -> HttpResponse:
     places = queue_places(now=timezone.now())
     requests = list(queue_requests_visible(user=user).order_by("-submitted_at", "-pk")[:LISTED])
     rows = [(r, places.get(r.pk)) for r in requests]
+    if request.GET.get("part") == "requests":
+        # The page's script reads the table again when the calendar changes (queue.js).
+        return render(request, "web/_queue_requests.html", {"rows": rows})
+    campaigns = [
+        (c, campaign_progress(c))
+        for c in campaigns_visible(user=user).filter(owner=user).order_by("-created_at")[:LISTED]
+    ]
     return render(
         request,
         "web/queue.html",
-        {"form": form, "rows": rows, "control": queue_control(), "waiting": len(places)},
+        {
+            "form": form,
+            "rows": rows,
+            "campaigns": campaigns,
+            "control": queue_control(),
+            "waiting": len(places),
+        },
     )
 
 

@@ -3,6 +3,7 @@ from django.urls import path
 from portal.web import (
     attach,
     calendars,
+    campaigns,
     console,
     dry_runs,
     live,
@@ -25,6 +26,11 @@ urlpatterns = [
     path("book/", views.book, name="book"),
     path("queue/", queue.queue_page, name="queue"),
     path("queue/<int:pk>/cancel/", queue.queue_cancel_view, name="queue-cancel"),
+    path("campaigns/<int:pk>/", campaigns.campaign_page, name="campaign"),
+    path("campaigns/<int:pk>/pause/", campaigns.campaign_pause_view, name="campaign-pause"),
+    path("campaigns/<int:pk>/resume/", campaigns.campaign_resume_view, name="campaign-resume"),
+    path("campaigns/<int:pk>/cancel/", campaigns.campaign_cancel_view, name="campaign-cancel"),
+    path("campaigns/<int:pk>/package.zip", campaigns.campaign_package, name="campaign-package"),
     path("reservations/<int:pk>/cancel/", views.reservation_cancel_view, name="reservation-cancel"),
     path(
         "reservations/<int:pk>/attach/", attach.reservation_attach_view, name="reservation-attach"

@@ -31,6 +31,8 @@ from basestation.sim.rssi import DEFAULT_NODE_AT, PathLoss, distance_m
 from basestation.telemetry.rail import Rail
 from bookings.models import Resource
 from core.accounts.models import User
+from portal.queue.campaigns import campaign_create
+from portal.queue.models import RequestState
 from portal.queue.services import queue_request_submit
 from portal.runs.measurement_files import Points
 from portal.runs.measurements import measurement_add
@@ -240,6 +242,29 @@ def _measured(run: Run, owner: User) -> None:
     measurement_add(run=run, by=owner, name="rssi", unit="dBm", points=points)
 
 
+def _a_campaign(owner: User, completed: list[int]) -> int:
+    """A campaign of four runs a month ahead, two of them standing for the day's completed
+    runs (their reservations given to its first requests): its page with results and chart."""
+    later = timezone.now() + timedelta(days=30)
+    campaign = campaign_create(
+        owner=owner,
+        spec={
+            "title": "speed sweep",
+            "robot": "mobile-1",
+            "parameters": {"velocity_mps": [0.4, 0.8], "direction": "cw", "duration_s": 3},
+            "repeats": 2,
+            "earliest_at": later.isoformat(),
+            "latest_end_at": (later + timedelta(days=2)).isoformat(),
+        },
+    )
+    requests = list(campaign.requests.order_by("pk"))
+    for request, run_id in zip(requests, completed, strict=False):
+        request.reservation = Run.objects.get(pk=run_id).reservation
+        request.state = RequestState.BOOKED
+        request.save(update_fields=["reservation", "state"])
+    return campaign.pk
+
+
 def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
     """Two runs of ines's run and collected, two dry runs, fixed nodes booked ahead; the
     pages to photograph, by name."""
@@ -279,11 +304,13 @@ def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
         hours_from=22,
         hours_to=6,
     )
+    campaign = _a_campaign(ines.user, [first, second])
     return {
         "home": "/",
         "experiment": "/experiments/new/",
         "book": "/book/",
         "queue": "/queue/",
+        "campaign": f"/campaigns/{campaign}/",
         "calendar": "/calendar/",
         "timeline": "/calendar/timeline/",
         "calendar-feeds": "/calendar/feeds/",

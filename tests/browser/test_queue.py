@@ -9,9 +9,14 @@ import pytest
 from playwright.sync_api import expect
 
 from bookings.models import Reservation, ReservationItem
+from portal.queue.allocation import queue_allocate
+from portal.queue.campaigns import campaign_create
 from portal.queue.models import QueueRequest, RequestState
+from portal.queue.results import campaign_results, campaign_runs_completed
+from portal.queue.services import queue_request_cancel, queue_request_submit
 from tests.browser.conftest import login
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
+from tests.queue.campaign_runs import complete_with_samples
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 
@@ -61,3 +66,92 @@ def test_a_request_shows_its_place_and_estimate_and_is_withdrawn(browser, live_s
     assert queued.state == RequestState.CANCELLED
     assert not errors, errors
     context.close()
+
+
+def test_a_campaign_page_shows_progress_results_and_chart_and_is_paused_and_downloaded(
+    browser, live_server, settings
+):
+    owner = UserFactory(username="fran")
+    MobileResourceFactory()
+    settings.QUEUE_LEAD_S = 0
+    campaign = campaign_create(
+        owner=owner,
+        spec={
+            "title": "two speeds",
+            "robot": "mobile-1",
+            "parameters": {"velocity_mps": [0.5, 1.0], "direction": "cw", "duration_s": 3},
+            "repeats": 2,
+            "earliest_at": "2031-03-04T00:00:00Z",
+            "latest_end_at": "2031-03-06T00:00:00Z",
+        },
+    )
+    assert len(queue_allocate(now=datetime(2031, 3, 4, tzinfo=UTC)).booked) == 4
+    requests = list(campaign.requests.select_related("reservation__run").order_by("pk"))
+    for request in requests[:3]:
+        complete_with_samples(request.reservation.run, request.parameters["repeat"])
+    groups = campaign_results(campaign_runs_completed(campaign))
+
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    login(page, live_server.url, "fran", "correct horse battery")
+    page.goto(f"{live_server.url}/queue/")
+    page.get_by_test_id("queue-campaigns").get_by_role("link", name="two speeds").click()
+    expect(page.get_by_test_id("campaign-progress")).to_contain_text("3 of 4 runs completed")
+    rows = page.locator("#campaign-results tbody tr")
+    expect(rows).to_have_count(2)
+    for row, group in zip(rows.all(), groups, strict=True):
+        cell = row.locator('td[data-metric="mean_mps"]')
+        velocity = group.metrics["mean_mps"]
+        shown = f"{velocity.mean:.3f}" + (f" ± {velocity.sd:.3f}" if velocity.sd else "")
+        expect(cell).to_have_text(shown)
+    # One line per completed run, drawn.
+    assert (
+        page.evaluate(
+            "Chart.getChart(document.getElementById('campaign-velocity')).data.datasets.length"
+        )
+        == 3
+    )
+    expect(page.get_by_test_id("campaign-runs").locator("tbody tr")).to_have_count(4)
+
+    page.get_by_test_id("campaign-pause").click()
+    expect(page.locator("p.flash.success")).to_contain_text("Campaign paused")
+    expect(page.get_by_test_id("campaign-state")).to_have_text("paused")
+    page.get_by_test_id("campaign-resume").click()
+    expect(page.get_by_test_id("campaign-state")).to_have_text("active")
+
+    with page.expect_download() as download:
+        page.get_by_test_id("campaign-download").click()
+    assert download.value.suggested_filename == f"amazing-campaign-{campaign.pk}.zip"
+    assert errors == []
+
+
+def test_a_place_moves_up_on_the_open_page_when_the_request_before_it_is_withdrawn(
+    browser, live_server
+):
+    robot = MobileResourceFactory()
+    gil, fran = UserFactory(username="gil"), UserFactory(username="fran")
+    later = datetime(2031, 3, 4, tzinfo=UTC)
+    first, mine = (
+        queue_request_submit(
+            owner=who,
+            experiment=ExperimentFactory(owner=who),
+            robot=robot,
+            earliest_at=later,
+            latest_end_at=later + timedelta(days=2),
+        )
+        for who in (gil, fran)
+    )
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    # The page's own clock, moved on below to its next reading (no wait on the wall's).
+    page.clock.install()
+    login(page, live_server.url, "fran", "correct horse battery")
+    page.goto(f"{live_server.url}/queue/")
+    place = page.get_by_test_id(f"queue-request-{mine.pk}").get_by_test_id("queue-position")
+    expect(place).to_have_text("2")
+    queue_request_cancel(request=first, by=gil)
+    page.clock.fast_forward(16_000)
+    expect(place).to_have_text("1")
+    assert errors == []

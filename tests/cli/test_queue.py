@@ -4,6 +4,7 @@ withdraw it; against the real web process."""
 from __future__ import annotations
 
 import json
+import zipfile
 from datetime import UTC, datetime, timedelta
 
 import pytest
@@ -11,8 +12,11 @@ from typer.testing import CliRunner
 
 from amazing_cli.main import app
 from bookings.models import Reservation, ReservationItem
-from portal.queue.models import QueueRequest, RequestState
+from portal.queue.allocation import queue_allocate
+from portal.queue.models import Campaign, QueueRequest, RequestState
+from portal.queue.results import campaign_results, campaign_runs_completed
 from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory, api_token
+from tests.queue.campaign_runs import complete_with_samples
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
@@ -103,3 +107,60 @@ def test_a_campaign_file_is_queued_followed_and_cancelled(fay, tmp_path):
     gone = amazing("campaign", "cancel", str(campaign["id"]))
     assert gone.exit_code == 0, gone.stderr
     assert "8 cancelled" in gone.stdout
+
+
+def test_a_campaign_is_paused_resumed_and_its_results_shown_and_downloaded(fay, tmp_path, settings):
+    MobileResourceFactory(agent_url="http://127.0.0.1:9")
+    sweep = tmp_path / "sweep.json"
+    sweep.write_text(
+        json.dumps(
+            {
+                "title": "two speeds",
+                "robot": "mobile-1",
+                "parameters": {"velocity_mps": [0.5, 1.0], "direction": "cw", "duration_s": 3},
+                "repeats": 2,
+                "earliest_at": "2031-03-04T00:00:00Z",
+                "latest_end_at": "2031-03-06T00:00:00Z",
+            }
+        )
+    )
+    made = amazing("campaign", "create", str(sweep), "--quiet")
+    assert made.exit_code == 0, made.stderr
+    campaign_id = made.stdout.strip()
+    paused = amazing("campaign", "pause", campaign_id)
+    assert "(paused)" in paused.stdout, paused.stdout
+    assert Campaign.objects.get(pk=campaign_id).state == "paused"
+    resumed = amazing("campaign", "resume", campaign_id)
+    assert "(active)" in resumed.stdout, resumed.stdout
+
+    # The queue books them (the clock is the campaign's, far ahead) and the runs complete.
+    settings.QUEUE_LEAD_S = 0
+    assert len(queue_allocate(now=datetime(2031, 3, 4, tzinfo=UTC)).booked) == 4
+    requests = Campaign.objects.get(pk=campaign_id).requests.select_related("reservation__run")
+    for request in requests:
+        complete_with_samples(request.reservation.run, request.parameters["repeat"])
+    expected = campaign_results(campaign_runs_completed(Campaign.objects.get(pk=campaign_id)))
+
+    status = amazing("campaign", "status", campaign_id)
+    assert status.exit_code == 0, status.stderr
+    assert "Results of 4 completed runs" in status.stdout
+    for group in expected:
+        velocity = group.metrics["mean_mps"]
+        assert velocity.sd is not None
+        # As the API gives them (to 4 places), printed to 3.
+        shown = f"{round(velocity.mean, 4):.3f} ± {round(velocity.sd, 4):.3f}"
+        assert shown in status.stdout, status.stdout
+
+    target = tmp_path / "sweep.zip"
+    downloaded = amazing("campaign", "download", campaign_id, "-o", str(target))
+    assert downloaded.exit_code == 0, downloaded.stderr
+    assert f"Wrote {target}: 4 of 4 runs' packages and campaign.json" in downloaded.stdout
+    with zipfile.ZipFile(target) as archive:
+        descriptor = json.loads(archive.read("campaign.json"))
+        folders = {name.split("/")[0] for name in archive.namelist() if "/" in name}
+    assert len(folders) == 4
+    assert descriptor["amazing"]["campaign"]["file"]["title"] == "two speeds"
+
+    missing = amazing("campaign", "download", "999999", "-o", str(tmp_path / "none.zip"))
+    assert missing.exit_code != 0
+    assert not (tmp_path / "none.zip").exists()

@@ -71,7 +71,8 @@ NOT_STAFF = {
     # pausing, resuming and reordering the queue are staff actions (StaffVerified).
     "api-queue", "api-queue-state", "api-queue-request", "queue", "queue-cancel",
     "api-campaigns", "api-campaign", "api-campaign-pause", "api-campaign-resume",
-    "api-campaign-cancel",
+    "api-campaign-cancel", "api-campaign-results", "api-campaign-package", "campaign",
+    "campaign-pause", "campaign-resume", "campaign-cancel", "campaign-package",
     # Live streams (ASGI only): robot_stream reads the door's mark, tests/web/test_live.py.
     "live-run", "live-robot", "live-calendar",
     "logout",  # the admin's sign-out
