@@ -54,6 +54,13 @@ class LapCounter:
     ``laps`` is the number of whole laps of net progress since the first sample, positive
     clockwise and negative counter-clockwise; ``laps_travelled`` counts whole laps of path
     whatever the direction (a robot going 1.5 laps cw and back 1.5 ccw has 0 and 3).
+
+    ``distance_m``, the path travelled, is the speed the robot reports integrated over time
+    (each sample's speed held until the next), not the position's changes summed: the GPS's
+    position jitters by centimetres at every fix, which summed would make a robot standing
+    still travel metres. The reported speed is the firmware's ramp, within half a duty step
+    (16 mm/s) of the true one (docs/simulator.md). Samples given without a speed fall back to
+    the position's change.
     """
 
     def __init__(self, length_m: float, *, pass_at_m: float | None = None) -> None:
@@ -97,7 +104,10 @@ class LapCounter:
         before_m = self.unwrapped_m
         after_m = before_m + wrap_delta_m(track_m - self._last_track_m, self.length_m)
         self.unwrapped_m = after_m
-        self.distance_m += abs(after_m - before_m)
+        if velocity_mps is not None and self._last_velocity_mps is not None:
+            self.distance_m += abs(self._last_velocity_mps) * max(0.0, t_s - self._last_t_s)
+        else:
+            self.distance_m += abs(after_m - before_m)
         new_passes = self._passes_between(before_m, after_m, t_s, velocity_mps)
         self._remember(track_m, t_s, velocity_mps)
         return new_passes

@@ -398,12 +398,15 @@ def analyse_columns(
 def _laps_and_passes(
     columns: SampleColumns, length_m: float, pass_at_m: float | None, result: RunAnalysis
 ) -> np.ndarray:
-    """Distance, laps and passes as :class:`LapCounter` finds them; the distance each
-    sample added."""
+    """Distance, laps and passes as :class:`LapCounter` finds them (the distance from the
+    reported speed, the laps of path from that distance, net laps and passes from the
+    position); the distance each sample added."""
     t, track = columns.t_s, columns.track_m % length_m
     steps = _wrap(np.diff(track), length_m)
     unwrapped = np.cumsum(np.concatenate(([track[0]], steps)))
-    step_moved = np.abs(np.diff(unwrapped))
+    # The reported speed held from each sample to the next, as LapCounter counts the path:
+    # the position's jitter is not movement.
+    step_moved = np.abs(columns.velocity_mps[:-1]) * np.maximum(np.diff(t), 0.0)
     travelled = np.cumsum(np.concatenate(([0.0], step_moved)))
     moved = np.concatenate(([0.0], np.diff(travelled)))
     result.distance_m = float(travelled[-1])
