@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import re
+import time
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from typing import ParamSpec, TypeVar
@@ -135,6 +136,10 @@ def ping() -> None:
         cursor.fetchone()
 
 
+# How often a bounded wait for an advisory lock tries again.
+ADVISORY_RETRY_S = 0.02
+
+
 def advisory_key(data: bytes) -> int:
     """An advisory lock's key: the first eight bytes of ``data`` as a signed 64-bit number."""
     return int.from_bytes(data[:8], "big", signed=True)
@@ -164,6 +169,18 @@ def advisory_session_lock(key: int) -> Iterator[None]:
     finally:
         with connection.cursor() as cursor:
             cursor.execute("SELECT pg_advisory_unlock(%s)", [key])
+
+
+def advisory_xact_lock_within(key: int, wait_s: float) -> bool:
+    """:func:`advisory_xact_lock`, waiting at most ``wait_s``: False when another transaction
+    held it all that time (a process frozen inside it holds it until its connection dies).
+    True on SQLite, as :func:`advisory_xact_lock` says why."""
+    deadline = time.monotonic() + wait_s
+    while not try_advisory_xact_lock(key):
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(ADVISORY_RETRY_S)
+    return True
 
 
 def try_advisory_xact_lock(key: int) -> bool:

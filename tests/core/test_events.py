@@ -20,11 +20,12 @@ from bookings.models import SchedulerLink
 from bookings.scheduler import config as scheduler_config
 from bookings.services import blackout_create, resource_hold, resource_set_service
 from bookings.tasks import reservations_remind
+from core import sql
 from core.errors import Conflict
 from core.events import dispatch, registry, services
 from core.events.catalogue import EVENT_TYPES, PAYLOADS
 from core.events.models import Event, EventCursor
-from core.events.sequence import events_sequence
+from core.events.sequence import SEQUENCER_LOCK_KEY, events_sequence
 from core.events.services import event_record
 from core.openapi import oas30
 from portal.runs.models import Run
@@ -198,6 +199,37 @@ def test_an_event_committed_late_is_numbered_after_those_read_before_it(owner):
     assert late.pk < quick.pk  # written first
     assert late.position == 2  # numbered after what a reader may already have seen
     assert late.seq == 1
+
+
+def test_a_sequencer_frozen_inside_its_lock_holds_no_one_up(owner, monkeypatch):
+    """A process stopped while it holds the sequencer's lock (a SIGSTOPped mail worker did):
+    another caller gives up after its bounded wait instead of waiting for it, and numbers
+    the events once the lock is free again."""
+    assert connection.vendor == "postgresql"
+    monkeypatch.setattr("core.events.sequence.SEQUENCER_WAIT_S", 0.2)
+    held, release = threading.Event(), threading.Event()
+
+    def frozen_sequencer() -> None:
+        try:
+            with transaction.atomic():
+                sql.advisory_xact_lock(SEQUENCER_LOCK_KEY)
+                held.set()
+                assert release.wait(30)
+        finally:
+            connection.close()
+
+    holder = threading.Thread(target=frozen_sequencer)
+    holder.start()
+    try:
+        assert held.wait(30)
+        with transaction.atomic():
+            event_record(subject="run:1", type="run.running", payload={}, owner_id=owner.pk)
+        assert events_sequence() == 0  # gave up waiting: nothing numbered, nothing blocked
+    finally:
+        release.set()
+        holder.join(30)
+    assert not holder.is_alive()
+    assert events_sequence() == 1
 
 
 def test_the_sequencer_numbers_a_backlog_in_passes_and_then_nothing(owner, monkeypatch):
