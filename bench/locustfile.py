@@ -126,9 +126,10 @@ class Day(_ReadTasks):
     def on_start(self) -> None:
         super().on_start()
         if EACH_FIRST:
-            # The booking first: the rarest call, and a loaded machine's round may end before
-            # the fourth of these (seen: 15 calls in the whole 6 s round).
-            for call in (self.book, self.analysis, self.check, self.filtered_runs):
+            # The quick calls first: a booking took 3.5 s on a fresh clone's bench server
+            # (docs/reliability.md, ninth session), and five of them first left the round's
+            # CSV empty.
+            for call in (self.check, self.analysis, self.filtered_runs, self.book):
                 call()
 
     @task(8)
