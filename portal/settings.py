@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 from pathlib import Path
+from typing import Any
 
 import environ
 from csp import constants as csp_constants
@@ -404,7 +405,9 @@ WEBHOOKS_PER_USER_MAX = conf.WEBHOOKS_PER_USER_MAX.read()
 # and to this machine, for a receiver of one's own.
 WEBHOOK_ALLOW_HTTP = DEBUG
 WEBHOOK_ALLOW_PRIVATE = DEBUG
-CELERY_BEAT_SCHEDULE = {
+# The shortest a beat pass waits before it expires (below: two of its intervals).
+BEAT_EXPIRES_MIN_S = 2.0
+CELERY_BEAT_SCHEDULE: dict[str, dict[str, Any]] = {
     "scheduler-sweep": {
         "task": "bookings.tasks.scheduler_sweep",
         "schedule": SCHEDULER_SYNC_INTERVAL_S,
@@ -440,6 +443,14 @@ CELERY_BEAT_SCHEDULE = {
         "schedule": 3600.0,
     },
 }
+# A pass still waiting after two of its intervals is dropped: the next one is queued behind
+# it, and a worker that has fallen behind catches up on what is due now, not on a pile of
+# passes that would each find it (the tasks they queue wait once each: core/pending.py).
+for _entry in CELERY_BEAT_SCHEDULE.values():
+    _entry.setdefault("options", {}).setdefault(
+        "expires", max(2 * float(_entry["schedule"]), BEAT_EXPIRES_MIN_S)
+    )
+del _entry
 CELERY_BEAT_SCHEDULE_FILENAME = str(VAR_DIR / "celerybeat-schedule")
 
 

@@ -14,7 +14,8 @@ from core.commit_batch import CommitBatch
 from core.events.catalogue import EVENT_TYPES
 from core.events.models import Event
 from core.events.registry import queues_wanting
-from core.events.tasks import events_dispatch_all
+from core.events.tasks import events_dispatch_all, wake_subject
+from core.pending import queue_once
 
 logger = logging.getLogger(__name__)
 
@@ -81,10 +82,14 @@ def _wake_handlers(queue: str | None) -> None:
     # bookings); events no handler wants cost nothing at commit at all (readers number what
     # they read). A failure here loses nothing (beat's pass comes within a minute), so it is
     # logged, never raised into the request that made the change.
+    # Once per queue while a pass waits (core.pending): a burst of bookings wakes one pass,
+    # which hands out all their events, not one pass per booking behind one another.
     try:
         if queue is None:
-            events_dispatch_all.delay()
+            queue_once(events_dispatch_all, wake_subject(queue))
         else:
-            events_dispatch_all.apply_async(kwargs={"queue": queue}, queue=queue)
+            queue_once(
+                events_dispatch_all, wake_subject(queue), kwargs={"queue": queue}, queue=queue
+            )
     except Exception:
         logger.exception("waking the event handlers failed; beat's next pass hands them out")

@@ -19,11 +19,12 @@ from core.accounts.models import User
 from core.audit.services import audit_record
 from core.commit_batch import CommitBatch
 from core.errors import Conflict, InvalidInput, NotAllowed
+from core.pending import queue_once
 from portal.experiments.models import Experiment
 from portal.queue.events import queue_request_event_record
 from portal.queue.models import Campaign, QueueControl, QueueRequest, RequestState
 from portal.queue.selectors import queue_control
-from portal.queue.tasks import queue_allocate_task
+from portal.queue.tasks import ALLOCATE_SUBJECT, queue_allocate_task
 
 logger = logging.getLogger(__name__)
 
@@ -37,7 +38,7 @@ class _AllocatorWake(CommitBatch):
 
     def run(self) -> None:
         try:
-            queue_allocate_task.delay()
+            queue_once(queue_allocate_task, ALLOCATE_SUBJECT)
         except Exception:
             logger.exception("waking the queue's allocator failed; beat's next pass books")
 

@@ -11,11 +11,11 @@ from __future__ import annotations
 import logging
 
 from celery import Task, shared_task
-from django.conf import settings
 from django.utils import timezone
 
 from basestation.client import AgentError
 from core.health import SWEEP, heartbeat_record
+from core.pending import pending_taken, queue_once
 from portal.runs.services import collection, dry_run, health, staging
 
 logger = logging.getLogger(__name__)
@@ -26,24 +26,30 @@ MAX_RETRIES = 5
 @shared_task(time_limit=30, soft_time_limit=25)
 def runs_sweep() -> None:
     """Find runs due for staging, withdrawal or collection, runs due whose booking does not
-    hold them (held: ``run_hold``), and queue one task each.
-
-    Queued tasks expire after two sweeps: a backlog never turns into a pile of duplicates,
-    and the next sweep queues whatever is still due.
+    hold them (held: ``run_hold``), and queue one task each, unless one for that run is still
+    waiting (``core.pending``): a worker behind never piles up copies, and what it has not
+    reached yet is still there when it does.
     """
     now = timezone.now()
-    expires_s = 2 * settings.RUN_SWEEP_INTERVAL_S
     for run_id in staging.runs_due_for_staging(now=now).values_list("pk", flat=True):
-        run_stage.apply_async((run_id,), expires=expires_s)
+        _queue(run_stage, run_id)
     for run_id in staging.runs_held_from_staging(now=now).values_list("pk", flat=True):
-        run_hold.apply_async((run_id,), expires=expires_s)
+        _queue(run_hold, run_id)
     for run_id in staging.runs_due_for_withdrawal().values_list("pk", flat=True):
-        run_unstage.apply_async((run_id,), expires=expires_s)
+        _queue(run_unstage, run_id)
     for run_id in collection.runs_due_for_collection(now=now).values_list("pk", flat=True):
-        run_collect.apply_async((run_id,), expires=expires_s)
+        _queue(run_collect, run_id)
     for dry_run_id in dry_run.dry_runs_next():
-        dry_run_execute.apply_async((dry_run_id,), expires=expires_s)
+        _queue(dry_run_execute, dry_run_id)
     heartbeat_record(SWEEP)
+
+
+def _queue(task: Task, subject_id: int) -> None:
+    queue_once(task, f"{task.name}:{subject_id}", args=(subject_id,))
+
+
+def _started(task: Task, subject_id: int) -> None:
+    pending_taken(f"{task.name}:{subject_id}")
 
 
 def _retry_if_transient(task: Task, exc: AgentError) -> None:
@@ -58,6 +64,7 @@ def _retry_if_transient(task: Task, exc: AgentError) -> None:
 def dry_run_execute(dry_run_id: int) -> None:
     """Run a dry run if a simulator place is free (the sweep asks again while it waits), then
     start the next in line at once."""
+    _started(dry_run_execute, dry_run_id)
     if dry_run.dry_run_execute(dry_run_id):
         for next_id in dry_run.dry_runs_next():
             dry_run_execute.delay(next_id)
@@ -65,6 +72,7 @@ def dry_run_execute(dry_run_id: int) -> None:
 
 @shared_task(bind=True, time_limit=60, soft_time_limit=50)
 def run_stage(self: Task, run_id: int) -> None:
+    _started(run_stage, run_id)
     try:
         staging.run_stage(run_id=run_id)
     except AgentError as exc:
@@ -74,11 +82,13 @@ def run_stage(self: Task, run_id: int) -> None:
 @shared_task(time_limit=30, soft_time_limit=25)
 def run_hold(run_id: int) -> None:
     """Keep a run its booking does not hold off its agent (cancelled or failed, with why)."""
+    _started(run_hold, run_id)
     staging.run_hold(run_id=run_id)
 
 
 @shared_task(bind=True, time_limit=60, soft_time_limit=50)
 def run_unstage(self: Task, run_id: int) -> None:
+    _started(run_unstage, run_id)
     try:
         staging.run_unstage(run_id=run_id)
     except AgentError as exc:
@@ -88,6 +98,7 @@ def run_unstage(self: Task, run_id: int) -> None:
 @shared_task(time_limit=120, soft_time_limit=110)
 def run_collect(run_id: int) -> None:
     # No retry here: the next sweep collects again, resuming after the last stored sample.
+    _started(run_collect, run_id)
     try:
         collection.run_collect(run_id=run_id)
     except AgentError as exc:
@@ -97,9 +108,8 @@ def run_collect(run_id: int) -> None:
 @shared_task(time_limit=30, soft_time_limit=25)
 def robots_health_sweep() -> None:
     """Queue a health check of every robot."""
-    expires_s = 2 * settings.HEALTH_POLL_INTERVAL_S
     for resource_id in health.robots_to_check().values_list("pk", flat=True):
-        robot_health_check.apply_async((resource_id,), expires=expires_s)
+        _queue(robot_health_check, resource_id)
 
 
 @shared_task(time_limit=300, soft_time_limit=280)
@@ -110,4 +120,5 @@ def dry_runs_delete_expired() -> int:
 
 @shared_task(time_limit=30, soft_time_limit=25)
 def robot_health_check(resource_id: int) -> None:
+    _started(robot_health_check, resource_id)
     health.robot_health_check(resource_id=resource_id)
