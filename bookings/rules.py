@@ -70,6 +70,10 @@ class ProgramRefused(InvalidInput):
     conflict with that program)."""
 
 
+# Segments are numbered from 0 wherever they are shown or written: the program's list, the
+# robot's samples, the CSV, JSON and Parquet files, the analysis, the pages and the messages.
+FIRST_SEGMENT: Final = 0
+
 LimitSource = Literal["portal", "agent"]
 
 ProblemCode = Literal[
@@ -388,7 +392,7 @@ def _program_problems(
             return []  # the robot is held, and stands still (a lease from the scheduler)
         return [Problem("program", "experiment", "Choose the experiment the robot will run.")]
     problems = []
-    for index, velocity_mps in enumerate(program.velocities_mps, start=1):
+    for index, velocity_mps in enumerate(program.velocities_mps, start=FIRST_SEGMENT):
         why = velocity_problem(resource=mobile, velocity_mps=velocity_mps)
         if why is not None:
             problems.append(Problem("program", "experiment", f"Segment {index}: {why}"))

@@ -14,7 +14,7 @@ from basestation.contract import (
     SEGMENT_FIELDS,
 )
 from bookings.models import Resource
-from bookings.rules import robots_fitting
+from bookings.rules import FIRST_SEGMENT, robots_fitting
 from bookings.selectors import mobiles_bookable
 from core.accounts.models import User
 from core.errors import InvalidInput
@@ -36,7 +36,7 @@ def segments_validate(segments: Any, *, robots: Sequence[Resource] = ()) -> list
     keys = set(SEGMENT_FIELDS)
     errors: list[str] = []
     clean: list[dict[str, Any]] = []
-    for i, raw in enumerate(segments, start=1):
+    for i, raw in enumerate(segments, start=FIRST_SEGMENT):
         if not isinstance(raw, Mapping):
             errors.append(f"Segment {i}: must be an object with {sorted(keys)}.")
             continue
@@ -83,7 +83,7 @@ def _too_fast(clean: list[dict[str, Any]], robots: Sequence[Resource]) -> list[s
     return [
         f"Segment {i}: velocity {s['velocity_mps']:g} m/s is faster than every robot you may "
         f"book ({limits})."
-        for i, s in enumerate(clean, start=1)
+        for i, s in enumerate(clean, start=FIRST_SEGMENT)
         if s["velocity_mps"] > fastest_mps
     ]
 

@@ -14,7 +14,7 @@ from django.db import transaction
 from django.utils import timezone
 
 from bookings.models import Resource
-from bookings.rules import aware_utc, velocity_problem
+from bookings.rules import FIRST_SEGMENT, aware_utc, velocity_problem
 from core.accounts.models import User
 from core.audit.services import audit_record
 from core.commit_batch import CommitBatch
@@ -170,7 +170,7 @@ def _refuse_unbookable(
         raise InvalidInput.on_field(
             "hours_to", "Allowed hours run from 0-23 to 1-24, and not from an hour to itself."
         )
-    for index, velocity_mps in enumerate(experiment.velocities_mps, start=1):
+    for index, velocity_mps in enumerate(experiment.velocities_mps, start=FIRST_SEGMENT):
         why = velocity_problem(resource=robot, velocity_mps=velocity_mps)
         if why is not None:
             raise InvalidInput.on_field("experiment", f"Segment {index}: {why}")

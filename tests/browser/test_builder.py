@@ -84,13 +84,13 @@ def test_the_builder_checks_limits_and_previews_distance_laps_and_end(page):
     rows = page.locator("#segments tbody tr")
     rows.nth(0).get_by_label("velocity in m/s").fill("2")
     problems = page.get_by_test_id("builder-problems")
-    expect(problems).to_contain_text("Segment 1: 2.00 m/s is above mobile-1's 1.50 m/s.")
+    expect(problems).to_contain_text("Segment 0: 2.00 m/s is above mobile-1's 1.50 m/s.")
     expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_attribute("aria-invalid", "true")
     expect(page.get_by_test_id("builder-distance")).to_have_text("—")
     rows.nth(0).get_by_label("velocity in m/s").fill("1.2")
     rows.nth(0).get_by_label("duration in s").fill("0.5")
     expect(problems).to_contain_text(
-        "Segment 1: too short to reach 1.20 m/s (needs 1.20 s of ramp)."
+        "Segment 0: too short to reach 1.20 m/s (needs 1.20 s of ramp)."
     )
     expect(rows.nth(0).locator(".segment-note")).to_contain_text("Reaches only 0.50 m/s")
 
@@ -122,7 +122,7 @@ def test_segments_reorder_by_keyboard_and_drag_clone_and_round_trip_as_files(
         ("0.6", "cw", "3.0"),
         ("0.2", "cw", "1.0"),
     ]
-    expect(page.locator("#segments tbody tr .index")).to_have_text(["1", "2", "3", "4"])
+    expect(page.locator("#segments tbody tr .index")).to_have_text(["0", "1", "2", "3"])
 
     with page.expect_download() as exported:
         page.get_by_role("button", name="Download JSON").click()

@@ -72,7 +72,7 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack_in_utc):
     page.get_by_role("button", name="Save experiment").click()
     # Too fast for the robot: the form says which segment and why, and keeps the input.
     expect(page.get_by_role("alert")).to_contain_text(
-        "Segment 1: velocity 9 m/s is faster than every robot you may book"
+        "Segment 0: velocity 9 m/s is faster than every robot you may book"
     )
     rows = page.locator("#segments tbody tr")
     expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_value("9")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from playwright.sync_api import Route, expect
 
+from portal.runs.models import Sample
 from tests.browser.conftest import login
 from tests.factories import MobileResourceFactory, UserFactory
 from tests.runs.driving import completed_run
@@ -48,4 +49,37 @@ def test_a_finished_runs_page_reads_it_again_after_a_failed_read(browser, live_s
     expect(page.locator("#run-state")).to_have_attribute("data-state", "completed")
     assert served == [2, 1], "both bad answers were read before the good one"
     assert not errors, errors
+    context.close()
+
+
+def test_a_battery_that_flickers_by_one_reading_step_is_drawn_as_small_steps(browser, live_server):
+    """Charts show noise as noise: the battery's line holds each reading until the next, and
+    its axis spans at least a volt, so an 0.08 V flicker is a small step, not a barcode."""
+    owner = UserFactory(username="ida")
+    run = completed_run(owner, MobileResourceFactory(), [(0.5, "cw", 2.0)])
+    samples = list(Sample.objects.filter(run=run))
+    for sample in samples:
+        sample.battery_v = 50.0 + 0.08 * (sample.seq % 2)
+    Sample.objects.bulk_update(samples, ["battery_v"])
+
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    page = context.new_page()
+    login(page, live_server.url, "ida", "correct horse battery")
+    page.goto(f"{live_server.url}/runs/{run.pk}/")
+    page.wait_for_function(
+        "() => Chart.getChart('battery-chart').data.datasets[0].data.length > 0", timeout=30_000
+    )
+    drawn = page.evaluate(
+        """() => {
+            const chart = Chart.getChart('battery-chart');
+            const values = chart.data.datasets[0].data.map((p) => p.y);
+            return {stepped: chart.data.datasets[0].stepped, low: chart.scales.y.min,
+                    high: chart.scales.y.max, values: [Math.min(...values), Math.max(...values)]};
+        }"""
+    )
+    assert drawn["stepped"] is True
+    assert drawn["values"] == [50.0, 50.08]
+    assert drawn["high"] - drawn["low"] >= 1.0
+    assert drawn["low"] <= 50.0
+    assert drawn["high"] >= 50.08
     context.close()

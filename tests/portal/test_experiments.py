@@ -46,7 +46,7 @@ def test_it_names_the_segment_at_fault():
         {"velocity_mps": 1, "direction": "cw", "duration_s": 1},
         {"velocity_mps": 9, "direction": "cw", "duration_s": 1},
     ]
-    with pytest.raises(InvalidInput, match="Segment 2"):
+    with pytest.raises(InvalidInput, match="Segment 1"):
         segments_validate(segments, robots=[MobileResourceFactory()])
 
 
@@ -69,7 +69,7 @@ def test_api_rejects_excessive_velocity_with_the_field(api, mobile):
     assert response.status_code == 400
     assert "segments" in response.json()["fields"]
     assert response.json()["fields"]["segments"] == [
-        "Segment 1: velocity 5 m/s is faster than every robot you may book "
+        "Segment 0: velocity 5 m/s is faster than every robot you may book "
         "(mobile-1: 2 m/s, the portal's limit for it)."
     ]
     assert not Experiment.objects.exists()
@@ -106,7 +106,7 @@ def test_a_program_is_checked_against_each_robot_not_the_fastest(api):
     refused = api.post("/api/v1/experiments/", body, format="json")
     assert refused.status_code == 400
     assert refused.json()["fields"]["segments"] == [
-        "Segment 1: velocity 1.6 m/s is faster than every robot you may book (mobile-1: "
+        "Segment 0: velocity 1.6 m/s is faster than every robot you may book (mobile-1: "
         "1.5 m/s, the limit its base station reports; mobile-2: 1.2 m/s, the portal's limit "
         "for it)."
     ]

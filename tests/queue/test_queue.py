@@ -235,7 +235,7 @@ def test_a_program_over_the_robots_limit_or_a_fixed_node_as_the_robot_is_refused
     fast = ExperimentFactory(
         owner=owner, segments=[{"velocity_mps": 9.0, "direction": "cw", "duration_s": 3.0}]
     )
-    with pytest.raises(InvalidInput, match="Segment 1"):
+    with pytest.raises(InvalidInput, match="Segment 0"):
         _submit(owner, mobile, experiment=fast)
     with pytest.raises(InvalidInput) as refused:
         _submit(owner, FixedResourceFactory())

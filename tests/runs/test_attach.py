@@ -110,7 +110,7 @@ def test_refusals_say_why_and_attach_nothing(client_for, owner, mobile, leased):
     )
     answer = _attach(api, leased, too_fast.pk)
     assert answer.status_code == 400
-    assert "Segment 1" in str(answer.json())
+    assert "Segment 0" in str(answer.json())
     too_long = ExperimentFactory(
         owner=owner, segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 3600.0}]
     )

@@ -259,7 +259,7 @@ def test_a_program_is_refused_at_booking_by_the_agents_stricter_limit_naming_it(
             now=NOW,
         )
     assert refused.value.message == (
-        "Segment 1: velocity 1.8 m/s exceeds the maximum of mobile-1: "
+        "Segment 0: velocity 1.8 m/s exceeds the maximum of mobile-1: "
         "1.5 m/s, the limit its base station reports."
     )
 
@@ -275,7 +275,7 @@ def test_the_portals_stricter_limit_is_named_when_it_decides(owner):
         now=NOW,
     ).problems
     assert [p.message for p in problems] == [
-        "Segment 1: velocity 1.3 m/s exceeds the maximum of mobile-1: "
+        "Segment 0: velocity 1.3 m/s exceeds the maximum of mobile-1: "
         "1.2 m/s, the portal's limit for it."
     ]
 

@@ -67,7 +67,7 @@ def test_a_dry_run_takes_the_strictest_limits_of_the_robots_and_their_measured_r
 
 def test_what_booking_would_refuse_is_refused_and_changes_nothing(kim, settings):
     MobileResourceFactory(max_velocity_mps=0.4)
-    with pytest.raises(InvalidInput, match=r"Segment 1: velocity 0\.5 m/s exceeds the maximum of "):
+    with pytest.raises(InvalidInput, match=r"Segment 0: velocity 0\.5 m/s exceeds the maximum of "):
         _ask(kim)
     with pytest.raises(InvalidInput, match="only your own"):
         dry_run_request(user=kim, experiment=ExperimentFactory(segments=PROGRAM))
@@ -226,7 +226,7 @@ def test_the_pages_start_show_and_refuse_as_they_should(
         answer = client.post(f"/experiments/{too_fast.pk}/dry-run/", follow=True)
     assert answer.redirect_chain == [(f"/experiments/{too_fast.pk}/", 302)]
     assert (
-        "Not tried: Segment 1: velocity 0.5 m/s exceeds the maximum of " in answer.content.decode()
+        "Not tried: Segment 0: velocity 0.5 m/s exceeds the maximum of " in answer.content.decode()
     )
     assert not DryRun.objects.exists()
     assert queued == []

@@ -114,7 +114,7 @@ def test_portal_2_agent_1_5_program_1_8_is_refused_at_booking_naming_the_agents_
     with pytest.raises(InvalidInput) as refused:
         _book(owner, robot, 1.8)
     assert refused.value.message == (
-        "Segment 1: velocity 1.8 m/s exceeds the maximum of mobile-1: "
+        "Segment 0: velocity 1.8 m/s exceeds the maximum of mobile-1: "
         "1.5 m/s, the limit its base station reports."
     )
     assert not Run.objects.exists()

@@ -27,7 +27,7 @@ from django.utils import timezone
 
 from basestation.contract import MAX_SEGMENTS
 from bookings.models import Resource
-from bookings.rules import velocity_limit, velocity_problem
+from bookings.rules import FIRST_SEGMENT, velocity_limit, velocity_problem
 from bookings.selectors import mobiles_bookable
 from core.accounts.models import User
 from core.errors import InvalidInput
@@ -76,7 +76,7 @@ def dry_run_request(*, user: User, experiment: Experiment) -> DryRun:
     if len(segments) > MAX_SEGMENTS:
         raise InvalidInput.on_field("segments", f"A program has at most {MAX_SEGMENTS} segments.")
     slowest, velocity = _slowest_robot()
-    for number, segment in enumerate(segments, 1):
+    for number, segment in enumerate(segments, FIRST_SEGMENT):
         problem = velocity_problem(resource=slowest, velocity_mps=float(segment["velocity_mps"]))
         if problem:
             raise InvalidInput.on_field(

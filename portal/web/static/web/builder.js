@@ -50,7 +50,7 @@
   }
   function decorate() {
     rows().forEach((row, i) => {
-      row.querySelector(".index").textContent = String(i + 1);
+      row.querySelector(".index").textContent = String(i);
       row.draggable = true;
       const actions = row.querySelector(".row-actions");
       if (actions && !actions.querySelector(".move-up")) {
@@ -231,12 +231,12 @@
       if (s.duration === null || !(s.duration > 0)) invalid.push(["duration_s", "Give a duration above 0 s."]);
       for (const [name, message] of invalid) {
         row.querySelector(`[name=${name}]`).setAttribute("aria-invalid", "true");
-        problems.push(`Segment ${i + 1}: ${message}`);
+        problems.push(`Segment ${i}: ${message}`);
       }
       if (invalid.length) {
         note.textContent = invalid.map((x) => x[1]).join(" ");
         note.classList.add("error");
-      } else segments.push({ row, note, index: i + 1, velocity: s.velocity, direction: s.direction, duration: s.duration });
+      } else segments.push({ row, note, index: i, velocity: s.velocity, direction: s.direction, duration: s.duration });
     });
     if (segments.length > data.max_segments) problems.push(`At most ${data.max_segments} segments.`);
     const total = segments.reduce((sum, s) => sum + s.duration, 0);

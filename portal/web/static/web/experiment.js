@@ -6,7 +6,7 @@
   const add = document.getElementById("add-segment");
   if (!body || !add) return;
   function renumber() {
-    body.querySelectorAll("tr").forEach((row, i) => { row.querySelector(".index").textContent = String(i + 1); });
+    body.querySelectorAll("tr").forEach((row, i) => { row.querySelector(".index").textContent = String(i); });
   }
   add.addEventListener("click", () => {
     const row = /** @type {HTMLTableRowElement} */ (body.querySelector("tr").cloneNode(true));

@@ -7,11 +7,16 @@
   if (!status) return;
   const { api, failure } = window.AmazingApi;
 
-  function lineChart(id, datasets, yTitle) {
+  // The y axis spans at least this much (its unit): a battery reading that flickers by one
+  // step of the ADC (hundredths of a volt) is drawn as the small step it is, not stretched
+  // over the whole chart as a barcode.
+  const BATTERY_MIN_SPAN_V = 1.0;
+
+  function lineChart(id, datasets, yTitle, minSpan = 0) {
     const canvas = document.getElementById(id);
     // The status keeps refreshing even if the chart library failed to load.
     if (!canvas || typeof Chart === "undefined") return null;
-    return new Chart(canvas, {
+    const chart = new Chart(canvas, {
       type: "line",
       data: { datasets: datasets.map((d) => Object.assign({ data: [], pointRadius: 0 }, d)) },
       options: {
@@ -21,6 +26,24 @@
                   y: { title: { display: true, text: yTitle } } },
       },
     });
+    chart.$minSpan = minSpan;
+    return chart;
+  }
+
+  /** Centre the y axis on the data when the data spans less than ``chart.$minSpan``. */
+  function spanAtLeast(chart) {
+    const y = chart.options.scales.y;
+    delete y.min;
+    delete y.max;
+    if (!chart.$minSpan) return;
+    const values = chart.data.datasets.flatMap((d) => d.data.map((p) => p.y)).filter((v) => Number.isFinite(v));
+    if (!values.length) return;
+    const low = Math.min(...values);
+    const high = Math.max(...values);
+    if (high - low >= chart.$minSpan) return;
+    const middle = (low + high) / 2;
+    y.min = Math.floor((middle - chart.$minSpan / 2) * 10) / 10;
+    y.max = Math.ceil((middle + chart.$minSpan / 2) * 10) / 10;
   }
   const charts = {
     velocity: lineChart("velocity-chart", [
@@ -31,8 +54,9 @@
       { key: "track_m", label: "position along the rail, unwrapped (m, cw +)", borderWidth: 1.5 },
     ], "m from the rail's origin"),
     battery: lineChart("battery-chart", [
-      { key: "battery_v", label: "battery (V, filtered)", borderWidth: 1.5 },
-    ], "V"),
+      // A reading holds until the next: drawn as steps, so a flicker shows as one.
+      { key: "battery_v", label: "battery (V, median-filtered, held between readings)", borderWidth: 1.5, stepped: true },
+    ], "V", BATTERY_MIN_SPAN_V),
   };
 
   function draw(series) {
@@ -42,6 +66,7 @@
         const s = series[dataset.key];
         dataset.data = s && Array.isArray(s.t) ? s.t.map((t, i) => ({ x: t, y: s.y[i] })) : [];
       }
+      spanAtLeast(chart);
       chart.update();
     }
   }
