@@ -217,6 +217,11 @@ QUEUE_PASS_INTERVAL_S: Final = Tunable(
     60.0,
     "beat's pass of the queue's allocator (a request, a freed slot or a resume wakes it too)",
 )
+TIMELINE_SNAP_MIN: Final = Tunable(
+    "TIMELINE_SNAP_MIN",
+    5,
+    "a drag on the timeline starts and ends on a multiple of these minutes",
+)
 
 TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     RUN_SWEEP_INTERVAL_S,
@@ -251,6 +256,7 @@ TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     QUEUE_LEAD_S,
     QUEUE_SLOT_S,
     QUEUE_PASS_INTERVAL_S,
+    TIMELINE_SNAP_MIN,
 )
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from django.conf import settings
 from django.contrib.auth.decorators import login_required
 from django.http import HttpRequest, HttpResponse
 from django.shortcuts import render
@@ -62,5 +63,6 @@ def timeline_page(request: HttpRequest) -> HttpResponse:
             "rows": timeline_rows(resources),
             "experiments": experiments_visible(user=user).filter(owner=user).order_by("title"),
             "quota": quota_summary(user=user, now=timezone.now()),
+            "snap_min": settings.TIMELINE_SNAP_MIN,
         },
     )

@@ -74,11 +74,13 @@ def _drag(page: Page, day: date, hours: tuple[int, int], rows: tuple[str, str]) 
     page.mouse.down()
     page.mouse.move((x0 + x1) / 2, (y0 + y1) / 2, steps=6)
     # As a person watches the pointer: if the page has moved under it meanwhile (a line of
-    # the live check, a re-read of the calendar, a scroll), it is brought to the last row
-    # where that row is now. Each correction is printed, so a failure shows what moved.
+    # the live check, a re-read of the calendar, a scroll, the picked rows' labels turned
+    # bold), it is brought to the last row where that row is now, just before the hour
+    # (within the last five minutes: the drag snaps to five). Each correction is printed,
+    # so a failure shows what moved.
     y = y1
     for attempt in range(4):
-        page.mouse.move(x1, y, steps=6)
+        page.mouse.move(_slot_x(page, day, hours[1]) - 2, y, steps=6)
         box = _row_box(page, rows[1])
         if box["y"] <= y < box["y"] + box["height"]:
             return
@@ -291,5 +293,85 @@ def test_a_check_without_any_answer_says_so(browser, live_server):
     expect(check).to_contain_text("The server did not answer clearly; try again.")
     expect(check).to_have_attribute("data-fits", "false")
     page.mouse.up()
+    assert not page.page_errors()
+    context.close()
+
+
+def _x_at(page: Page, day: date, hour: int, minute: int) -> float:
+    """Where ``hour``:``minute`` on ``day`` lies across the timeline."""
+    left = _slot_x(page, day, hour)
+    width = _slot_x(page, day, hour + 1) - left
+    return _slot_x(page, day, hour) + width * minute / 60
+
+
+def _press_across(page: Page, row: str, day: date, start: tuple[int, int], end: tuple[int, int]):
+    """Press in ``row`` at ``start`` (hour, minute) and release at ``end``. Where each lies is
+    read just before the pointer goes there, and again until the row is under it: the page
+    moves while it settles, and the pressed row's label turns bold (the grid moves with it)."""
+    page.mouse.move(_x_at(page, day, *start) + 1, _row_y(page, row))
+    page.mouse.down()
+    for _ in range(4):
+        page.mouse.move(_x_at(page, day, *end), _row_y(page, row), steps=8)
+        box = _row_box(page, row)
+        if page.locator("#timeline .timeline-picked").count() == 1 and (
+            box["y"] <= _row_y(page, row) < box["y"] + box["height"]
+        ):
+            break
+    # Once more where the end is now, the label bold: the drag's end is read from this move.
+    page.mouse.move(_x_at(page, day, *end), _row_y(page, row), steps=2)
+    page.mouse.up()
+
+
+def test_the_timeline_opens_on_now_and_a_drag_snaps_to_five_minutes_from_now_on(
+    browser, live_server
+):
+    """At 04:07 the timeline shows 04:00 (not 08:00 and later), each hour's label on its
+    gridline and a "Today" button; a drag snaps to TIMELINE_SNAP_MIN (5) minutes, and one
+    that starts in the past is offered from the next five minutes after now, saying so."""
+    UserFactory(username="kai")
+    FixedResourceFactory(name="node-01")
+    day = _tomorrow()
+    zone = ZoneInfo(settings.TIME_ZONE)
+    context = browser.new_context(
+        viewport={"width": 1280, "height": 1000}, timezone_id=settings.TIME_ZONE
+    )
+    page = context.new_page()
+    page.clock.install(time=datetime(day.year, day.month, day.day, 4, 7, tzinfo=zone))
+    login(page, live_server.url, "kai", PASSWORD)
+    _open_day(page, live_server.url, day, streamed=False)
+
+    expect(page.locator(".ec-today").first).to_have_text("Today")
+    label = page.locator(f".ec-slots time[datetime='{day.isoformat()}T04:00:00']")
+    expect(label).to_be_in_viewport()
+    # Scrolled so that the hour before now is at the grid's left edge (not 08:00 and on).
+    row_head = _row_box(page, "node-01")
+    hour_width = _slot_x(page, day, 5) - _slot_x(page, day, 4)
+    assert 0 < _slot_x(page, day, 4) - (row_head["x"] + row_head["width"]) <= hour_width * 1.5
+    text_box, cell_box = label.bounding_box(), label.locator("xpath=..").bounding_box()
+    assert text_box
+    assert cell_box
+    assert text_box["x"] - cell_box["x"] < 8, "the hour's label starts at its gridline"
+
+    # 03:00 to 04:27: the start is past, so the booking is offered from 04:10 to 04:30.
+    _press_across(page, "node-01", day, (3, 0), (4, 27))
+    dialog = page.locator("#timeline-dialog")
+    expect(dialog.get_by_label("Start")).to_have_value(f"{day.isoformat()}T04:10")
+    expect(dialog.get_by_label("End")).to_have_value(f"{day.isoformat()}T04:30")
+    expect(page.locator("#timeline-feedback")).to_contain_text(
+        "The start was in the past: moved to 04:10."
+    )
+    expect(page.locator("#timeline-feedback")).to_contain_text("Free, and within your quota")
+    page.locator("#timeline-close").click()
+
+    # 10:00 to 10:17 snaps to 10:00 to 10:20, in the future: offered as dragged.
+    _press_across(page, "node-01", day, (10, 0), (10, 17))
+    expect(dialog.get_by_label("Start")).to_have_value(f"{day.isoformat()}T10:00")
+    expect(dialog.get_by_label("End")).to_have_value(f"{day.isoformat()}T10:20")
+    expect(page.locator("#timeline-feedback")).not_to_contain_text("moved")
+    dialog.get_by_role("button", name="Confirm booking").click()
+    expect(dialog).to_be_hidden()
+    booked = Reservation.objects.get()
+    assert booked.start_at == datetime(day.year, day.month, day.day, 10, tzinfo=zone)
+    assert booked.end_at == datetime(day.year, day.month, day.day, 10, 20, tzinfo=zone)
     assert not page.page_errors()
     context.close()

@@ -19,7 +19,9 @@
   const dialog = /** @type {HTMLDialogElement} */ (document.getElementById("timeline-dialog"));
   const form = /** @type {BookingForm} */ (document.getElementById("timeline-form"));
   const feedback = document.getElementById("timeline-feedback");
+  // The grid's columns (half hours) and the minutes a drag snaps to (TIMELINE_SNAP_MIN).
   const SLOT_MIN = 30;
+  const SNAP_MIN = Number(el.dataset.snapMin) || 5;
 
   const { api, explain, failure } = window.AmazingApi;
   const { typedWindow, offsetNow } = window.AmazingWallClock;
@@ -75,18 +77,41 @@
   function pointAt(x, y) {
     const info = calendar.dateFromPoint(x, y);
     if (!info || !info.resource || !byId.has(String(info.resource.id))) return null;
-    return { row: String(info.resource.id), at: wall(info.date) };
+    return { row: String(info.resource.id), at: timeAt(x) || wall(info.date) };
+  }
+  /** The wall-clock time under ``x``, read from the header's labels: Event Calendar's own
+   * answer within a column is tens of pixels off, minutes where a drag snaps to five. */
+  function timeAt(x) {
+    const labels = Array.from(el.querySelectorAll(".ec-slots time[datetime]"));
+    for (let i = 0; i < labels.length; i++) {
+      const box = labels[i].parentElement.getBoundingClientRect();
+      if (x < box.left || x >= box.right || box.width <= 0) continue;
+      const from = DateTime.fromISO(labels[i].getAttribute("datetime"), { zone });
+      const next = labels[i + 1] && DateTime.fromISO(labels[i + 1].getAttribute("datetime"), { zone });
+      const spanMin = next && next > from ? next.diff(from, "minutes").minutes : 60;
+      return from.plus({ minutes: ((x - box.left) / box.width) * spanMin });
+    }
+    return null;
   }
   function dragRows() {
     const a = order.indexOf(drag.first);
     const b = order.indexOf(drag.last);
     return order.slice(Math.min(a, b), Math.max(a, b) + 1);
   }
-  function slotFloor(dt) { return dt.set({ minute: dt.minute - (dt.minute % SLOT_MIN), second: 0, millisecond: 0 }); }
+  function snapFloor(dt) { return dt.set({ minute: dt.minute - (dt.minute % SNAP_MIN), second: 0, millisecond: 0 }); }
   function dragTimes() {
-    const a = slotFloor(drag.from);
-    const b = slotFloor(drag.to);
-    return a <= b ? [a, b.plus({ minutes: SLOT_MIN })] : [b, a.plus({ minutes: SLOT_MIN })];
+    const a = snapFloor(drag.from);
+    const b = snapFloor(drag.to);
+    return a <= b ? [a, b.plus({ minutes: SNAP_MIN })] : [b, a.plus({ minutes: SNAP_MIN })];
+  }
+  /** The window to offer for a drag: a start already past moves to the next snap after now
+   * (the end with it when it would come first), and the dialog says so. */
+  function fromNow(start, end) {
+    const now = DateTime.now().setZone(zone);
+    if (start >= now) return { start, end, note: "" };
+    const next = snapFloor(now).plus({ minutes: SNAP_MIN });
+    const later = end > next ? end : next.plus({ minutes: SNAP_MIN });
+    return { start: next, end: later, note: `The start was in the past: moved to ${next.toFormat("HH:mm")}.` };
   }
   function markRows(names) {
     for (const [name, label] of labels) label.classList.toggle("timeline-picked", names.includes(name));
@@ -168,12 +193,17 @@
     }
     dialogTimer = setTimeout(() => check(
       body.resources, DateTime.fromISO(body.start_at, { zone }), DateTime.fromISO(body.end_at, { zone }),
-      body.experiment, feedback, times.note,
+      body.experiment, feedback, [moved, times.note].filter(Boolean).join(" "),
     ), 150);
   }
   form.addEventListener("change", checkDialog);
 
-  function openBooking(resources, start, end) {
+  let moved = ""; // what openBooking changed in the dragged window, said with the check
+  function openBooking(resources, draggedStart, draggedEnd) {
+    // The drag's own check, if still to come, would make the dialog's answer stale.
+    clearTimeout(checkTimer);
+    const { start, end, note } = fromNow(draggedStart, draggedEnd);
+    moved = note;
     form.reset();
     for (const box of /** @type {NodeListOf<HTMLInputElement>} */ (form.querySelectorAll("input[name=resources]"))) box.checked = resources.includes(box.value);
     form.start.value = toLocalInput(start);
@@ -183,6 +213,7 @@
     checkDialog();
   }
   function closeBooking() {
+    moved = "";
     dialog.close();
     calendar.unselect();
     markRows([]);
@@ -238,14 +269,17 @@
     // The offset in force now; the events' times are floating wall-clock times (see above).
     timeZone: offsetNow(zone),
     headerToolbar: { start: "prev,next today", center: "title", end: narrow ? "" : "resourceTimelineDay,resourceTimelineWeek" },
+    buttonText: (texts) => Object.assign({}, texts, { today: "Today", resourceTimelineDay: "Day", resourceTimelineWeek: "Week" }),
     resources: rows,
     firstDay: 1,
     nowIndicator: window.AmazingWallClock.browserShowsZone(zone),
     selectable: true,
     editable: false,
     slotDuration: { minutes: SLOT_MIN },
+    snapDuration: { minutes: SNAP_MIN },
     slotWidth: narrow ? 36 : 44,
-    scrollTime: "08:00:00",
+    // Opened on now: an hour before it at the left edge.
+    scrollTime: DateTime.now().setZone(zone).minus({ hours: 1 }).toFormat("HH:00:00"),
     height: "auto",
     slotLabelFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
     eventTimeFormat: { hour: "2-digit", minute: "2-digit", hour12: false },
@@ -272,8 +306,9 @@
     select: (info) => {
       // Event Calendar selects time in one row; the rows are the ones the drag crossed.
       const resources = drag ? dragRows() : [String(info.resource.id)];
+      const [start, end] = drag ? dragTimes() : [wall(info.start), wall(info.end)];
       drag = null;
-      openBooking(resources, wall(info.start), wall(info.end));
+      openBooking(resources, start, end);
     },
   });
   // Its grid roles go (event_calendar.js): the rows are named in text, the bookings are links.
