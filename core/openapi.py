@@ -30,10 +30,10 @@ from core.events.catalogue import PAYLOADS
 DESCRIPTION = """\
 Experiments, reservations, runs and their measurements on the AMazING testbed's mobile node.
 
-**Authentication.** Send `Authorization: Token <key>` (an admin creates keys, or
-`amazing login` stores yours). A request without valid credentials gets 401 with
-`WWW-Authenticate: Token`. The portal's own pages call the same API with their session cookie
-and CSRF token; that is not meant for other clients.
+**Authentication.** Send `Authorization: Token <key>`: make one on the portal's *API tokens*
+page (`/account/tokens/`), or let `amazing login` make and store yours. A request without
+valid credentials gets 401 with `WWW-Authenticate: Token`. The portal's own pages call the
+same API with their session cookie and CSRF token; that is not meant for other clients.
 
 **Errors.** Every error has one JSON envelope: `{"error": code, "detail": message}`, and
 `"fields": {"path.to.field": [messages]}` when input was at fault (nested fields as dotted

@@ -7,6 +7,7 @@ from zoneinfo import ZoneInfo
 from django import forms
 from django.conf import settings
 from django.core.exceptions import ValidationError
+from django.db.models import Case, When
 from django.forms.fields import BaseTemporalField
 from django.utils import timezone
 from django.utils.dateparse import parse_datetime
@@ -106,23 +107,43 @@ class LocalDateTimeField(forms.DateTimeField):
             raise ValidationError(str(exc), code="nonexistent") from None
 
 
-class BookingForm(forms.Form):
-    resource = forms.ModelChoiceField(queryset=Resource.objects.none(), to_field_name="name")
-    experiment = forms.ModelChoiceField(queryset=Experiment.objects.none(), required=False)
-    start_at = LocalDateTimeField(label="Start")
-    end_at = LocalDateTimeField(label="End")
-
-    def __init__(self, *args: Any, user: User, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.fields["resource"].queryset = resources_bookable()  # type: ignore[attr-defined]
-        self.fields["experiment"].queryset = experiments_visible(user=user).filter(owner=user)  # type: ignore[attr-defined]
-
-
 class ExperimentChoiceField(forms.ModelChoiceField):
     """An experiment by its title and its program's length, as the booking dialog names it."""
 
     def label_from_instance(self, obj: Any) -> str:
         return f"{obj.title} ({obj.duration_s:g} s)"
+
+
+class ResourcesField(forms.ModelMultipleChoiceField):
+    """Resources by name, a robot said to be one."""
+
+    def label_from_instance(self, obj: Any) -> str:
+        return f"{obj.name} (robot)" if obj.is_mobile else obj.name
+
+
+class BookingForm(forms.Form):
+    """One booking of a robot and fixed nodes together (the timeline's: one lease for the
+    nodes, the robot's run), robots listed first."""
+
+    resources = ResourcesField(
+        queryset=Resource.objects.none(),
+        to_field_name="name",
+        widget=forms.CheckboxSelectMultiple,
+        label="Resources",
+    )
+    experiment = ExperimentChoiceField(
+        queryset=Experiment.objects.none(),
+        required=False,
+        help_text="What the robot runs: needed when a robot is booked.",
+    )
+    start_at = LocalDateTimeField(label="Start")
+    end_at = LocalDateTimeField(label="End")
+
+    def __init__(self, *args: Any, user: User, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        robots_first = Case(When(kind=ResourceKind.MOBILE, then=0), default=1)
+        self.fields["resources"].queryset = resources_bookable().order_by(robots_first, "name")  # type: ignore[attr-defined]
+        self.fields["experiment"].queryset = experiments_visible(user=user).filter(owner=user)  # type: ignore[attr-defined]
 
 
 class QueueRequestForm(forms.Form):

@@ -125,7 +125,8 @@ def experiment_edit(request: HttpRequest, pk: int | None = None) -> HttpResponse
             else:
                 fits = fits_summary(experiment_fits(experiment))
                 messages.success(request, f"Experiment “{experiment.title}” saved. {fits}".strip())
-                return redirect("home")
+                # Back to the experiment, where trying it and booking it are the next steps.
+                return redirect("experiment-edit", pk=experiment.pk)
         rows = form.segment_rows
     else:
         form = ExperimentForm(initial={"title": experiment.title} if experiment else None)
@@ -156,15 +157,27 @@ def book(request: HttpRequest) -> HttpResponse:
                 run = getattr(reservation, "run", None)
                 return redirect("run", pk=run.pk) if run else redirect("home")
     else:
-        initial: dict[str, Any] = {}
-        if "experiment" in request.GET:
-            initial["experiment"] = request.GET["experiment"]
-        form = BookingForm(initial=initial, user=user)
+        form = BookingForm(initial=_booking_initial(request, user), user=user)
     return render(
         request,
         "web/book.html",
         {"form": form, "quota": quota_summary(user=user, now=timezone.now())},
     )
+
+
+def _booking_initial(request: HttpRequest, user: Any) -> dict[str, Any]:
+    """The book page's first values: an experiment named in the link (from its page, a dry
+    run, home), with the first robot its program fits ticked."""
+    experiment_id = request.GET.get("experiment", "")
+    experiment = (
+        experiments_visible(user=user).filter(owner=user, pk=experiment_id).first()
+        if experiment_id.isdigit()
+        else None
+    )
+    if experiment is None:
+        return {}
+    fitting = [fit.limit.resource for fit in experiment_fits(experiment) if fit.fits]
+    return {"experiment": experiment.pk, "resources": fitting[:1]}
 
 
 def _booked(reservation: Reservation) -> str:
@@ -274,6 +287,8 @@ def run_page_response(
     context["repeats"] = list(run.repeats.order_by("start_at").values_list("pk", flat=True))
     # "Compare the two runs" links from a repeated run (`?ids=A,B`).
     context["compare_path"] = reverse("runs-compare")
+    # Before its start a run has nothing to repeat: the page counts down instead.
+    context["not_started"] = run.state in (RunState.SCHEDULED, RunState.STAGED)
     context.update(measurements_context(run, measurement_form))
     return render(request, "web/run.html", context, status=status)
 
@@ -389,6 +404,7 @@ def api_tokens_page(request: HttpRequest) -> HttpResponse:
             "form": form,
             # Shown by this answer only, never kept (not in the session, not in a cache).
             "created": created,
+            "portal_url": request.build_absolute_uri("/").rstrip("/"),
             "tokens": api_tokens_of(user),
             "needs_mfa": user.has_staff_role and not mfa_enabled(user),
             "needs_second_factor": user.has_staff_role and not staff_verified(request),

@@ -106,7 +106,9 @@ def test_a_user_makes_a_token_uses_it_with_amazing_revokes_it_and_is_refused(
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.delenv("AMAZING_TOKEN", raising=False)
     monkeypatch.delenv("AMAZING_URL", raising=False)
-    context = browser.new_context(viewport={"width": 375, "height": 900})
+    context = browser.new_context(
+        viewport={"width": 375, "height": 900}, permissions=["clipboard-read", "clipboard-write"]
+    )
     page = context.new_page()
     refused = _csp_watch(page)
     login(page, web, "tess", "correct horse battery")
@@ -120,6 +122,11 @@ def test_a_user_makes_a_token_uses_it_with_amazing_revokes_it_and_is_refused(
     assert "no-store" in made.value.headers["cache-control"]
     token = page.get_by_test_id("new-token-value").input_value()
     assert token.startswith("amz_")
+    page.get_by_role("button", name="Copy").click()
+    expect(page.locator("#copy-token-status")).to_have_text("Copied.")
+    assert page.evaluate("navigator.clipboard.readText()") == token
+    example = f'curl -H "Authorization: Token {token}" {web}/api/v1/me/'
+    expect(page.get_by_text(example)).to_be_visible()
     page.screenshot(path=str(SCREENSHOTS / "api-tokens.png"), full_page=True)
 
     cli = CliRunner()

@@ -83,10 +83,13 @@ def test_an_experimenter_writes_books_and_watches_a_run(browser, stack_in_utc):
     page.get_by_role("button", name="Save experiment").click()
     expect(page.get_by_text("Experiment “browser lap” saved.")).to_be_visible()
 
-    page.get_by_role("link", name="book", exact=True).click()
+    # Saved, the page offers the next steps: trying it on the simulator, and booking it.
+    expect(page.get_by_role("button", name="Try on the simulator")).to_be_visible()
+    page.locator("#book-experiment").click()
     expect(page.get_by_text("Times are in UTC.")).to_be_visible()
     start = (timezone.now() + timedelta(seconds=6)).astimezone(UTC).replace(microsecond=0)
-    page.get_by_label("Resource").select_option("mobile-1")
+    # The robot is ticked: the experiment fits it (and the link named the experiment).
+    expect(page.get_by_label("mobile-1 (robot)")).to_be_checked()
     page.get_by_label("Start").fill(start.strftime("%Y-%m-%dT%H:%M:%S"))
     page.get_by_label("End").fill((start + timedelta(seconds=8)).strftime("%Y-%m-%dT%H:%M:%S"))
     page.get_by_role("button", name="Book").click()

@@ -3,12 +3,17 @@ make it read again, so a failed read (a deploy, a proxy's error page) is retried
 
 from __future__ import annotations
 
+import re
+from datetime import timedelta
+
 import pytest
+from django.utils import timezone
 from playwright.sync_api import Route, expect
 
 from portal.runs.models import Sample
+from portal.runs.services.reservations import reservation_create
 from tests.browser.conftest import login
-from tests.factories import MobileResourceFactory, UserFactory
+from tests.factories import ExperimentFactory, MobileResourceFactory, UserFactory
 from tests.runs.driving import completed_run
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
@@ -82,4 +87,25 @@ def test_a_battery_that_flickers_by_one_reading_step_is_drawn_as_small_steps(bro
     assert drawn["high"] - drawn["low"] >= 1.0
     assert drawn["low"] <= 50.0
     assert drawn["high"] >= 50.08
+    context.close()
+
+
+def test_a_run_not_yet_started_counts_down_and_offers_no_repeat(browser, live_server):
+    owner = UserFactory(username="jan")
+    start = timezone.now() + timedelta(hours=2)
+    run = reservation_create(
+        owner=owner,
+        resource=MobileResourceFactory(),
+        start_at=start,
+        end_at=start + timedelta(minutes=5),
+        experiment=ExperimentFactory(owner=owner),
+    ).run
+    context = browser.new_context(viewport={"width": 375, "height": 800})
+    page = context.new_page()
+    login(page, live_server.url, "jan", "correct horse battery")
+    page.goto(f"{live_server.url}/runs/{run.pk}/")
+    expect(page.locator("#run-countdown-left")).to_have_text(
+        re.compile(r"^ · in (1 h 59 min|2 h 0 min)$")
+    )
+    expect(page.locator("#run-again")).to_have_count(0)
     context.close()

@@ -175,7 +175,29 @@ def test_a_drag_over_the_robot_and_two_nodes_books_them_in_one_lease(browser, st
     [lease] = [x for x in _broker_leases(stack.standin) if x["status"] in ("accepted", "active")]
     assert sorted(c["name"] for c in lease["components"]) == ["node-01", "node-02"]
     assert lease["uuid"] == reservation.lease_uuid
+    expect(page.locator("#timeline-flash a")).to_have_attribute(
+        "href", f"/runs/{reservation.run.pk}/"
+    )
     page.screenshot(path=str(SCREENSHOTS / "timeline.png"))
+
+    # The book page books the same way: the robot (first, and ticked for the experiment it
+    # fits) with two nodes is one booking, its run, and one lease for the nodes.
+    page.goto(f"{stack.web}/book/?experiment={reservation.run.experiment_id}")
+    expect(page.locator("#book-resources input").first).to_have_attribute("value", "mobile-1")
+    expect(page.get_by_label("mobile-1 (robot)")).to_be_checked()
+    page.get_by_label("node-01").check()
+    page.get_by_label("node-03").check()
+    page.get_by_label("Start").fill(f"{day.isoformat()}T12:00")
+    page.get_by_label("End").fill(f"{day.isoformat()}T12:30")
+    page.screenshot(path=str(SCREENSHOTS / "book.png"), full_page=True)
+    page.get_by_role("button", name="Book", exact=True).click()
+    expect(page).to_have_url(re.compile(r"/runs/\d+/$"))
+    second = Reservation.objects.exclude(pk=reservation.pk).get()
+    assert page.url.endswith(f"/runs/{second.run.pk}/")
+    expect(page.locator("#run-countdown")).to_contain_text("Starts at 12:00:00")
+    assert sorted(i.resource.name for i in second.items.all()) == ["mobile-1", "node-01", "node-03"]
+    held = [x for x in _broker_leases(stack.standin) if x["uuid"] == second.lease_uuid]
+    assert [sorted(c["name"] for c in x["components"]) for x in held] == [["node-01", "node-03"]]
     assert not errors, errors
     assert not refused, refused
     context.close()

@@ -5,13 +5,14 @@ its field and nothing is booked."""
 
 from __future__ import annotations
 
+import re
 from datetime import UTC, datetime
 
 import pytest
 import time_machine
 
 from bookings.models import Reservation
-from tests.factories import FixedResourceFactory
+from tests.factories import ExperimentFactory, FixedResourceFactory, MobileResourceFactory
 
 pytestmark = pytest.mark.django_db
 
@@ -30,7 +31,7 @@ def _book(client, owner, start_at: str, end_at: str):
     client.force_login(owner)
     return client.post(
         "/book/",
-        {"resource": "node-01", "start_at": start_at, "end_at": end_at},
+        {"resources": ["node-01"], "start_at": start_at, "end_at": end_at},
         follow=True,
     )
 
@@ -93,3 +94,50 @@ def test_the_form_says_how_it_reads_the_hours_the_clocks_change(client, owner):
     page = client.get("/book/").content.decode()
     assert "happens twice" in page
     assert "first occurrence" in page
+
+
+def test_the_robot_is_listed_first_and_ticked_for_an_experiment_it_fits(client, owner):
+    for name in ("node-01", "node-02"):
+        FixedResourceFactory(name=name)
+    MobileResourceFactory(name="mobile-1", max_velocity_mps=1.0)
+    fits = ExperimentFactory(
+        owner=owner, segments=[{"velocity_mps": 0.5, "direction": "cw", "duration_s": 5}]
+    )
+    client.force_login(owner)
+
+    page = client.get(f"/book/?experiment={fits.pk}").content.decode()
+    boxes = re.findall(r'<input type="checkbox" name="resources" value="([^"]+)"([^>]*)>', page)
+    assert [name for name, _ in boxes] == ["mobile-1", "node-01", "node-02"]
+    assert [name for name, rest in boxes if "checked" in rest] == ["mobile-1"]
+    assert f'<option value="{fits.pk}" selected>' in page
+
+    # Nothing named: nothing ticked. Another's experiment or a bad id: as if none were named.
+    for query in ("", "?experiment=abc", f"?experiment={ExperimentFactory().pk}"):
+        page = client.get(f"/book/{query}").content.decode()
+        assert "checked" not in page
+
+
+def test_the_robot_and_two_nodes_are_one_booking_with_the_robots_run(client, owner):
+    for name in ("node-01", "node-02"):
+        FixedResourceFactory(name=name)
+    MobileResourceFactory(name="mobile-1")
+    experiment = ExperimentFactory(owner=owner)
+    with time_machine.travel(datetime(2027, 5, 3, 9, 0, tzinfo=UTC)):
+        client.force_login(owner)
+        answer = client.post(
+            "/book/",
+            {
+                "resources": ["mobile-1", "node-01", "node-02"],
+                "experiment": experiment.pk,
+                "start_at": "2027-05-04T10:00",
+                "end_at": "2027-05-04T11:00",
+            },
+        )
+    reservation = Reservation.objects.get()
+    assert sorted(i.resource.name for i in reservation.items.all()) == [
+        "mobile-1",
+        "node-01",
+        "node-02",
+    ]
+    # To the run's page, which shows its start and counts down to it.
+    assert answer.headers["Location"] == f"/runs/{reservation.run.pk}/"

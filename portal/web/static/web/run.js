@@ -71,7 +71,25 @@
     }
   }
 
+  // Before the start: how long until it, every second, gone once the run has started.
+  const countdown = document.getElementById("run-countdown");
+  let countdownTimer = null;
+  function tick() {
+    const left = document.getElementById("run-countdown-left");
+    const leftS = Math.round((Date.parse(countdown.dataset.start) - Date.now()) / 1000);
+    if (leftS <= 0) { left.textContent = " · starting"; return; }
+    const h = Math.floor(leftS / 3600);
+    const m = Math.floor((leftS % 3600) / 60);
+    const sec = leftS % 60;
+    left.textContent = " · in " + (h ? `${h} h ${m} min` : m ? `${m} min ${sec} s` : `${sec} s`);
+  }
+  if (countdown) { tick(); countdownTimer = setInterval(tick, 1000); }
+
   function showState(state, label, reason) {
+    if (countdown && !["scheduled", "staged"].includes(state)) {
+      countdown.hidden = true;
+      clearInterval(countdownTimer);
+    }
     const el = document.getElementById("run-state");
     el.textContent = label;
     el.dataset.state = state;

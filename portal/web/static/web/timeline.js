@@ -223,7 +223,7 @@
   }
   document.getElementById("timeline-close").addEventListener("click", closeBooking);
 
-  function flash(text) {
+  function flash(text, link = null) {
     let box = document.getElementById("timeline-flash");
     if (!box) {
       box = document.createElement("p");
@@ -233,6 +233,12 @@
       el.parentNode.insertBefore(box, el);
     }
     box.textContent = text;
+    if (link) {
+      box.append(" ");
+      const a = box.appendChild(document.createElement("a"));
+      a.href = link.href;
+      a.textContent = link.text;
+    }
   }
 
   form.addEventListener("submit", async (event) => {
@@ -255,7 +261,11 @@
     if (result.ok) {
       closeBooking();
       calendar.refetchEvents();
-      flash(result.data.state === "requested" ? "Requested: an admin will confirm it." : "Booked.");
+      const run = result.data.run;
+      flash(
+        result.data.state === "requested" ? "Requested: an admin will confirm it." : "Booked.",
+        run ? { href: `/runs/${run.id}/`, text: `Its run starts ${shown(DateTime.fromISO(result.data.start_at, { zone }))}: open it.` } : null,
+      );
     } else {
       feedback.textContent = explain(result.data);
       feedback.className = "error";
