@@ -4,15 +4,18 @@ distance, laps and end position, reordering, cloning, and the files the CLI read
 from __future__ import annotations
 
 import json
+from datetime import timedelta
 
 import pytest
 import yaml
+from django.utils import timezone
 from playwright.sync_api import Page, expect
 
 from portal.experiments.models import Experiment
+from portal.runs.services.reservations import reservation_create
 from tests.browser.conftest import SCREENSHOTS, login
-from tests.factories import MobileResourceFactory, UserFactory
-from tests.runs.driving import ramped_travel
+from tests.factories import FixedResourceFactory, MobileResourceFactory, UserFactory
+from tests.runs.driving import completed_run, ramped_travel
 
 pytestmark = [pytest.mark.browser, pytest.mark.django_db(transaction=True)]
 PASSWORD = "correct horse battery"
@@ -82,11 +85,28 @@ def test_the_builder_checks_limits_and_previews_distance_laps_and_end(page):
 
     # Over the robot's limit, and too short to reach its velocity: said while typing.
     rows = page.locator("#segments tbody tr")
-    rows.nth(0).get_by_label("velocity in m/s").fill("2")
+    # A new segment: nothing is called wrong while it is typed; once its field is left, the
+    # error stands under that field (and in the list), and the preview says it leaves it out.
+    page.get_by_role("button", name="Add segment").click()
+    velocity = rows.nth(2).get_by_label("velocity in m/s")
+    velocity.fill("2")
     problems = page.get_by_test_id("builder-problems")
-    expect(problems).to_contain_text("Segment 0: 2.00 m/s is above mobile-1's 1.50 m/s.")
-    expect(rows.nth(0).get_by_label("velocity in m/s")).to_have_attribute("aria-invalid", "true")
+    expect(page.get_by_test_id("builder-duration")).to_have_text(
+        "16.0 s (without segment 2: not complete or not valid)"
+    )
+    expect(velocity).not_to_have_attribute("aria-invalid", "true")
+    expect(problems).to_have_text("")
+    velocity.press("Tab")
+    expect(problems).to_have_text("Segment 2: 2.00 m/s is above mobile-1's 1.50 m/s.")
+    expect(velocity).to_have_attribute("aria-invalid", "true")
+    expect(rows.nth(2).locator(".field-error[data-for=velocity_mps]")).to_have_text(
+        "2.00 m/s is above mobile-1's 1.50 m/s."
+    )
+    # Its duration, not yet typed, is not called wrong.
+    expect(rows.nth(2).locator(".field-error[data-for=duration_s]")).to_have_text("")
     expect(page.get_by_test_id("builder-distance")).to_have_text("—")
+    rows.nth(2).get_by_role("button", name="remove segment").click()
+    expect(problems).to_have_text("")
     rows.nth(0).get_by_label("velocity in m/s").fill("1.2")
     rows.nth(0).get_by_label("duration in s").fill("0.5")
     expect(problems).to_contain_text(
@@ -161,3 +181,53 @@ def test_segments_reorder_by_keyboard_and_drag_clone_and_round_trip_as_files(
     expect(page.get_by_text("Experiment “loop” saved.")).to_be_visible()
     saved_experiment = Experiment.objects.get(title="loop")
     assert [s["velocity_mps"] for s in saved_experiment.segments] == [0.5, 0.8]
+
+
+@pytest.mark.parametrize("width", [1280, 375])
+def test_no_control_is_clipped_and_the_rail_is_shown_to_the_centimetre(browser, live_server, width):
+    """Every field and button of a segment lies inside its table's box (at a laptop's width
+    beside the preview, on a phone as a card), the direction reads whole, and the robot's
+    measured rail length is shown rounded, not with the digits no one typed. On a phone the
+    home page's bookings are cards too: every value on screen."""
+    user = UserFactory(username="lea")
+    # The rail as the robot last measured it, on its latest run.
+    completed_run(
+        user, MobileResourceFactory(), [(0.5, "cw", 1.0)], rail_length_m=120.0106556346223
+    )
+    node = FixedResourceFactory(name="node-01")
+    start = timezone.now() + timedelta(days=1)
+    reservation_create(owner=user, resource=node, start_at=start, end_at=start + timedelta(hours=1))
+    context = browser.new_context(viewport={"width": width, "height": 900})
+    page = context.new_page()
+    login(page, live_server.url, "lea", PASSWORD)
+    page.goto(f"{live_server.url}/experiments/new/")
+    expect(page.locator("#builder-rail")).to_have_value("120.01")
+    # The box the table scrolls in: what lies past its edge is cut off.
+    table = page.locator("#segments").locator("xpath=..").bounding_box()
+    assert table
+    controls = page.locator("#segments tbody tr").first.locator("input, select, button")
+    for i in range(controls.count()):
+        box = controls.nth(i).bounding_box()
+        assert box
+        assert table["x"] - 1 <= box["x"]
+        assert box["x"] + box["width"] <= table["x"] + table["width"] + 1, i
+        assert box["x"] + box["width"] <= width
+    direction = page.locator("#segments tbody tr").first.get_by_label("direction")
+    # The chosen direction's text fits inside the select, beside its arrow.
+    fits = """(s) => {
+        const style = getComputedStyle(s);
+        const context = document.createElement("canvas").getContext("2d");
+        context.font = style.font;
+        const text = context.measureText(s.options[s.selectedIndex].text).width;
+        return text + parseFloat(style.paddingLeft) + parseFloat(style.paddingRight)
+            <= s.clientWidth + 1;
+    }"""
+    assert direction.evaluate(fits)
+
+    page.goto(f"{live_server.url}/")
+    for cell in ("node-01", "Cancel"):
+        box = page.locator("#upcoming").get_by_text(cell).first.bounding_box()
+        assert box
+        assert box["x"] + box["width"] <= width
+    assert page.evaluate("document.documentElement.scrollWidth <= window.innerWidth + 1")
+    context.close()

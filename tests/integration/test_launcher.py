@@ -126,7 +126,7 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             f"{web}/book/",
             data={
                 "csrfmiddlewaretoken": token,
-                "resource": "mobile-1",
+                "resources": "mobile-1",
                 "experiment": experiment_id,
                 "start_at": start.isoformat(),
                 "end_at": (start + timedelta(seconds=8)).isoformat(),
@@ -166,7 +166,7 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             f"{web}/book/",
             data={
                 "csrfmiddlewaretoken": token,
-                "resource": "node-01",
+                "resources": "node-01",
                 "start_at": later.isoformat(),
                 "end_at": (later + timedelta(hours=1)).isoformat(),
             },
@@ -198,7 +198,7 @@ def test_the_launcher_runs_the_whole_system_and_stops_every_child(tmp_path):
             f"{web}/book/",
             data={
                 "csrfmiddlewaretoken": token,
-                "resource": "mobile-1",
+                "resources": "mobile-1",
                 "experiment": experiment_id,
                 "start_at": start.isoformat(),
                 "end_at": (start + timedelta(seconds=8)).isoformat(),
@@ -302,7 +302,7 @@ def test_make_run_starts_two_robots_and_pushes_live_without_redis(tmp_path):
                 f"{web}/book/",
                 data={
                     "csrfmiddlewaretoken": token,
-                    "resource": resource,
+                    "resources": resource,
                     "experiment": experiment_id,
                     "start_at": start.isoformat(),
                     "end_at": (start + timedelta(seconds=6)).isoformat(),

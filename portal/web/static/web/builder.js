@@ -19,6 +19,9 @@
   const STOPPED = 1e-9;
   side.hidden = false;
 
+  // The fields a person has left (or that a file filled): only their errors are shown, so
+  // that nothing is called wrong while it is still being typed.
+  const touched = new WeakSet();
   const fmt = (x, digits) => (Math.round(x * 10 ** digits) / 10 ** digits).toFixed(digits);
   const robot = () => robots.get(robotSelect.value) || null;
 
@@ -38,6 +41,8 @@
     row.querySelector("[name=velocity_mps]").value = segment.velocity_mps;
     row.querySelector("[name=direction]").value = segment.direction;
     row.querySelector("[name=duration_s]").value = segment.duration_s;
+    // Filled from a file or a copy: checked at once, as if typed and left.
+    row.querySelectorAll("input[name]").forEach((input) => touched.add(input));
   }
   function button(cls, label, text) {
     const b = document.createElement("button");
@@ -59,6 +64,14 @@
           button("move-down", "move segment down", "↓"),
           button("clone-row", "copy segment", "copy"),
         );
+      }
+      for (const input of row.querySelectorAll("input[name]")) {
+        const cell = input.parentElement;
+        if (!cell.querySelector(".field-error")) {
+          const error = cell.appendChild(document.createElement("small"));
+          error.className = "field-error error";
+          error.dataset.for = input.getAttribute("name");
+        }
       }
       let note = row.querySelector(".segment-note");
       if (!note) {
@@ -216,6 +229,7 @@
       : "No robot you may book.";
     const problems = [];
     const segments = [];
+    const leftOut = [];
     rows().forEach((row, i) => {
       const s = readRow(row);
       const note = row.querySelector(".segment-note");
@@ -223,27 +237,34 @@
       note.className = "segment-note";
       const invalid = [];
       row.querySelectorAll("input").forEach((input) => input.removeAttribute("aria-invalid"));
+      row.querySelectorAll(".field-error").forEach((error) => { error.textContent = ""; });
       if (s.empty) return;
       if (s.velocity === null || !(s.velocity >= 0)) invalid.push(["velocity_mps", "Give a velocity of 0 m/s or more."]);
       else if (limitV !== null && s.velocity > limitV) {
         invalid.push(["velocity_mps", `${fmt(s.velocity, 2)} m/s is above ${chosen.name}'s ${fmt(limitV, 2)} m/s.`]);
       }
       if (s.duration === null || !(s.duration > 0)) invalid.push(["duration_s", "Give a duration above 0 s."]);
+      // Each error under its own field, once that field has been left.
       for (const [name, message] of invalid) {
-        row.querySelector(`[name=${name}]`).setAttribute("aria-invalid", "true");
+        const input = row.querySelector(`[name=${name}]`);
+        if (!touched.has(input)) continue;
+        input.setAttribute("aria-invalid", "true");
+        row.querySelector(`.field-error[data-for=${name}]`).textContent = message;
         problems.push(`Segment ${i}: ${message}`);
       }
-      if (invalid.length) {
-        note.textContent = invalid.map((x) => x[1]).join(" ");
-        note.classList.add("error");
-      } else segments.push({ row, note, index: i, velocity: s.velocity, direction: s.direction, duration: s.duration });
+      if (invalid.length) leftOut.push(i);
+      else segments.push({ row, note, index: i, velocity: s.velocity, direction: s.direction, duration: s.duration });
     });
     if (segments.length > data.max_segments) problems.push(`At most ${data.max_segments} segments.`);
     const total = segments.reduce((sum, s) => sum + s.duration, 0);
     if (total > data.max_program_s) {
       problems.push(`The program lasts ${fmt(total, 1)} s; a booking lasts at most ${fmt(data.max_program_s / 3600, 2)} h.`);
     }
-    document.getElementById("builder-duration").textContent = segments.length ? `${fmt(total, 1)} s` : "—";
+    // The preview is of the segments that can be read; it says which it leaves out.
+    const without = leftOut.length
+      ? ` (without segment${leftOut.length > 1 ? "s" : ""} ${leftOut.join(", ")}: not complete or not valid)`
+      : "";
+    document.getElementById("builder-duration").textContent = segments.length ? `${fmt(total, 1)} s${without}` : "—";
     const figures = ["builder-distance", "builder-laps", "builder-end"].map((id) => document.getElementById(id));
     if (!segments.length || accel === null || problems.length) {
       figures.forEach((f) => { f.textContent = "—"; });
@@ -279,11 +300,16 @@
 
   function chooseRobot() {
     const chosen = robot();
-    if (chosen && chosen.rail_length_m) railInput.value = chosen.rail_length_m;
+    // To the centimetre: the measured length carries digits no one typed.
+    if (chosen && chosen.rail_length_m) railInput.value = fmt(chosen.rail_length_m, 2);
     update();
   }
   robotSelect.addEventListener("change", chooseRobot);
   railInput.addEventListener("input", update);
+  body.addEventListener("focusout", (event) => {
+    const target = /** @type {Element} */ (event.target);
+    if (target.matches("input[name]")) { touched.add(target); update(); }
+  });
   form.addEventListener("input", update);
   form.addEventListener("change", update);
   new MutationObserver(update).observe(body, { childList: true });
