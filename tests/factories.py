@@ -106,6 +106,20 @@ def next_totp_code(secret: str, given: str) -> str:
     return code
 
 
+# The last code each secret was signed in with here: allauth refuses a code a second time.
+_CODES_GIVEN: dict[str, str] = {}
+
+
+def unused_totp_code(secret: str) -> str:
+    """The code to sign in with now: the authenticator's, or, when that one was given here
+    already (a second sign-in of the same user within one period), the next, waited for."""
+    code = totp_code(secret)
+    if _CODES_GIVEN.get(secret) == code:
+        code = next_totp_code(secret, code)
+    _CODES_GIVEN[secret] = code
+    return code
+
+
 def totp_secret_of(username: str) -> str | None:
     """The TOTP secret of ``username``'s authenticator app, if it has one."""
     found = Authenticator.objects.filter(

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from playwright.sync_api import Browser, Page, Playwright, expect, sync_playwright
 
-from tests.factories import totp_code, totp_secret_of
+from tests.factories import totp_secret_of, unused_totp_code
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
@@ -101,7 +101,7 @@ def login(page: Page, web: str, username: str, password: str) -> None:
     if secret is not None:
         # Two-factor authentication on (every staff account): the code its app shows now.
         expect(page).to_have_url(f"{web}/accounts/2fa/authenticate/")
-        page.locator("input[name=code]").fill(totp_code(secret))
+        page.locator("input[name=code]").fill(unused_totp_code(secret))
         page.get_by_role("button", name="Sign In").click()
     expect(page.get_by_role("heading", name=f"Hello, {username}")).to_be_visible()
 

@@ -33,6 +33,9 @@ def test_an_admin_stops_and_releases_the_robot_from_the_console(browser, stack):
     page.get_by_test_id("estop").click()
     expect(page.locator("#console-feedback")).to_contain_text("Emergency stop latched")
     expect(page.locator("#st-estop")).to_contain_text("LATCHED", timeout=5_000)
+    # Latched: a banner at the top of the page, and the stop button says so.
+    expect(page.locator("#estop-latched")).to_be_visible()
+    expect(page.get_by_test_id("estop")).to_have_text("STOPPED (latched)")
     page.screenshot(path=str(SCREENSHOTS / "robot-console.png"), full_page=True)
 
     page.locator("#release-form").get_by_role("button").click()  # no reason: refused
@@ -50,6 +53,8 @@ def test_an_admin_stops_and_releases_the_robot_from_the_console(browser, stack):
         "Emergency stop released; bookings are open."
     )
     expect(page.locator("#st-estop")).to_have_text("released", timeout=5_000)
+    expect(page.locator("#estop-latched")).to_be_hidden()
+    expect(page.get_by_test_id("estop")).to_have_text("EMERGENCY STOP")
     # The health check may also have held the robot while its stop was latched (audited as
     # resource.hold); the console's own commands are these, in order.
     actions = list(

@@ -32,7 +32,14 @@
     set("st-position", fmt(robot.track_m, "m", 1));
     set("st-run", s.current_run || "none");
     const estop = s.estop;
-    set("st-estop", estop && estop.latched ? `LATCHED${estop.reason ? ": " + estop.reason : ""}` : "released");
+    const latched = Boolean(estop && estop.latched);
+    set("st-estop", latched ? `LATCHED${estop.reason ? ": " + estop.reason : ""}` : "released");
+    // Latched: a banner that stays at the top of the page, and the button says so (pressing it
+    // again latches again, harmlessly).
+    document.getElementById("estop-latched").hidden = !latched;
+    const button = document.getElementById("estop");
+    button.classList.toggle("latched", latched);
+    button.textContent = latched ? "STOPPED (latched)" : "EMERGENCY STOP";
     const host = s.host || {};
     set("st-cpu", fmt(host.cpu_temp_c, "°C", 0));
     set("st-disk", host.disk_free_bytes === null || host.disk_free_bytes === undefined ? "—" : fmt(host.disk_free_bytes / 1e6, "MB", 0));
