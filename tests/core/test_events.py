@@ -3,8 +3,10 @@ in commit order, each subject counted from 1, and read back by its owner alone, 
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
+from collections.abc import Callable, Iterator
 from datetime import timedelta
 
 import jsonschema
@@ -201,33 +203,41 @@ def test_an_event_committed_late_is_numbered_after_those_read_before_it(owner):
     assert late.seq == 1
 
 
+@contextlib.contextmanager
+def _held_elsewhere(take: Callable[[], object]) -> Iterator[threading.Thread]:
+    """``take`` done in a transaction of another thread (its own connection), which holds
+    what it took until the block ends: a process frozen inside it, or another pass."""
+    held, release = threading.Event(), threading.Event()
+
+    def holder() -> None:
+        try:
+            with transaction.atomic():
+                take()
+                held.set()
+                assert release.wait(30)
+        finally:
+            connection.close()
+
+    thread = threading.Thread(target=holder)
+    thread.start()
+    try:
+        assert held.wait(30)
+        yield thread
+    finally:
+        release.set()
+        thread.join(30)
+
+
 def test_a_sequencer_frozen_inside_its_lock_holds_no_one_up(owner, monkeypatch):
     """A process stopped while it holds the sequencer's lock (a SIGSTOPped mail worker did):
     another caller gives up after its bounded wait instead of waiting for it, and numbers
     the events once the lock is free again."""
     assert connection.vendor == "postgresql"
     monkeypatch.setattr("core.events.sequence.SEQUENCER_WAIT_S", 0.2)
-    held, release = threading.Event(), threading.Event()
-
-    def frozen_sequencer() -> None:
-        try:
-            with transaction.atomic():
-                sql.advisory_xact_lock(SEQUENCER_LOCK_KEY)
-                held.set()
-                assert release.wait(30)
-        finally:
-            connection.close()
-
-    holder = threading.Thread(target=frozen_sequencer)
-    holder.start()
-    try:
-        assert held.wait(30)
+    with _held_elsewhere(lambda: sql.advisory_xact_lock(SEQUENCER_LOCK_KEY)) as holder:
         with transaction.atomic():
             event_record(subject="run:1", type="run.running", payload={}, owner_id=owner.pk)
         assert events_sequence() == 0  # gave up waiting: nothing numbered, nothing blocked
-    finally:
-        release.set()
-        holder.join(30)
     assert not holder.is_alive()
     assert events_sequence() == 1
 
@@ -497,26 +507,9 @@ def test_two_passes_of_one_handler_never_overlap(owner, seen):
     handled, _ = seen
     _write(owner, ("run.running", 1))
     EventCursor.objects.create(handler="recorder")
-    holding = threading.Event()
-    release = threading.Event()
-
-    def other_pass() -> None:
-        try:
-            with transaction.atomic():
-                EventCursor.objects.select_for_update().get(handler="recorder")
-                holding.set()
-                assert release.wait(30)
-        finally:
-            connection.close()
-
-    thread = threading.Thread(target=other_pass)
-    thread.start()
-    try:
-        assert holding.wait(30)
+    # Another pass, holding the handler's cursor.
+    with _held_elsewhere(lambda: EventCursor.objects.select_for_update().get(handler="recorder")):
         assert dispatch.events_dispatch(name="recorder") == 0  # it leaves at once
-    finally:
-        release.set()
-        thread.join(30)
     assert handled == []
     assert dispatch.events_dispatch(name="recorder") == 1
 
