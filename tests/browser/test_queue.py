@@ -151,6 +151,9 @@ def test_a_place_moves_up_on_the_open_page_when_the_request_before_it_is_withdra
     page.goto(f"{live_server.url}/queue/")
     place = page.get_by_test_id(f"queue-request-{mine.pk}").get_by_test_id("queue-position")
     expect(place).to_have_text("2")
+    # Django's test server has no streams: the page polls once its stream has failed. Only
+    # then is the poll's timer set, for the fast-forward below to fire.
+    expect(page.locator("#live-status")).to_have_attribute("data-state", "reconnecting")
     queue_request_cancel(request=first, by=gil)
     page.clock.fast_forward(16_000)
     expect(place).to_have_text("1")
