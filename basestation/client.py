@@ -150,7 +150,8 @@ class AgentClient:
         force: bool = False,
     ) -> dict[str, Any]:
         """Manual drive (admins): hold the velocity for ``ttl_s`` (agent default 1 s).
-        Returns ``{"manual": {...} | None, "aborted_run": id | None}``."""
+        Returns ``{"manual": {...} | None, "aborted_run": id | None, "clock": s,
+        "robot": {...}, "link": {...}}`` (the last two as in :meth:`status`)."""
         body: dict[str, Any] = {
             "user": user,
             "velocity_mps": velocity_mps,

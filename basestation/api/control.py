@@ -14,6 +14,7 @@ from flask import Blueprint, jsonify, request
 from flask.typing import ResponseReturnValue
 
 from basestation.api.bodies import json_body
+from basestation.api.readings import link_json, robot_json
 from basestation.manual import (
     MAX_STOP_BODY_BYTES,
     RELEASE_FIELDS,
@@ -40,10 +41,16 @@ def control() -> ResponseReturnValue:
     command = parse_control_body(json_body(), max_velocity_mps=runtime.config.max_velocity_mps)
     now_s = time.time()
     drive, aborted = manual_drive(manager=runtime.control, command=command, now_s=now_s)
+    # The robot as the loop last read it: a console repeating its command a few times a second
+    # sees the robot respond at that rate from the answers alone.
+    snapshot = runtime.control.snapshot
     return jsonify(
         {
             "manual": None if drive is None else drive.to_json_dict(now_s),
             "aborted_run": aborted,
+            "clock": now_s,
+            "robot": robot_json(snapshot),
+            "link": link_json(snapshot, now_s),
         }
     )
 

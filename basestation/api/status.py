@@ -9,6 +9,7 @@ from flask import Blueprint, jsonify
 from flask.typing import ResponseReturnValue
 
 from basestation.api.control import estop_json
+from basestation.api.readings import link_age_s, link_json, robot_json
 from basestation.control import ControlStats
 from basestation.loop_process import LoopProcess
 from basestation.provenance import AGENT_VERSION
@@ -17,9 +18,6 @@ from basestation.system import clock_sync, clock_synchronized, cpu_temp_c
 
 bp = Blueprint("status", __name__)
 
-# No telemetry for longer than this and the link counts as down (the firmware's dead-man
-# stops the robot after 0.5 s without a command, so by then it is not under our control).
-LINK_DOWN_AFTER_S = 1.0
 # Down this long while the control loop runs, and it is a fault rather than a lost frame or
 # two: the robot is off, out of range or its radio is broken. The portal stops bookings on it.
 LINK_FAULT_AFTER_S = 5.0
@@ -84,19 +82,7 @@ def status_document() -> dict[str, Any]:
     now_s = time.time()
     manager = runtime.control
     snapshot = manager.snapshot
-    telemetry = snapshot.telemetry
-    robot: dict[str, Any] = {"velocity_mps": None, "direction": None, "track_m": None}
-    if telemetry is not None:
-        robot = {
-            "velocity_mps": telemetry.velocity_mps,
-            "direction": telemetry.direction,
-            "track_m": telemetry.track_m,
-        }
-    command = snapshot.command
-    robot["commanded_velocity_mps"] = None if command is None else command.velocity_mps
-    robot["commanded_direction"] = None if command is None else command.direction
-    age_s = None if snapshot.telemetry_at_s is None else max(0.0, now_s - snapshot.telemetry_at_s)
-    rssi = getattr(telemetry, "rssi_dbm", None)
+    age_s = link_age_s(snapshot, now_s)
     disk = runtime.disk()
     manual = manager.manual(now_s)
     threshold_v = runtime.config.low_battery_v
@@ -115,16 +101,11 @@ def status_document() -> dict[str, Any]:
             "low_battery_v": threshold_v if threshold_v > 0 else None,
             "low": snapshot.battery_low,
         },
-        "robot": robot,
+        "robot": robot_json(snapshot),
         "limits": runtime.limits_json(),
         "firmware": firmware,
         "rail": None if agent is None else agent["rail"],
-        "link": {
-            "state": "up" if age_s is not None and age_s <= LINK_DOWN_AFTER_S else "down",
-            "age_s": age_s,
-            "loss_pct": snapshot.loss_pct,
-            "rssi_dbm": rssi if isinstance(rssi, int | float) else None,
-        },
+        "link": link_json(snapshot, now_s),
         "current_run": snapshot.current_run,
         "manual": None if manual is None else manual.to_json_dict(now_s),
         "estop": estop_json(manager.estop),

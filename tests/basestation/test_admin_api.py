@@ -89,8 +89,30 @@ def test_control_with_velocity_zero_ends_manual_drive(
     _control(client, auth)
     response = _control(client, auth, velocity_mps=0)
     assert response.status_code == 200
-    assert response.json == {"manual": None, "aborted_run": None}
+    assert (response.json["manual"], response.json["aborted_run"]) == (None, None)
     assert runtime.manager.manual(time.time()) is None
+
+
+def test_control_answers_with_the_robots_motion_as_the_status_reads_it(
+    client: FlaskClient, auth: dict[str, str], drive: Drive
+) -> None:
+    """A console holding a drive button follows the robot from the answers alone."""
+    before = _control(client, auth).json
+    assert before is not None
+    # No telemetry yet: nothing measured, the link down.
+    assert before["robot"]["velocity_mps"] is None
+    assert before["link"]["state"] == "down"
+    now_s = time.time()
+    drive(now_s - 1.0, now_s)
+    answer = _control(client, auth).json
+    status = client.get("/api/v1/status", headers=auth).json
+    assert answer is not None
+    assert status is not None
+    assert answer["robot"] == status["robot"]
+    assert answer["robot"]["velocity_mps"] > 0
+    assert answer["robot"]["commanded_direction"] == "cw"
+    assert answer["link"]["state"] == status["link"]["state"] == "up"
+    assert before["clock"] < answer["clock"] <= status["clock"]
 
 
 @pytest.mark.parametrize(

@@ -145,8 +145,8 @@ def _release(page: Page, controls: Controls, let_go: Callable[[], None]) -> None
     controls.settled_on_a_stop()
 
 
-def _console(browser, stack, username: str) -> Page:
-    page = browser.new_context(viewport={"width": 390, "height": 844}).new_page()
+def _console(browser, stack, username: str, width: int = 390) -> Page:
+    page = browser.new_context(viewport={"width": width, "height": 844}).new_page()
     login(page, stack.web, username, "correct horse battery")
     page.goto(f"{stack.web}/robot/mobile-1/")
     expect(page.locator("#st-link")).to_contain_text("up", timeout=15_000)
@@ -217,6 +217,66 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     assert lines[0] == "user,title,start,end,kind,run_id,state"
     assert lines[1].startswith("root,")
     assert not errors, errors
+    page.context.close()
+
+
+# In the page: each reading the readout beside the buttons shows, and when a hold began and
+# ended, on the page's clock (performance.now(), ms).
+RECORD_READINGS = """() => {
+  window.readings = [];
+  window.holds = [];
+  const live = document.getElementById("hold-live");
+  const velocity = () => Number(live.dataset.velocityMps || 0);
+  new MutationObserver(() => window.readings.push([performance.now(), velocity()]))
+    .observe(live, { attributes: true, attributeFilter: ["data-readings"] });
+  const at = (what) => () => window.holds.push([what, performance.now()]);
+  document.addEventListener("pointerdown", at("down"), true);
+  document.addEventListener("pointerup", at("up"), true);
+}"""
+
+
+def test_the_readout_beside_the_buttons_follows_the_robot_while_held_and_after(browser, stack):
+    """Velocity, position, link and stop beside the buttons, from every drive command's answer
+    while held (five a second) and from the robot's status while it ramps down after; the
+    page's own timings of the first changed reading are reported (the bound only catches a
+    hang: how soon depends on the machine's load, and is measured there)."""
+    MobileResourceFactory(agent_url=stack.agent_url)
+    UserFactory(username="root", is_staff=True, is_superuser=True)
+    page = _console(browser, stack, "root", width=1280)
+    controls = Controls(page)
+    hold = page.get_by_role("button", name="Hold: clockwise ▶")
+    hold.scroll_into_view_if_needed()
+    # Read where the buttons are: the readout and both buttons in view at once.
+    expect(page.locator("#hold-live")).to_be_in_viewport()
+    expect(page.locator("#hl-link")).to_contain_text("up")
+    expect(page.locator("#hl-estop")).to_have_text("released")
+    page.evaluate(RECORD_READINGS)
+
+    hold.hover()
+    page.mouse.down()
+    _wait_velocity(stack.agent, lambda v: v >= VELOCITY_MPS - 0.05, deadline_s=10, page=page)
+    expect(page.locator("#hl-velocity")).to_have_text(re.compile(r"^0\.[1-9]\d m/s cw$"))
+    answered_while_held = len(controls.sent) - len(controls.waiting)
+    _release(page, controls, page.mouse.up)
+    _stops(stack.agent)
+    expect(page.locator("#hl-velocity")).to_have_text("0.00 m/s", timeout=STOP_DEADLINE_S * 1000)
+
+    readings: list[list[float]] = page.evaluate("window.readings")
+    holds = dict(page.evaluate("window.holds"))
+    during = [v for t, v in readings if holds["down"] <= t <= holds["up"]]
+    after = [(t, v) for t, v in readings if t > holds["up"]]
+    # Every answered command of the hold was shown (and the stream's copies of them).
+    assert len(during) >= answered_while_held >= 3, (during, answered_while_held)
+    moving_ms = next(t for t, v in readings if t >= holds["down"] and v > 0) - holds["down"]
+    slowing_ms = next(t for t, v in after if v < max(during)) - holds["up"]
+    assert 0 < moving_ms < STOP_DEADLINE_S * 1000
+    assert 0 < slowing_ms < STOP_DEADLINE_S * 1000
+    held_s = (holds["up"] - holds["down"]) / 1000
+    print(
+        f"readout: moving {moving_ms:.0f} ms after the press, slowing {slowing_ms:.0f} ms "
+        f"after letting go, {len(during) / held_s:.1f} readings/s while held"
+    )
+    assert after[-1][1] == 0.0
     page.context.close()
 
 

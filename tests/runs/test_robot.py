@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import time
 from datetime import UTC, timedelta
 
 import pytest
+import redis
 from django.utils import timezone
 
 from bookings.services import resource_hold
+from core import live
 from core.audit.models import AuditEvent
 from tests.conftest import sign_in_with_second_factor
 
@@ -48,6 +51,37 @@ def test_an_admin_drives_by_hand_and_it_is_audited(robot, agent, admin_user, cli
         "check the north corner",
     )
     assert event.data["velocity_mps"] == 0.4
+
+
+def test_a_drive_answers_and_streams_the_robots_motion(
+    robot, agent, admin_user, client_for, settings
+):
+    """What the console beside its drive buttons shows, and every other console watching the
+    robot: the base station's reading of the robot at each command."""
+    pubsub = redis.Redis.from_url(settings.REDIS_URL).pubsub()
+    pubsub.subscribe(live.redis_channel(live.robot_channel("mobile-1")))
+    assert pubsub.get_message(timeout=5)["type"] == "subscribe"  # type: ignore[index]
+    client = client_for(admin_user)
+    body = {"velocity_mps": 0.4, "direction": "ccw", "ttl_s": 2, "reason": "north corner"}
+    client.post("/api/v1/resources/mobile-1/robot/control/", body, format="json")
+    _tick(agent, 0.5)
+    response = client.post("/api/v1/resources/mobile-1/robot/control/", body, format="json")
+    assert response.status_code == 200, response.content
+    answer = response.json()
+    assert answer["robot"]["velocity_mps"] > 0
+    assert answer["robot"]["direction"] == "ccw"
+    assert answer["link"]["state"] == "up"
+    heard = []
+    while len(heard) < 2:
+        message = pubsub.get_message(ignore_subscribe_messages=True, timeout=5)
+        assert message is not None, f"only {len(heard)} motion events heard"
+        heard.append(json.loads(message["data"]))
+    pubsub.close()
+    assert [event["type"] for event in heard] == ["motion", "motion"]
+    assert {k: heard[1][k] for k in ("clock", "robot", "link")} == {
+        k: answer[k] for k in ("clock", "robot", "link")
+    }
+    assert heard[0]["clock"] < heard[1]["clock"]
 
 
 @pytest.mark.parametrize(

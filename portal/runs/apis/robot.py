@@ -116,6 +116,12 @@ class RobotStatusOutput(serializers.Serializer):
 class RobotDriveOutput(serializers.Serializer):
     manual = serializers.DictField(allow_null=True, help_text=AGENT_OBJECT)
     aborted_run = serializers.CharField(allow_null=True)
+    clock = serializers.FloatField(help_text="The base station's clock at the command (epoch s).")
+    robot = serializers.DictField(
+        help_text="Velocity, direction and position as the base station last read them "
+        "(as in the status). " + AGENT_OBJECT
+    )
+    link = serializers.DictField(help_text="The radio link, as in the status. " + AGENT_OBJECT)
 
 
 class RobotStopOutput(serializers.Serializer):

@@ -22,6 +22,7 @@ from core.audit.services import audit_record
 from core.audit.text import storable_text
 from core.cache import database_namespace
 from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
+from core.live import publish, robot_channel
 from portal.runs.agents import agent_client_for
 
 MAX_MANUAL_TTL_S = 10.0
@@ -154,7 +155,7 @@ def robot_drive(
         resource=resource, by=by, velocity_mps=velocity_mps, direction=direction
     )
     held: dict[str, Any] = {"hold": True} if hold else {}
-    return _call(
+    answer = _call(
         "robot.control",
         resource,
         by,
@@ -174,6 +175,25 @@ def robot_drive(
         force=force,
         **held,
     )
+    _publish_motion(resource, answer)
+    return answer
+
+
+def _publish_motion(resource: Resource, answer: dict[str, Any]) -> None:
+    """The robot's motion as the drive command's answer read it, to every console watching
+    the robot: while a button is held they follow it at the hold's repeat rate (a 2 s status
+    poll would show a hold's velocity after it ended). Nothing if the bus is down, or if the
+    base station predates motion in its answers."""
+    if "robot" in answer:
+        publish(
+            robot_channel(resource.name),
+            {
+                "type": "motion",
+                "clock": answer.get("clock"),
+                "robot": answer["robot"],
+                "link": answer.get("link"),
+            },
+        )
 
 
 def robot_stop(

@@ -29,10 +29,39 @@
     state.dataset.state = kind;
   }
 
+  // Each answer carries the robot's motion as the base station read it: the console shows it
+  // beside the buttons (web/robot.js), so a hold is followed at its repeat rate.
+  function motion(data) {
+    if (data && data.robot) {
+      document.dispatchEvent(new CustomEvent("robot:motion", { detail: { robot: data.robot, link: data.link, clock: data.clock } }));
+    }
+  }
+
   // Resolves to api.js's {ok, status, data}, never rejects.
-  function send(body, keepalive) {
+  async function send(body, keepalive) {
     // Outlives the page: the stop still goes when the tab is being closed.
-    return api("POST", url, body, { keepalive: Boolean(keepalive) });
+    const result = await api("POST", url, body, { keepalive: Boolean(keepalive) });
+    if (result.ok) motion(result.data);
+    return result;
+  }
+
+  // After letting go the robot ramps down with no command to answer: its status is read twice
+  // as often as the hold repeated until it stands still (or FOLLOW_MS passed, or another hold
+  // began), so that the slowing shows as promptly as the start did.
+  const FOLLOW_MS = 10000;
+  let following = 0;
+  async function follow() {
+    const mine = ++following;
+    const until = Date.now() + FOLLOW_MS;
+    while (mine === following && !held && Date.now() < until) {
+      await new Promise((done) => setTimeout(done, repeatMs / 2));
+      if (mine !== following || held) return;
+      const result = await api("GET", `/api/v1/resources/${root.dataset.name}/robot/`);
+      if (!result.ok) return;
+      const status = result.data.status || {};
+      motion(status);
+      if (!status.robot || !status.robot.velocity_mps) return;
+    }
   }
 
   async function tick() {
@@ -70,6 +99,7 @@
       reason.focus();
       return;
     }
+    following++; // a follow-up still reading the last hold's ramp stops here
     held = { direction, source, timer: setInterval(tick, repeatMs) };
     for (const button of buttons) button.setAttribute("aria-pressed", String(button.dataset.direction === direction));
     tick();
@@ -87,6 +117,7 @@
       const body = { velocity_mps: 0, direction, ttl_s: ttlS, reason: reason.value || "hold released", force: false, hold: true };
       send(body, keepalive); // if lost, the command's TTL stops the robot
       if (inFlight) stopAgain = { body, keepalive };
+      if (!keepalive) follow();
     }
   }
 

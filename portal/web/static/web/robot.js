@@ -1,6 +1,7 @@
 // @ts-check
 // Admin robot console: live status (pushed by the health check, polled while the stream is
-// down), manual drive, emergency stop, service and holds, daily log.
+// down; motion also from every drive command's answer), manual drive, emergency stop, service
+// and holds, daily log.
 (function () {
   "use strict";
   const root = document.getElementById("robot");
@@ -21,19 +22,51 @@
   const set = (id, text) => { document.getElementById(id).textContent = text; };
   const fmt = (value, unit, digits) => (value === null || value === undefined ? "—" : `${Number(value).toFixed(digits)} ${unit}`);
 
+  // The newest reading shown so far, by the base station's clock: a status read before a
+  // drive command's answer but delivered after it does not move the numbers back.
+  let shownClock = 0;
+  const live = document.getElementById("hold-live");
+
+  // Velocity, position and link, in the status panel and beside the hold-to-drive buttons;
+  // from a status, a drive command's answer or the robot's stream (type "motion").
+  function showMotion(robot, link, clock) {
+    if (typeof clock === "number") {
+      if (clock < shownClock) return;
+      shownClock = clock;
+    }
+    robot = robot || {};
+    link = link || {};
+    const speed = robot.velocity_mps === null || robot.velocity_mps === undefined ? null : Number(robot.velocity_mps).toFixed(2);
+    // A direction only while it moves: the telemetry keeps the last one at a stand.
+    const velocity = speed === null ? "—" : `${speed} m/s ${Number(speed) > 0 ? robot.direction || "" : ""}`.trim();
+    const position = fmt(robot.track_m, "m", 1);
+    const linked = `${link.state || "?"}${link.loss_pct !== undefined && link.loss_pct !== null ? `, ${Number(link.loss_pct).toFixed(0)} % loss` : ""}`;
+    set("st-velocity", velocity);
+    set("st-position", position);
+    set("st-link", linked);
+    if (live) {
+      set("hl-velocity", velocity);
+      set("hl-position", position);
+      set("hl-link", linked);
+      live.dataset.readings = String(Number(live.dataset.readings || 0) + 1);
+      live.dataset.velocityMps = String(robot.velocity_mps ?? "");
+    }
+  }
+  document.addEventListener("robot:motion", (event) => {
+    const motion = /** @type {CustomEvent} */ (event).detail;
+    showMotion(motion.robot, motion.link, motion.clock);
+  });
+
   function show(s, battery) {
     // Other parts of the page (roof.js) follow the same reading.
     document.dispatchEvent(new CustomEvent("robot:status", { detail: s }));
-    const link = s.link || {};
-    set("st-link", `${link.state || "?"}${link.loss_pct !== undefined && link.loss_pct !== null ? `, ${Number(link.loss_pct).toFixed(0)} % loss` : ""}`);
+    showMotion(s.robot, s.link, s.clock);
     set("st-battery", fmt(battery.filtered_v, "V", 1) + (battery.low ? " (LOW)" : ""));
-    const robot = s.robot || {};
-    set("st-velocity", robot.velocity_mps === null || robot.velocity_mps === undefined ? "—" : `${Number(robot.velocity_mps).toFixed(2)} m/s ${robot.direction || ""}`);
-    set("st-position", fmt(robot.track_m, "m", 1));
     set("st-run", s.current_run || "none");
     const estop = s.estop;
     const latched = Boolean(estop && estop.latched);
     set("st-estop", latched ? `LATCHED${estop.reason ? ": " + estop.reason : ""}` : "released");
+    if (live) set("hl-estop", latched ? "LATCHED" : "released");
     // Latched: a banner that stays at the top of the page, and the button says so (pressing it
     // again latches again, harmlessly).
     document.getElementById("estop-latched").hidden = !latched;
@@ -150,7 +183,7 @@
     } catch (error) { say("Log not read: " + error.message, true); }
   });
   liveFollow(root.dataset.stream, {
-    events: { status: onStatus, hold: onHold },
+    events: { status: onStatus, hold: onHold, motion: (motion) => showMotion(motion.robot, motion.link, motion.clock) },
     poll: refresh,
     pollMs: 2000,
     indicator: document.getElementById("live-status"),
