@@ -24,9 +24,10 @@ CHROMIUM_ARGS = [
     "--disable-sync",
     "--no-first-run",
 ]
-SCREENSHOTS = Path(
-    os.environ.get("SCREENSHOT_DIR", Path(__file__).resolve().parents[2] / "var" / "screenshots")
-)
+# A failed test's pages are photographed into var/ always: never among the documentation's
+# pictures, which `make screenshots` writes to SCREENSHOT_DIR.
+FAILURE_SHOTS = Path(__file__).resolve().parents[2] / "var" / "screenshots"
+SCREENSHOTS = Path(os.environ.get("SCREENSHOT_DIR", FAILURE_SHOTS))
 # `make screenshots` asks for the pictures of every page; otherwise only failures are kept.
 EVERY_PAGE_PHOTOGRAPHED = "SCREENSHOT_DIR" in os.environ
 
@@ -139,7 +140,8 @@ def pytest_runtest_makereport(
             name = f"{c}.{p}"
             try:
                 lines += _page_report(page, name)
-                shot = SCREENSHOTS / f"failed-{item.name}-{name}.png"
+                FAILURE_SHOTS.mkdir(parents=True, exist_ok=True)
+                shot = FAILURE_SHOTS / f"failed-{item.name}-{name}.png"
                 page.screenshot(path=str(shot), full_page=True)
                 lines.append(f"  screenshot: {shot.name}")
             except Exception as error:  # a page that crashed: say so, keep the test's failure
