@@ -67,7 +67,7 @@ $(STAMPS)/assets: package.json package-lock.json | $(STAMPS)
 APT_NEEDS := /usr/bin/chromium:chromium /usr/bin/docker-compose:docker-compose \
 	/usr/bin/avr-gcc:gcc-avr /usr/share/arduino/Arduino.mk:arduino-mk \
 	/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h:arduino-core-avr \
-	/usr/lib/avr/include/avr/io.h:avr-libc
+	/usr/lib/avr/include/avr/io.h:avr-libc /usr/include/simavr/sim_avr.h:libsimavr-dev
 system-deps:
 	@missing=""; for need in $(APT_NEEDS); do \
 		test -e "$${need%%:*}" || missing="$$missing $${need##*:}"; done; \
@@ -102,7 +102,7 @@ services:
 # Firmware first (seconds; the simulator's library too, before any agent starts), then every
 # Python suite; pytest's summary closes the output.
 test: setup system-deps services $(NGINX)
-	$(MAKE) --no-print-directory -C firmware test shared hex size-check
+	$(MAKE) --no-print-directory -C firmware test shared hex size-check avrsim
 	$(TEST_ENV) $(PY) -m pytest
 
 # Known vulnerabilities in the installed Python and npm packages (deploy/audit_dependencies.py,
