@@ -10,14 +10,22 @@
 //                                      lies between it and the end of the static data;
 //   resets                             watchdog resets during the run (a healthy image: 0);
 //   gps_bytes                          bytes delivered on the UART;
-//   hang_to_isr_us, hang_to_reset_us   with HANG_AT_S: from the hang to the watchdog's
-//                                      interrupt (which cuts the drive) and to the reset.
+//   hung_at_s, hang_to_isr_us,         with --hang-at: when the loop hung, and from then to
+//   hang_to_reset_us                   the watchdog's interrupt (which cuts the drive) and
+//                                      to the reset.
+//
+// Before it, with --radio FRAMES: an RFM69 on the SPI bus (chip select D10), registers and
+// FIFO as the robot's driver uses them (firmware/robot/rfm69.cpp), and on the air the frames
+// of FRAMES (a line each: the emulated second at which it arrives, then its bytes in hex,
+// length byte first), each delivered when due and the radio listening. What the image sends is
+// printed as `tx SECONDS HEX`, and the motor outputs every 10 ms as
+// `motor SECONDS DUTY ENABLE DIRECTION` (PWM duty 0-255 on D9, D7, D8).
 //
 // Time is the emulated chip's cycles, never the host's clock. Usage:
-//   avr_harness ELF DATA_END SECONDS GPS_FILE [HANG_AT_S]
+//   avr_harness ELF DATA_END SECONDS GPS_FILE [--hang-at S] [--radio FRAMES]
 // DATA_END is the first RAM address above the static data (avr-nm's `_end`), GPS_FILE one
-// NMEA sentence per line, sent round and round at 10 Hz (the receiver's rate). HANG_AT_S
-// makes loop() hang once, from the first pass to end after that time: its watchdog reset is
+// NMEA sentence per line, sent round and round at 10 Hz (the receiver's rate). --hang-at
+// makes loop() hang once, from the first pass to end after S seconds: its watchdog reset is
 // replaced by a jump to itself until the chip resets.
 #include <stdint.h>
 #include <stdio.h>
@@ -27,6 +35,8 @@
 #include <sim_avr.h>
 #include <sim_elf.h>
 #include <avr_adc.h>
+#include <avr_ioport.h>
+#include <avr_spi.h>
 #include <avr_uart.h>
 
 #define F_CPU_HZ 16000000UL
@@ -51,6 +61,207 @@ static void no_wall_clock(avr_t* avr, avr_cycle_count_t how_long) {
 
 static double us(avr_cycle_count_t cycles) { return (double)cycles * 1e6 / (double)F_CPU_HZ; }
 
+// --- The RFM69 on the SPI bus ------------------------------------------------------------------
+
+#define RF_FIFO 0x00
+#define RF_OPMODE 0x01
+#define RF_VERSION 0x10
+#define RF_RSSIVALUE 0x24
+#define RF_IRQFLAGS1 0x27
+#define RF_IRQFLAGS2 0x28
+#define RF_PACKETCONFIG2 0x3D
+#define RF_MODE_MASK 0x1C
+#define RF_MODE_TX 0x0C
+#define RF_MODE_RX 0x10
+#define RF_FIFO_BYTES 66
+#define RF_BITRATE_BPS 55555.0  // what the driver sets (32 MHz / 0x0240)
+#define RF_OVERHEAD_BYTES 7     // preamble 3, sync 2, CRC 2
+#define MAX_AIR_FRAMES 4096
+
+typedef struct {
+  double at_s;
+  uint8_t len;
+  uint8_t bytes[RF_FIFO_BYTES];
+} air_frame_t;
+
+typedef struct {
+  avr_t* avr;
+  avr_irq_t* spi_in;
+  uint8_t reg[0x80];
+  uint8_t fifo[RF_FIFO_BYTES];
+  int fifo_len, fifo_pos;
+  int selected, byte_index, writing;
+  uint8_t address;
+  int payload_ready;
+  avr_cycle_count_t sent_at;  // PacketSent from this cycle on, while in TX (0: not sending)
+  air_frame_t* air;
+  int air_count, air_next;
+  unsigned long sent, delivered;
+} rfm69_t;
+
+static void rf_clear_fifo(rfm69_t* r) {
+  r->fifo_len = r->fifo_pos = 0;
+  r->payload_ready = 0;
+}
+
+static void rf_set_mode(rfm69_t* r, uint8_t mode) {
+  const uint8_t was = r->reg[RF_OPMODE] & RF_MODE_MASK;
+  if (was == RF_MODE_TX && mode != RF_MODE_TX) {
+    r->sent_at = 0;
+    rf_clear_fifo(r);
+  }
+  if (mode == RF_MODE_TX && was != RF_MODE_TX && r->fifo_len > 0) {
+    // On the air: printed now, sent once its bytes have crossed at the bit rate.
+    const double air_s = (r->fifo_len + RF_OVERHEAD_BYTES) * 8.0 / RF_BITRATE_BPS;
+    printf("tx %.6f ", (double)r->avr->cycle / F_CPU_HZ);
+    for (int i = 0; i < r->fifo_len; ++i) printf("%02x", r->fifo[i]);
+    printf("\n");
+    r->sent_at = r->avr->cycle + (avr_cycle_count_t)(air_s * F_CPU_HZ) + 1;
+    ++r->sent;
+  }
+}
+
+static uint8_t rf_read(rfm69_t* r, uint8_t address) {
+  switch (address) {
+    case RF_FIFO: {
+      const uint8_t value = r->fifo_pos < r->fifo_len ? r->fifo[r->fifo_pos++] : 0;
+      if (r->fifo_pos >= r->fifo_len) r->payload_ready = 0;
+      return value;
+    }
+    case RF_IRQFLAGS1:
+      return 0x80;  // ModeReady: every mode change is immediate here
+    case RF_IRQFLAGS2:
+      return (uint8_t)((r->fifo_pos < r->fifo_len ? 0x40 : 0) | (r->payload_ready ? 0x04 : 0) |
+                       (r->sent_at && r->avr->cycle >= r->sent_at ? 0x08 : 0));
+    case RF_RSSIVALUE:
+      return 120;  // -60 dBm
+    default:
+      return r->reg[address & 0x7F];
+  }
+}
+
+static void rf_write(rfm69_t* r, uint8_t address, uint8_t value) {
+  switch (address) {
+    case RF_FIFO:
+      if (r->fifo_len < RF_FIFO_BYTES) r->fifo[r->fifo_len++] = value;
+      return;
+    case RF_OPMODE:
+      rf_set_mode(r, value & RF_MODE_MASK);
+      r->reg[RF_OPMODE] = value;
+      return;
+    case RF_IRQFLAGS2:
+      if (value & 0x10) rf_clear_fifo(r);  // FifoOverrun written: the FIFO is emptied
+      return;
+    case RF_PACKETCONFIG2:
+      if (value & 0x04) rf_clear_fifo(r);  // RestartRx
+      r->reg[address] = value & (uint8_t)~0x04;
+      return;
+    case RF_VERSION:
+      return;
+    default:
+      r->reg[address & 0x7F] = value;
+  }
+}
+
+// A byte the MCU shifted out; the chip's byte shifted back in the same transfer.
+static void rf_spi_byte(avr_irq_t* irq, uint32_t value, void* param) {
+  (void)irq;
+  rfm69_t* r = (rfm69_t*)param;
+  uint8_t reply = 0;
+  if (r->selected) {
+    const uint8_t byte = (uint8_t)value;
+    if (r->byte_index == 0) {
+      r->address = byte & 0x7F;
+      r->writing = (byte & 0x80) != 0;
+    } else {
+      if (r->writing) {
+        rf_write(r, r->address, byte);
+      } else {
+        reply = rf_read(r, r->address);
+      }
+      if (r->address != RF_FIFO) r->address = (uint8_t)((r->address + 1) & 0x7F);  // burst
+    }
+    ++r->byte_index;
+  }
+  avr_raise_irq(r->spi_in, reply);
+}
+
+static void rf_select(avr_irq_t* irq, uint32_t value, void* param) {
+  (void)irq;
+  rfm69_t* r = (rfm69_t*)param;
+  r->selected = value == 0;
+  r->byte_index = 0;
+}
+
+// The next frame on the air, once due, into a listening radio with an empty FIFO.
+static void rf_deliver(rfm69_t* r) {
+  if (r->air_next >= r->air_count) return;
+  const air_frame_t* frame = &r->air[r->air_next];
+  if ((double)r->avr->cycle < frame->at_s * F_CPU_HZ) return;
+  if ((r->reg[RF_OPMODE] & RF_MODE_MASK) != RF_MODE_RX || r->payload_ready) return;
+  memcpy(r->fifo, frame->bytes, frame->len);
+  r->fifo_len = frame->len;
+  r->fifo_pos = 0;
+  r->payload_ready = 1;
+  ++r->air_next;
+  ++r->delivered;
+}
+
+static int read_air(const char* path, air_frame_t* out, int cap) {
+  FILE* f = fopen(path, "r");
+  if (!f) {
+    perror(path);
+    exit(2);
+  }
+  int n = 0;
+  char hex[2 * RF_FIFO_BYTES + 2];
+  double at_s;
+  while (n < cap && fscanf(f, "%lf %133s", &at_s, hex) == 2) {
+    const size_t digits = strlen(hex);
+    if (digits % 2 != 0 || digits / 2 > RF_FIFO_BYTES || digits == 0) {
+      fprintf(stderr, "%s: frame %d is not 1-%d bytes of hex\n", path, n + 1, RF_FIFO_BYTES);
+      exit(2);
+    }
+    out[n].at_s = at_s;
+    out[n].len = (uint8_t)(digits / 2);
+    for (size_t i = 0; i < digits / 2; ++i) {
+      unsigned byte;
+      if (sscanf(hex + 2 * i, "%2x", &byte) != 1) exit(2);
+      out[n].bytes[i] = (uint8_t)byte;
+    }
+    if (n > 0 && at_s < out[n - 1].at_s) {
+      fprintf(stderr, "%s: frames out of order\n", path);
+      exit(2);
+    }
+    ++n;
+  }
+  fclose(f);
+  return n;
+}
+
+static void rf_attach(rfm69_t* r, avr_t* avr, air_frame_t* air, int air_count) {
+  memset(r, 0, sizeof *r);
+  r->avr = avr;
+  r->air = air;
+  r->air_count = air_count;
+  r->reg[RF_VERSION] = 0x24;
+  r->reg[RF_OPMODE] = 0x04;
+  r->spi_in = avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_INPUT);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT),
+                          rf_spi_byte, r);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 2), rf_select, r);
+}
+
+// The motor outputs as the board's driver sees them: PWM on D9 (OC1A), enable D7, direction D8.
+static void print_motor(avr_t* avr) {
+  const uint8_t tccr1a = avr->data[0x80], ocr1al = avr->data[0x88];
+  const uint8_t portb = avr->data[0x25], portd = avr->data[0x2B];
+  const int pwm_on = (tccr1a & 0x80) != 0;  // COM1A1: the pin follows the timer
+  const unsigned duty = pwm_on ? ocr1al : ((portb & 0x02) ? 255u : 0u);
+  printf("motor %.6f %u %d %d\n", (double)avr->cycle / F_CPU_HZ, duty, (portd & 0x80) != 0,
+         (portb & 0x01) != 0);
+}
+
 static size_t read_gps(const char* path, uint8_t* out, size_t cap, size_t* sentences) {
   FILE* f = fopen(path, "rb");
   if (!f) {
@@ -67,11 +278,27 @@ static size_t read_gps(const char* path, uint8_t* out, size_t cap, size_t* sente
 }
 
 int main(int argc, char** argv) {
-  if (argc != 5 && argc != 6) {
-    fprintf(stderr, "usage: %s ELF DATA_END SECONDS GPS_FILE [HANG_AT_S]\n", argv[0]);
+  if (argc < 5) {
+    fprintf(stderr, "usage: %s ELF DATA_END SECONDS GPS_FILE [--hang-at S] [--radio FRAMES]\n",
+            argv[0]);
     return 2;
   }
-  const double hang_at_s = argc == 6 ? atof(argv[5]) : -1.0;
+  double hang_at_s = -1.0;
+  const char* radio_path = NULL;
+  for (int i = 5; i + 1 < argc; i += 2) {
+    if (strcmp(argv[i], "--hang-at") == 0) {
+      hang_at_s = atof(argv[i + 1]);
+    } else if (strcmp(argv[i], "--radio") == 0) {
+      radio_path = argv[i + 1];
+    } else {
+      fprintf(stderr, "unknown option %s\n", argv[i]);
+      return 2;
+    }
+  }
+  if ((argc - 5) % 2 != 0) {
+    fprintf(stderr, "option %s wants a value\n", argv[argc - 1]);
+    return 2;
+  }
   const uint32_t data_end = (uint32_t)strtoul(argv[2], NULL, 0) & 0xFFFF;
   const double seconds = atof(argv[3]);
   static uint8_t gps[MAX_GPS_BYTES];
@@ -105,6 +332,12 @@ int main(int argc, char** argv) {
   avr_irq_t* uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
   avr_irq_t* adc0 = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
   avr_raise_irq(adc0, BATTERY_PIN_MV);
+  static air_frame_t air[MAX_AIR_FRAMES];
+  static rfm69_t radio;
+  const int with_radio = radio_path != NULL;
+  if (with_radio) rf_attach(&radio, avr, air, read_air(radio_path, air, MAX_AIR_FRAMES));
+  const avr_cycle_count_t motor_every = F_CPU_HZ / 100;  // 10 ms
+  avr_cycle_count_t next_motor = 0;
 
   const avr_cycle_count_t end = (avr_cycle_count_t)(seconds * F_CPU_HZ);
   const avr_cycle_count_t byte_cycles = F_CPU_HZ * 10 / GPS_BAUD;  // start, 8 data, stop
@@ -170,6 +403,13 @@ int main(int argc, char** argv) {
       next_byte = avr->cycle + byte_cycles;
       if (byte == '\n') in_burst = 0;
     }
+    if (with_radio) {
+      rf_deliver(&radio);
+      if (avr->cycle >= next_motor) {
+        print_motor(avr);
+        next_motor += motor_every;
+      }
+    }
     state = avr_run(avr);
   }
 
@@ -186,11 +426,13 @@ int main(int argc, char** argv) {
       "{\"emulated_s\": %.3f, \"state\": %d, \"boot_us\": %.1f, \"passes\": %lu, "
       "\"loop_mean_us\": %.1f, \"loop_max_us\": %.1f, \"stack_used_bytes\": %u, "
       "\"stack_free_bytes\": %u, \"ram_bytes\": %u, \"data_end\": %u, \"resets\": %u, "
-      "\"gps_bytes\": %zu, \"hang_to_isr_us\": %.1f, \"hang_to_reset_us\": %.1f}\n",
+      "\"gps_bytes\": %zu, \"hang_to_isr_us\": %.1f, \"hang_to_reset_us\": %.1f, "
+      "\"hung_at_s\": %.6f, \"radio_received\": %lu, \"radio_sent\": %lu}\n",
       (double)avr->cycle / F_CPU_HZ, state, us(boot), passes,
       passes ? us(loop_sum) / (double)passes : 0.0, us(loop_max), stack_used, stack_free,
       (unsigned)(avr->ramend + 1 - 0x100), data_end, resets, gps_bytes,
-      hang_isr ? us(hang_isr - hang_at) : -1.0, hang_reset ? us(hang_reset - hang_at) : -1.0);
+      hang_isr ? us(hang_isr - hang_at) : -1.0, hang_reset ? us(hang_reset - hang_at) : -1.0,
+      hung ? (double)hang_at / F_CPU_HZ : -1.0, radio.delivered, radio.sent);
   avr_terminate(avr);
   return state == cpu_Crashed ? 1 : 0;
 }

@@ -5,25 +5,41 @@
 What only the real image can show (docs/firmware.md, "The flashed image on an emulated
 chip"): it boots and its loop comes round, with the Arduino core, the timers, the UART and the
 watchdog as built; the longest loop() pass and the stack's deepest point in painted RAM, each
-against a floor; and a loop that hangs is cut off by the watchdog's interrupt, then the chip is
-reset and boots again. The radio is absent here (the robot stays stopped and tries to start
-its radio once a second, which is the longest pass).
+against a floor (without a radio: the robot stays stopped and tries to start its radio once a
+second, the longest pass). With an RFM69 on its SPI bus (the harness's register model) and the
+base station's frames on the air, encoded by the portal's own codec: it answers "identify" with
+the build id `make firmware` stamped, answers each command, and drives the motor's PWM as the
+portable core does on the host, step for step, down to the dead-man's ramp; and a loop that
+hangs while driving has its drive cut by the watchdog's interrupt, then the chip resets and
+boots again.
 """
 
 from __future__ import annotations
 
 import json
 import subprocess
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from basestation.protocol import codec
+from basestation.protocol.frames import (
+    CommandFrame,
+    Direction,
+    IdentifyFrame,
+    IdentityFrame,
+    TelemetryFrame,
+)
+from basestation.sim.firmware import FirmwareRobot
 from basestation.sim.gps import gga_sentence
 
 FIRMWARE = Path(__file__).resolve().parents[2] / "firmware"
 ELF = FIRMWARE / "build-nano-atmega328" / "robot.elf"
 HARNESS = FIRMWARE / "avrsim" / "build" / "avr_harness"
+# What `make firmware` stamped on this build (the same make run writes both).
+BUILD_ID_HEADER = FIRMWARE / "host" / "build" / "build_id.h"
 
 # Three of the radio's restart attempts (one a second) and thirty GPS bursts.
 EMULATED_S = 3.0
@@ -34,6 +50,15 @@ LOOP_MAX_FLOOR_US = 10_000.0
 STACK_FREE_FLOOR_BYTES = 512
 # The sketch's watchdog: 250 ms to its interrupt, another 250 ms to the reset (robot.ino).
 WATCHDOG_PERIOD_US = 250_000.0
+# The base station's side: identify at 0.5 s, then a second of commands at 50 Hz.
+IDENTIFY_AT_S = 0.5
+COMMANDS_FROM_S = 0.6
+COMMAND_PERIOD_S = 0.02
+COMMANDS = 50
+VELOCITY_MM_S = 500
+DEAD_MAN_S = 0.5
+# The battery the harness puts on ADC0, as the core counts it (1.6 V of 5 V, 10 bits).
+BATTERY_ADC_COUNTS = 327
 
 
 def _data_end() -> int:
@@ -46,6 +71,47 @@ def _data_end() -> int:
         if len(fields) == 3 and fields[2] == "_end":
             return int(fields[0], 16) & 0xFFFF
     raise AssertionError("robot.elf has no _end symbol")
+
+
+def _air(tmp_path: Path) -> tuple[Path, list[tuple[float, bytes]]]:
+    """The base station's frames, a line each: when it arrives, and its bytes."""
+    frames = [(IDENTIFY_AT_S, codec.encode_frame(IdentifyFrame(seq=1)))]
+    frames += [
+        (
+            COMMANDS_FROM_S + k * COMMAND_PERIOD_S,
+            codec.encode_frame(
+                CommandFrame(seq=10 + k, velocity_mm_s=VELOCITY_MM_S, direction=Direction.CW)
+            ),
+        )
+        for k in range(COMMANDS)
+    ]
+    path = tmp_path / "air.txt"
+    path.write_text("".join(f"{at_s:.6f} {frame.hex()}\n" for at_s, frame in frames))
+    return path, frames
+
+
+def _lines(result: dict[str, Any], kind: str) -> list[list[str]]:
+    return [line.split()[1:] for line in result["lines"] if line.startswith(kind + " ")]
+
+
+def _core_duties(frames: list[tuple[float, bytes]], until_ms: int) -> dict[int, int]:
+    """The portable core on the host, fed the same frames at the same times and stepped every
+    millisecond: its PWM duty every 10 ms."""
+    robot = FirmwareRobot(now_ms=0)
+    pending = list(frames)
+    duties = {}
+    try:
+        for now_ms in range(until_ms + 1):
+            if now_ms % 20 == 0:
+                robot.add_battery_sample(BATTERY_ADC_COUNTS)
+            while pending and pending[0][0] * 1000 <= now_ms:
+                robot.handle_frame(now_ms, pending.pop(0)[1], -60)
+            out = robot.step(now_ms)
+            if now_ms % 10 == 0:
+                duties[now_ms] = out.duty
+    finally:
+        robot.close()
+    return duties
 
 
 def _run(tmp_path: Path, *extra: str) -> dict[str, Any]:
@@ -74,8 +140,10 @@ def _run(tmp_path: Path, *extra: str) -> dict[str, Any]:
         check=False,
     )
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    lines = done.stdout.strip().splitlines()
+    result: dict[str, Any] = json.loads(lines[-1])
     assert result["emulated_s"] == pytest.approx(EMULATED_S, abs=0.01)
+    result["lines"] = lines[:-1]
     return result
 
 
@@ -95,13 +163,61 @@ def test_the_image_boots_and_keeps_its_loop_and_stack_within_their_floors(tmp_pa
     ), result
 
 
+def test_the_image_answers_identify_and_each_command_and_drives_as_the_core_does(tmp_path):
+    air, frames = _air(tmp_path)
+    result = _run(tmp_path, "--radio", str(air))
+    assert result["resets"] == 0, result
+    assert result["radio_received"] == len(frames), result
+    sent = [(float(at), codec.decode_frame(bytes.fromhex(raw))) for at, raw in _lines(result, "tx")]
+    identity = sent[0][1]
+    assert isinstance(identity, IdentityFrame), sent[0]
+    stamped = BUILD_ID_HEADER.read_text().split('"')[1]
+    assert identity.build_id == stamped
+    assert identity.dead_man_ms == DEAD_MAN_S * 1000
+    telemetry = [frame for _, frame in sent[1:]]
+    assert all(isinstance(frame, TelemetryFrame) for frame in telemetry), telemetry
+    assert [frame.echo_seq for frame in telemetry] == [10 + k for k in range(COMMANDS)]  # type: ignore[union-attr]
+
+    # The PWM as the image drives it (every 10 ms) against the core on the host: the same
+    # to one step of 255, through the ramp up, the dead-man and the ramp down.
+    motor = {round(float(at) * 1000): int(duty) for at, duty, _, _ in _lines(result, "motor")}
+    core = _core_duties(frames, until_ms=round(EMULATED_S * 1000) - 10)
+    assert max(motor.values()) > 5, motor
+    assert max(motor.values()) == max(core.values())
+    apart = {ms: (motor[ms], core[ms]) for ms in core if abs(motor[ms] - core[ms]) > 1}
+    assert not apart, apart
+    # Silence: the drive holds until the dead-man's time after the last command, then ramps
+    # to 0 (a sample's worth of slack either side).
+    last_command_ms = round((COMMANDS_FROM_S + (COMMANDS - 1) * COMMAND_PERIOD_S) * 1000)
+    times = sorted(motor)
+    falls_ms = min(b for a, b in pairwise(times) if motor[b] < motor[a])
+    dead_man_ms = last_command_ms + DEAD_MAN_S * 1000
+    # The duty only rises until then; one step of duty is 65 ms of the stop's deceleration,
+    # so the first lower sample comes within that after the dead-man's time.
+    assert dead_man_ms <= falls_ms <= dead_man_ms + 80, (falls_ms, motor)
+    assert motor[times[-1]] == 0
+
+
 def test_a_hung_loop_is_cut_off_by_the_watchdog_then_the_chip_resets_and_boots_again(tmp_path):
-    result = _run(tmp_path, "1.0")
+    air, _ = _air(tmp_path)
+    hang_at_s = 1.2  # while driving
+    result = _run(tmp_path, "--hang-at", str(hang_at_s), "--radio", str(air))
     assert result["resets"] == 1, result
     # Its interrupt (which removes the drive) one watchdog period after the hang, the reset
     # one more later; the oscillator of the watchdog is the chip's own, so within a tenth.
     assert result["hang_to_isr_us"] == pytest.approx(WATCHDOG_PERIOD_US, rel=0.1), result
     assert result["hang_to_reset_us"] == pytest.approx(2 * WATCHDOG_PERIOD_US, rel=0.1), result
+    # Driving when it hung; the interrupt removes the drive (PWM and enable low) at once.
+    motor = [(float(at), int(duty), int(enable)) for at, duty, enable, _ in _lines(result, "motor")]
+    hung_s = result["hung_at_s"]
+    assert hang_at_s <= hung_s < hang_at_s + 0.05, result
+    isr_s = hung_s + result["hang_to_isr_us"] / 1e6
+    held = [(d, e) for t, d, e in motor if hung_s - 0.05 <= t < isr_s]
+    assert held, motor
+    assert all(d > 0 and e == 1 for d, e in held), held
+    cut = [(d, e) for t, d, e in motor if isr_s < t <= isr_s + 0.2]
+    assert cut, motor
+    assert all((d, e) == (0, 0) for d, e in cut), cut
     # Booted again and went round: passes after the reset, up to the run's end.
-    after_reset_s = EMULATED_S - 1.0 - result["hang_to_reset_us"] / 1e6
-    assert result["passes"] > (1.0 + after_reset_s) * 1_000_000 / LOOP_MAX_FLOOR_US, result
+    after_reset_s = EMULATED_S - hang_at_s - result["hang_to_reset_us"] / 1e6
+    assert result["passes"] > (hang_at_s + after_reset_s) * 1_000_000 / LOOP_MAX_FLOOR_US
