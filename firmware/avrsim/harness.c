@@ -163,10 +163,19 @@ static void rf_write(rfm69_t* r, uint8_t address, uint8_t value) {
   }
 }
 
-// A byte the MCU shifted out; the chip's byte shifted back in the same transfer.
-static void rf_spi_byte(avr_irq_t* irq, uint32_t value, void* param) {
-  (void)irq;
+// A byte the MCU wrote to SPDR: the chip's byte is shifted back in the same transfer. Taken
+// from the register write itself, not from simavr's SPI output: Debian's simavr 1.6 completes
+// a transfer 100 us after the write whatever the SPI clock, fifty times the 2 us a byte takes
+// at the sketch's 4 MHz, which would make every radio exchange look that much slower.
+#define SPCR_DATA 0x4C
+#define SPDR_DATA 0x4E
+#define SPCR_SPE 0x40
+#define SPCR_MSTR 0x10
+
+static void rf_spi_byte(struct avr_t* avr, avr_io_addr_t addr, uint8_t value, void* param) {
+  (void)addr;
   rfm69_t* r = (rfm69_t*)param;
+  if ((avr->data[SPCR_DATA] & (SPCR_SPE | SPCR_MSTR)) != (SPCR_SPE | SPCR_MSTR)) return;
   uint8_t reply = 0;
   if (r->selected) {
     const uint8_t byte = (uint8_t)value;
@@ -247,8 +256,7 @@ static void rf_attach(rfm69_t* r, avr_t* avr, air_frame_t* air, int air_count) {
   r->reg[RF_VERSION] = 0x24;
   r->reg[RF_OPMODE] = 0x04;
   r->spi_in = avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_INPUT);
-  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT),
-                          rf_spi_byte, r);
+  avr_register_io_write(avr, SPDR_DATA, rf_spi_byte, r);
   avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 2), rf_select, r);
 }
 

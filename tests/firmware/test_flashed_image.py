@@ -168,6 +168,8 @@ def test_the_image_answers_identify_and_each_command_and_drives_as_the_core_does
     result = _run(tmp_path, "--radio", str(air))
     assert result["resets"] == 0, result
     assert result["radio_received"] == len(frames), result
+    # Answering (the reply's time on the air included) still comes round within the floor.
+    assert result["loop_max_us"] <= LOOP_MAX_FLOOR_US, result
     sent = [(float(at), codec.decode_frame(bytes.fromhex(raw))) for at, raw in _lines(result, "tx")]
     identity = sent[0][1]
     assert isinstance(identity, IdentityFrame), sent[0]
