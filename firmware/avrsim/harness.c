@@ -12,7 +12,8 @@
 //   gps_bytes                          bytes delivered on the UART;
 //   hung_at_s, hang_to_isr_us,         with --hang-at: when the loop hung, and from then to
 //   hang_to_reset_us                   the watchdog's interrupt (which cuts the drive) and
-//                                      to the reset.
+//                                      to the reset;
+//   eeprom0                            the EEPROM's first byte at the end (the e-stop latch).
 //
 // Before it, with --radio FRAMES: an RFM69 on the SPI bus (chip select D10), registers and
 // FIFO as the robot's driver uses them (firmware/robot/rfm69.cpp), and on the air the frames
@@ -22,11 +23,12 @@
 // `motor SECONDS DUTY ENABLE DIRECTION` (PWM duty 0-255 on D9, D7, D8).
 //
 // Time is the emulated chip's cycles, never the host's clock. Usage:
-//   avr_harness ELF DATA_END SECONDS GPS_FILE [--hang-at S] [--radio FRAMES]
+//   avr_harness ELF DATA_END SECONDS GPS_FILE [--hang-at S] [--reset-at S] [--radio FRAMES]
 // DATA_END is the first RAM address above the static data (avr-nm's `_end`), GPS_FILE one
 // NMEA sentence per line, sent round and round at 10 Hz (the receiver's rate). --hang-at
 // makes loop() hang once, from the first pass to end after S seconds: its watchdog reset is
-// replaced by a jump to itself until the chip resets.
+// replaced by a jump to itself until the chip resets. --reset-at resets the chip once at S
+// seconds (its reset pin; RAM is left as it was, the EEPROM kept).
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -35,6 +37,7 @@
 #include <sim_avr.h>
 #include <sim_elf.h>
 #include <avr_adc.h>
+#include <avr_eeprom.h>
 #include <avr_ioport.h>
 #include <avr_spi.h>
 #include <avr_uart.h>
@@ -42,7 +45,7 @@
 #define F_CPU_HZ 16000000UL
 #define GPS_BAUD 115200UL
 #define GPS_PERIOD_S 0.1
-#define BATTERY_PIN_MV 1600  // 24 V through the board's 15:1 divider
+#define BATTERY_PIN_MV 4000  // 60 V (the simulator's full battery) through the 15:1 divider
 #define PAINT 0xA5
 #define WDR_OPCODE 0x95A8
 #define SELF_JUMP_OPCODE 0xCFFF  // rjmp .-2
@@ -287,15 +290,19 @@ static size_t read_gps(const char* path, uint8_t* out, size_t cap, size_t* sente
 
 int main(int argc, char** argv) {
   if (argc < 5) {
-    fprintf(stderr, "usage: %s ELF DATA_END SECONDS GPS_FILE [--hang-at S] [--radio FRAMES]\n",
+    fprintf(stderr,
+            "usage: %s ELF DATA_END SECONDS GPS_FILE [--hang-at S] [--reset-at S] "
+            "[--radio FRAMES]\n",
             argv[0]);
     return 2;
   }
-  double hang_at_s = -1.0;
+  double hang_at_s = -1.0, reset_at_s = -1.0;
   const char* radio_path = NULL;
   for (int i = 5; i + 1 < argc; i += 2) {
     if (strcmp(argv[i], "--hang-at") == 0) {
       hang_at_s = atof(argv[i + 1]);
+    } else if (strcmp(argv[i], "--reset-at") == 0) {
+      reset_at_s = atof(argv[i + 1]);
     } else if (strcmp(argv[i], "--radio") == 0) {
       radio_path = argv[i + 1];
     } else {
@@ -327,6 +334,7 @@ int main(int argc, char** argv) {
   if (!avr) return 2;
   avr_init(avr);
   avr->frequency = F_CPU_HZ;
+  avr->vcc = avr->avcc = avr->aref = 5000;  // the Nano's 5 V: the ADC's reference is AVCC
   avr->log = LOG_ERROR;
   avr->sleep = no_wall_clock;
   avr_load_firmware(avr, &firmware);
@@ -411,6 +419,11 @@ int main(int argc, char** argv) {
       next_byte = avr->cycle + byte_cycles;
       if (byte == '\n') in_burst = 0;
     }
+    if (reset_at_s >= 0 && avr->cycle >= (avr_cycle_count_t)(reset_at_s * F_CPU_HZ)) {
+      reset_at_s = -1.0;
+      avr_reset(avr);
+      continue;
+    }
     if (with_radio) {
       rf_deliver(&radio);
       if (avr->cycle >= next_motor) {
@@ -428,6 +441,9 @@ int main(int argc, char** argv) {
       break;
     }
   }
+  avr_eeprom_desc_t eeprom = {.ee = NULL, .offset = 0, .size = 1};
+  avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &eeprom);  // points eeprom.ee at the chip's EEPROM
+  const int eeprom0 = eeprom.ee != NULL ? eeprom.ee[0] : -1;
   const unsigned stack_used = (unsigned)(avr->ramend + 1 - deepest);
   const unsigned stack_free = deepest - data_end;
   printf(
@@ -435,12 +451,13 @@ int main(int argc, char** argv) {
       "\"loop_mean_us\": %.1f, \"loop_max_us\": %.1f, \"stack_used_bytes\": %u, "
       "\"stack_free_bytes\": %u, \"ram_bytes\": %u, \"data_end\": %u, \"resets\": %u, "
       "\"gps_bytes\": %zu, \"hang_to_isr_us\": %.1f, \"hang_to_reset_us\": %.1f, "
-      "\"hung_at_s\": %.6f, \"radio_received\": %lu, \"radio_sent\": %lu}\n",
+      "\"hung_at_s\": %.6f, \"radio_received\": %lu, \"radio_sent\": %lu, "
+      "\"eeprom0\": %d}\n",
       (double)avr->cycle / F_CPU_HZ, state, us(boot), passes,
       passes ? us(loop_sum) / (double)passes : 0.0, us(loop_max), stack_used, stack_free,
       (unsigned)(avr->ramend + 1 - 0x100), data_end, resets, gps_bytes,
       hang_isr ? us(hang_isr - hang_at) : -1.0, hang_reset ? us(hang_reset - hang_at) : -1.0,
-      hung ? (double)hang_at / F_CPU_HZ : -1.0, radio.delivered, radio.sent);
+      hung ? (double)hang_at / F_CPU_HZ : -1.0, radio.delivered, radio.sent, eeprom0);
   avr_terminate(avr);
   return state == cpu_Crashed ? 1 : 0;
 }

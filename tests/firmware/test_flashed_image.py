@@ -26,11 +26,14 @@ import pytest
 
 from basestation.protocol import codec
 from basestation.protocol.frames import (
+    NO_COMMAND_FLAGS,
+    CommandFlag,
     CommandFrame,
     Direction,
     IdentifyFrame,
     IdentityFrame,
     TelemetryFrame,
+    TelemetryStatus,
 )
 from basestation.sim.firmware import FirmwareRobot
 from basestation.sim.gps import gga_sentence
@@ -57,8 +60,9 @@ COMMAND_PERIOD_S = 0.02
 COMMANDS = 50
 VELOCITY_MM_S = 500
 DEAD_MAN_S = 0.5
-# The battery the harness puts on ADC0, as the core counts it (1.6 V of 5 V, 10 bits).
-BATTERY_ADC_COUNTS = 327
+# The battery the harness puts on ADC0, as the core counts it (60 V through the 15:1 divider:
+# 4 V of 5 V, 10 bits).
+BATTERY_ADC_COUNTS = 818
 
 
 def _data_end() -> int:
@@ -73,18 +77,34 @@ def _data_end() -> int:
     raise AssertionError("robot.elf has no _end symbol")
 
 
-def _air(tmp_path: Path) -> tuple[Path, list[tuple[float, bytes]]]:
-    """The base station's frames, a line each: when it arrives, and its bytes."""
-    frames = [(IDENTIFY_AT_S, codec.encode_frame(IdentifyFrame(seq=1)))]
-    frames += [
+def _commands(
+    from_s: float, count: int, first_seq: int, flags: CommandFlag = NO_COMMAND_FLAGS
+) -> list[tuple[float, bytes]]:
+    """``count`` commands at 50 Hz from ``from_s``, clockwise at VELOCITY_MM_S."""
+    return [
         (
-            COMMANDS_FROM_S + k * COMMAND_PERIOD_S,
+            from_s + k * COMMAND_PERIOD_S,
             codec.encode_frame(
-                CommandFrame(seq=10 + k, velocity_mm_s=VELOCITY_MM_S, direction=Direction.CW)
+                CommandFrame(
+                    seq=first_seq + k,
+                    velocity_mm_s=VELOCITY_MM_S,
+                    direction=Direction.CW,
+                    flags=flags,
+                )
             ),
         )
-        for k in range(COMMANDS)
+        for k in range(count)
     ]
+
+
+def _air(
+    tmp_path: Path, frames: list[tuple[float, bytes]] | None = None
+) -> tuple[Path, list[tuple[float, bytes]]]:
+    """The base station's frames, a line each: when it arrives, and its bytes (by default
+    identify, then a second of commands)."""
+    if frames is None:
+        frames = [(IDENTIFY_AT_S, codec.encode_frame(IdentifyFrame(seq=1)))]
+        frames += _commands(COMMANDS_FROM_S, COMMANDS, first_seq=10)
     path = tmp_path / "air.txt"
     path.write_text("".join(f"{at_s:.6f} {frame.hex()}\n" for at_s, frame in frames))
     return path, frames
@@ -223,3 +243,42 @@ def test_a_hung_loop_is_cut_off_by_the_watchdog_then_the_chip_resets_and_boots_a
     # Booted again and went round: passes after the reset, up to the run's end.
     after_reset_s = EMULATED_S - hang_at_s - result["hang_to_reset_us"] / 1e6
     assert result["passes"] > (hang_at_s + after_reset_s) * 1_000_000 / LOOP_MAX_FLOOR_US
+
+
+def test_an_e_stop_is_kept_in_eeprom_through_a_reset_and_released_only_when_told(tmp_path):
+    frames = [
+        *_commands(0.6, 20, first_seq=10),  # driving
+        *_commands(1.0, 1, first_seq=30, flags=CommandFlag.E_STOP),
+        *_commands(1.7, 15, first_seq=31),  # after the reset: asked to drive, latched
+        *_commands(2.1, 1, first_seq=46, flags=CommandFlag.E_STOP_RELEASE),
+        *_commands(2.2, 25, first_seq=47),
+    ]
+    air, _ = _air(tmp_path, frames)
+    result = _run(tmp_path, "--reset-at", "1.5", "--radio", str(air))
+    assert result["resets"] == 1, result
+    assert result["radio_received"] == len(frames), result
+    # Released at the end: the latch's EEPROM byte is cleared again.
+    assert result["eeprom0"] == 0, result
+    telemetry = {
+        frame.echo_seq: frame
+        for _, raw in _lines(result, "tx")
+        if isinstance(frame := codec.decode_frame(bytes.fromhex(raw)), TelemetryFrame)
+    }
+    latched = {
+        seq for seq, frame in telemetry.items() if frame.status & TelemetryStatus.E_STOP_LATCHED
+    }
+    assert latched == set(range(30, 46)), sorted(latched)
+    assert all(frame.battery_10mv == pytest.approx(6000, abs=20) for frame in telemetry.values())
+    motor = [(float(at), int(duty), int(enable)) for at, duty, enable, _ in _lines(result, "motor")]
+    assert any(d > 0 for t, d, _ in motor if t < 1.0)
+    # From the stop (answered within a sample) to the release: no drive, before or after the
+    # reset; driving again after it.
+    assert all((d, e) == (0, 0) for t, d, e in motor if 1.01 <= t <= 2.1), motor
+    assert any(d > 0 and e == 1 for t, d, e in motor if t > 2.2)
+
+
+def test_the_latch_is_written_to_eeprom_when_the_stop_comes(tmp_path):
+    frames = [*_commands(0.6, 5, first_seq=10), *_commands(0.8, 1, 20, CommandFlag.E_STOP)]
+    air, _ = _air(tmp_path, frames)
+    result = _run(tmp_path, "--radio", str(air))
+    assert result["eeprom0"] == 0xE5, result  # robot.ino's kEStopLatched at address 0
