@@ -1,21 +1,22 @@
 // The flashed image, executed: runs the very robot.elf that `make firmware` builds on simavr's
-// emulated ATmega328P at 16 MHz, with the board's inputs it can have without a radio (GPS
-// sentences on the UART at their baud rate and rate, the battery on ADC0), and reports what
-// only the real image can show, as one JSON object on stdout:
+// emulated ATmega328P at 16 MHz, with the board's inputs (GPS sentences on the UART at their
+// baud rate and rate, the battery on ADC0, and with --radio the RFM69 below), and reports what
+// only the real image can show, as one JSON object on stdout (its last line):
 //
 //   passes, loop_mean_us, loop_max_us  loop() passes, timed between the watchdog resets that
 //                                      end each pass (interrupts included);
 //   boot_us                            power-on to the end of setup() (its watchdog start);
 //   stack_used_bytes, stack_free_bytes the deepest the stack reached in painted RAM, and what
 //                                      lies between it and the end of the static data;
-//   resets                             watchdog resets during the run (a healthy image: 0);
+//   resets                             resets during the run, the watchdog's or --reset-at's
+//                                      (a healthy image left alone: 0);
 //   gps_bytes                          bytes delivered on the UART;
 //   hung_at_s, hang_to_isr_us,         with --hang-at: when the loop hung, and from then to
 //   hang_to_reset_us                   the watchdog's interrupt (which cuts the drive) and
 //                                      to the reset;
 //   eeprom0                            the EEPROM's first byte at the end (the e-stop latch).
 //
-// Before it, with --radio FRAMES: an RFM69 on the SPI bus (chip select D10), registers and
+// Before that line, with --radio FRAMES: an RFM69 on the SPI bus (chip select D10), registers and
 // FIFO as the robot's driver uses them (firmware/robot/rfm69.cpp), and on the air the frames
 // of FRAMES (a line each: the emulated second at which it arrives, then its bytes in hex,
 // length byte first), each delivered when due and the radio listening. What the image sends is
