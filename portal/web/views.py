@@ -427,6 +427,9 @@ def robot_console(request: HttpRequest, name: str) -> HttpResponse:
             "limit": velocity_limit(resource),
             "hold_ttl_s": HOLD_TTL_S,
             "hold_repeat_ms": HOLD_REPEAT_MS,
+            # The base station keeps its log by UTC day: today's is that day, not Lisbon's
+            # (which is a day ahead between midnight and 01:00 in summer).
+            "log_day": timezone.now().date(),
         },
     )
 

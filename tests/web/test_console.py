@@ -8,6 +8,7 @@ import io
 from datetime import UTC, datetime
 
 import pytest
+import time_machine
 
 from basestation.api.logs import LOG_CSV_COLUMNS
 from portal.web.console import DAY_LOG_COLUMNS
@@ -53,3 +54,21 @@ def test_experimenters_and_visitors_get_no_log(client, mobile, owner):
     assert client.get(f"/robot/{mobile.name}/log.csv?day=2026-01-01").status_code == 302
     client.force_login(owner)
     assert client.get(f"/robot/{mobile.name}/log.csv?day=2026-01-01").status_code == 403
+
+
+@pytest.mark.parametrize(
+    ("utc_now", "day"),
+    [
+        # 00:30 in Lisbon (summer time): the base station's day is still the 14th.
+        (datetime(2027, 7, 14, 23, 30, tzinfo=UTC), "2027-07-14"),
+        # The same hour in winter, when Lisbon keeps UTC: both the 15th.
+        (datetime(2027, 1, 15, 0, 30, tzinfo=UTC), "2027-01-15"),
+    ],
+)
+def test_the_console_opens_the_log_on_the_base_stations_day(
+    client, mobile, admin_user, utc_now, day
+):
+    with time_machine.travel(utc_now, tick=False):
+        sign_in_with_second_factor(client, admin_user)
+        page = client.get(f"/robot/{mobile.name}/").content.decode()
+    assert f'<input type="date" name="day" value="{day}"' in page
