@@ -51,9 +51,24 @@ def _open_day(page: Page, web: str, day: date, *, streamed: bool = True) -> None
 
 
 def _slot_x(page: Page, day: date, hour: int) -> float:
-    """The left edge of ``hour``:00 on ``day`` in the timeline's header."""
+    """The left edge of ``hour``:00 on ``day`` in the timeline's header, the grid scrolled
+    sideways first if that hour is out of sight. The page opens scrolled to the hour before
+    now, so an earlier hour may lie under the rows' names: they stay in place over the
+    scrolled grid, and Playwright's scroll_into_view_if_needed counts it as seen there."""
     box = page.locator(f".ec-slots time[datetime='{day.isoformat()}T{hour:02d}:00:00']")
     box.scroll_into_view_if_needed()
+    page.evaluate(
+        """(label) => {
+            const cell = label.parentElement.getBoundingClientRect();
+            const main = label.closest(".ec-main");
+            const names = main.querySelector(".ec-row-head").getBoundingClientRect();
+            const grid = main.getBoundingClientRect();
+            if (cell.left < names.right || cell.right > grid.right) {
+                main.scrollLeft += cell.left - names.right - 2 * cell.width;
+            }
+        }""",
+        box.element_handle(),
+    )
     bounds = box.locator("xpath=..").bounding_box()
     assert bounds
     return bounds["x"]
