@@ -14,7 +14,9 @@
 //   hung_at_s, hang_to_isr_us,         with --hang-at: when the loop hung, and from then to
 //   hang_to_reset_us                   the watchdog's interrupt (which cuts the drive) and
 //                                      to the reset;
-//   eeprom0                            the EEPROM's first byte at the end (the e-stop latch).
+//   eeprom0                            the EEPROM's first byte at the end (the e-stop latch);
+//   asleep_share                       the share of the cycles the chip spent in its idle
+//                                      sleep between passes (waiting for an interrupt).
 //
 // Before that line, with --radio FRAMES: an RFM69 on the SPI bus (chip select D10), registers and
 // FIFO as the robot's driver uses them (firmware/robot/rfm69.cpp), and on the air the frames
@@ -274,6 +276,35 @@ static void print_motor(avr_t* avr) {
          (portb & 0x01) != 0);
 }
 
+// The GPS receiver on the UART: one sentence burst every GPS_PERIOD_S, its bytes one byte-time
+// apart, each at its own cycle (a cycle timer), so that a byte wakes a sleeping chip when it
+// arrives, as the UART's receive interrupt does on the board.
+typedef struct {
+  avr_irq_t* uart_in;
+  const uint8_t* bytes;
+  size_t len, pos, sent;
+  avr_cycle_count_t byte_cycles, burst_cycles, burst_start;
+} gps_feed_t;
+
+static avr_cycle_count_t gps_byte(avr_t* avr, avr_cycle_count_t when, void* param) {
+  (void)avr;
+  gps_feed_t* g = (gps_feed_t*)param;
+  const uint8_t byte = g->bytes[g->pos];
+  avr_raise_irq(g->uart_in, byte);
+  ++g->sent;
+  g->pos = (g->pos + 1) % g->len;
+  if (byte != '\n') return when + g->byte_cycles;
+  g->burst_start += g->burst_cycles;
+  return g->burst_start > when ? g->burst_start : when + g->byte_cycles;
+}
+
+// A reset empties simavr's timers: the receiver, which has its own power, goes on.
+static void gps_keep_sending(avr_t* avr, gps_feed_t* g) {
+  if (avr_cycle_timer_status(avr, gps_byte, g) == 0) {
+    avr_cycle_timer_register(avr, g->byte_cycles, gps_byte, g);
+  }
+}
+
 static size_t read_gps(const char* path, uint8_t* out, size_t cap, size_t* sentences) {
   FILE* f = fopen(path, "rb");
   if (!f) {
@@ -357,13 +388,16 @@ int main(int argc, char** argv) {
   avr_cycle_count_t next_motor = 0;
 
   const avr_cycle_count_t end = (avr_cycle_count_t)(seconds * F_CPU_HZ);
-  const avr_cycle_count_t byte_cycles = F_CPU_HZ * 10 / GPS_BAUD;  // start, 8 data, stop
-  const avr_cycle_count_t burst_cycles = (avr_cycle_count_t)(GPS_PERIOD_S * F_CPU_HZ);
-  avr_cycle_count_t next_byte = 0, burst_start = 0;
-  size_t gps_pos = 0, gps_bytes = 0;
-  int in_burst = 1;
+  static gps_feed_t gps_feed;
+  gps_feed.uart_in = uart_in;
+  gps_feed.bytes = gps;
+  gps_feed.len = gps_len;
+  gps_feed.byte_cycles = F_CPU_HZ * 10 / GPS_BAUD;  // start, 8 data, stop
+  gps_feed.burst_cycles = (avr_cycle_count_t)(GPS_PERIOD_S * F_CPU_HZ);
+  gps_keep_sending(avr, &gps_feed);
 
   unsigned wdrs = 0, resets = 0;
+  avr_cycle_count_t slept = 0;  // cycles spent in the sketch's idle sleep
   avr_cycle_count_t last_wdr = 0, boot = 0, loop_max = 0, loop_sum = 0;
   unsigned long passes = 0;
   avr_flashaddr_t last_pc = avr->pc;
@@ -378,6 +412,7 @@ int main(int argc, char** argv) {
     if (pc == 0 && last_pc != 0 && avr->cycle > 0) {  // the reset vector again
       ++resets;
       wdrs = 0;
+      gps_keep_sending(avr, &gps_feed);
       if (hung == 1) {  // the hang was transient: the next boot runs the image as built
         avr->flash[hang_pc] = (uint8_t)(WDR_OPCODE & 0xFF);
         avr->flash[hang_pc + 1] = (uint8_t)(WDR_OPCODE >> 8);
@@ -407,22 +442,10 @@ int main(int argc, char** argv) {
       }
       last_wdr = avr->cycle;
     }
-    // One sentence burst every GPS_PERIOD_S, its bytes one byte-time apart.
-    if (!in_burst && avr->cycle >= burst_start + burst_cycles) {
-      in_burst = 1;
-      burst_start += burst_cycles;
-    }
-    if (in_burst && avr->cycle >= next_byte) {
-      const uint8_t byte = gps[gps_pos];
-      avr_raise_irq(uart_in, byte);
-      ++gps_bytes;
-      gps_pos = (gps_pos + 1) % gps_len;
-      next_byte = avr->cycle + byte_cycles;
-      if (byte == '\n') in_burst = 0;
-    }
     if (reset_at_s >= 0 && avr->cycle >= (avr_cycle_count_t)(reset_at_s * F_CPU_HZ)) {
       reset_at_s = -1.0;
       avr_reset(avr);
+      gps_keep_sending(avr, &gps_feed);
       continue;
     }
     if (with_radio) {
@@ -432,7 +455,10 @@ int main(int argc, char** argv) {
         next_motor += motor_every;
       }
     }
+    const avr_cycle_count_t before = avr->cycle;
+    const int sleeping = avr->state == cpu_Sleeping;
     state = avr_run(avr);
+    if (sleeping) slept += avr->cycle - before;
   }
 
   uint32_t deepest = (uint32_t)avr->ramend + 1;
@@ -453,12 +479,13 @@ int main(int argc, char** argv) {
       "\"stack_free_bytes\": %u, \"ram_bytes\": %u, \"data_end\": %u, \"resets\": %u, "
       "\"gps_bytes\": %zu, \"hang_to_isr_us\": %.1f, \"hang_to_reset_us\": %.1f, "
       "\"hung_at_s\": %.6f, \"radio_received\": %lu, \"radio_sent\": %lu, "
-      "\"eeprom0\": %d}\n",
+      "\"eeprom0\": %d, \"asleep_share\": %.3f}\n",
       (double)avr->cycle / F_CPU_HZ, state, us(boot), passes,
       passes ? us(loop_sum) / (double)passes : 0.0, us(loop_max), stack_used, stack_free,
-      (unsigned)(avr->ramend + 1 - 0x100), data_end, resets, gps_bytes,
+      (unsigned)(avr->ramend + 1 - 0x100), data_end, resets, gps_feed.sent,
       hang_isr ? us(hang_isr - hang_at) : -1.0, hang_reset ? us(hang_reset - hang_at) : -1.0,
-      hung ? (double)hang_at / F_CPU_HZ : -1.0, radio.delivered, radio.sent, eeprom0);
+      hung ? (double)hang_at / F_CPU_HZ : -1.0, radio.delivered, radio.sent, eeprom0,
+      avr->cycle ? (double)slept / (double)avr->cycle : 0.0);
   avr_terminate(avr);
   return state == cpu_Crashed ? 1 : 0;
 }

@@ -12,6 +12,7 @@
 #include <SPI.h>
 #include <avr/eeprom.h>
 #include <avr/interrupt.h>
+#include <avr/sleep.h>
 #include <avr/wdt.h>
 
 #include "board.h"
@@ -218,6 +219,25 @@ void persist_e_stop() {
   e_stop_saved = latched;
 }
 
+// Idle until the next interrupt: the millisecond timer's (every 1.024 ms), a GPS byte or a
+// wheel pulse. The timers, the UART, the PWM and the watchdog run on in idle mode, so nothing
+// the loop does comes later than before by more than that millisecond (a frame waits for the
+// next pass to be read, as it did between passes); the chip spends the rest of its time
+// asleep instead of polling. Interrupts are off from the check to the sleep instruction (the
+// instruction after `sei` always runs), so a byte that arrives in between cannot be slept past.
+void idle_until_interrupt() {
+  set_sleep_mode(SLEEP_MODE_IDLE);
+  noInterrupts();
+  if (Serial.available() > 0) {
+    interrupts();
+    return;
+  }
+  sleep_enable();
+  interrupts();
+  sleep_cpu();
+  sleep_disable();
+}
+
 }  // namespace
 
 void setup() {
@@ -255,6 +275,7 @@ void setup() {
 }
 
 void loop() {
+  idle_until_interrupt();
   const uint32_t now = millis();
   pump_gps();
   read_local_stop(now);

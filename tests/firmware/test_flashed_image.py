@@ -51,6 +51,8 @@ EMULATED_S = 3.0
 # STACK_RESERVE) free between its deepest point and the static data.
 LOOP_MAX_FLOOR_US = 10_000.0
 STACK_FREE_FLOOR_BYTES = 512
+# Idle with GPS sentences arriving, the chip is asleep most of the time (76 % measured).
+ASLEEP_FLOOR = 0.5
 # The sketch's watchdog: 250 ms to its interrupt, another 250 ms to the reset (robot.ino).
 WATCHDOG_PERIOD_US = 250_000.0
 # The base station's side: identify at 0.5 s, then a second of commands at 50 Hz.
@@ -175,6 +177,10 @@ def test_the_image_boots_and_keeps_its_loop_and_stack_within_their_floors(tmp_pa
     assert result["gps_bytes"] >= EMULATED_S * 10 * 80, result
     assert result["passes"] >= EMULATED_S * 1_000_000 / LOOP_MAX_FLOOR_US, result
     assert result["loop_mean_us"] < result["loop_max_us"] <= LOOP_MAX_FLOOR_US, result
+    # Between passes the chip sleeps until an interrupt wakes it: the millisecond timer's
+    # (every 1.024 ms, so a pass comes round at least that often) or a GPS byte's.
+    assert result["passes"] >= EMULATED_S * 1000 / 1.024, result
+    assert result["asleep_share"] >= ASLEEP_FLOOR, result
     assert result["stack_used_bytes"] > 0, result
     assert result["stack_free_bytes"] >= STACK_FREE_FLOOR_BYTES, result
     assert (
