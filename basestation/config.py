@@ -32,9 +32,11 @@ AUTO_CPU = -1
 
 # How the agent reaches the robot: "radio" is the RFM69 on the Pi's SPI bus; "sim" the same
 # driver on an emulated chip whose robot (the firmware core on simulated physics) lives in
-# this process; "sim-udp" the same with the robot in its own process (python -m
-# basestation.sim), so it outlives the agent; "simple" a bare kinematic model for unit tests.
-ROBOT_KINDS = ("radio", "sim", "sim-udp", "simple")
+# this process; "sim-flashed" the same with the flashed image itself as the robot's firmware,
+# on an emulated ATmega328P (basestation/sim/flashed.py); "sim-udp" the robot in its own
+# process (python -m basestation.sim), so it outlives the agent; "simple" a bare kinematic
+# model for unit tests.
+ROBOT_KINDS = ("radio", "sim", "sim-flashed", "sim-udp", "simple")
 
 
 class ConfigError(Exception):

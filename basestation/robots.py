@@ -83,28 +83,7 @@ def build_robot(config: AgentConfig) -> Robot:
     if config.robot == "radio":
         spi: Any = open_spidev(config.spi_bus, config.spi_device)
     else:
-        from basestation.sim import (
-            SimConfig,
-            SimConfigError,
-            SimulatedSpiConfig,
-            make_simulated_spi,
-        )
-
-        if config.robot == "sim":
-            try:
-                sim = SimConfig.load(config.sim_config) if config.sim_config else SimConfig()
-            except SimConfigError as exc:
-                raise ConfigError(f"AGENT_SIM_CONFIG: {exc}") from exc
-            # The simulated robot drives the rail the agent projects onto: one file for both.
-            spi = make_simulated_spi(SimulatedSpiConfig(sim=replace(sim, rail=rail)))
-        else:
-            spi = make_simulated_spi(
-                SimulatedSpiConfig(
-                    transport="udp",
-                    base_port=config.sim_base_port,
-                    robot_port=config.sim_robot_port,
-                )
-            )
+        spi = _simulated_spi(config, rail)
     try:
         radio = RFM69(spi, RadioSettings(aes_key=aes_key))
         radio.begin()
@@ -119,6 +98,40 @@ def build_robot(config: AgentConfig) -> Robot:
         raise
     robot.identity = _identify(link)
     return robot
+
+
+def _simulated_spi(config: AgentConfig, rail: Any) -> Any:
+    """The emulated chip of ``AGENT_ROBOT=sim``, ``sim-flashed`` or ``sim-udp``, with the robot
+    in this process on the agent's rail, or in its own."""
+    from basestation.sim import (
+        SimConfig,
+        SimConfigError,
+        SimulatedSpiConfig,
+        make_simulated_spi,
+    )
+    from basestation.sim.firmware import FirmwareError
+
+    if config.robot in ("sim", "sim-flashed"):
+        try:
+            sim = SimConfig.load(config.sim_config) if config.sim_config else SimConfig()
+        except SimConfigError as exc:
+            raise ConfigError(f"AGENT_SIM_CONFIG: {exc}") from exc
+        if config.robot == "sim-flashed" and sim.firmware:
+            raise ConfigError(
+                "AGENT_SIM_CONFIG: [firmware] overrides the host-built core's configuration; "
+                "the flashed image's is compiled in"
+            )
+        # The simulated robot drives the rail the agent projects onto: one file for both.
+        sim = replace(sim, rail=rail, flashed=sim.flashed or config.robot == "sim-flashed")
+        try:
+            return make_simulated_spi(SimulatedSpiConfig(sim=sim))
+        except FirmwareError as exc:
+            raise ConfigError(f"AGENT_ROBOT={config.robot}: {exc}") from exc
+    return make_simulated_spi(
+        SimulatedSpiConfig(
+            transport="udp", base_port=config.sim_base_port, robot_port=config.sim_robot_port
+        )
+    )
 
 
 def _identify(link: Any) -> RobotIdentity | None:

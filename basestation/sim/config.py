@@ -99,6 +99,9 @@ class SimConfig:
     start_track_m: float = 0.0
     wheel_um_per_pulse: int = 0  # 0: no wheel sensor (the default build)
     e_stop_latched_at_boot: bool = False  # the latch as restored from EEPROM
+    # The firmware: the portable core built for the host (False), or the flashed image itself
+    # on an emulated ATmega328P (True: basestation/sim/flashed.py; no [firmware] overrides).
+    flashed: bool = False
 
     @classmethod
     def from_mapping(
@@ -135,6 +138,11 @@ class SimConfig:
             kwargs["radio"] = RadioConfig(**_parse(_RADIO, data["radio"], f"{where}: radio"))
         if "firmware" in data:
             kwargs["firmware"] = _parse_firmware(data["firmware"], f"{where}: firmware")
+        if kwargs.get("flashed") and kwargs.get("firmware"):
+            raise SimConfigError(
+                f"{where}: the flashed image's configuration is compiled in; [firmware] "
+                "overrides only the host-built core's (drop one of them)"
+            )
         return cls(**kwargs)
 
     @classmethod
@@ -213,6 +221,7 @@ _TOP: Final[_Spec] = {
     "start_track_m": ("float", -1e6, 1e6),
     "wheel_um_per_pulse": ("int", 0, 1_000_000),
     "e_stop_latched_at_boot": ("bool", 0, 1),
+    "flashed": ("bool", 0, 1),
 }
 _PHYSICS: Final[_Spec] = {
     "mass_kg": ("float", 1.0, 1000.0),

@@ -44,6 +44,7 @@ from basestation.sim.firmware import (
     default_robot_config,
     load_library,
 )
+from basestation.sim.flashed import FlashedRobot
 from basestation.sim.gps import GpsNoise, gga_sentence
 from basestation.sim.physics import RobotPhysics
 
@@ -238,12 +239,7 @@ class SimulatedRobot:
             start_s = channel.clock() if channel is not None else 0.0
         self.start_s = float(start_s)
         self._ms = 0
-        self.firmware = FirmwareRobot(
-            self._library,
-            config=self._firmware_config,
-            now_ms=0,
-            e_stop_latched=self.config.e_stop_latched_at_boot,
-        )
+        self.firmware = self._make_firmware()
         self.physics = RobotPhysics(
             self.config.physics,
             self.config.battery,
@@ -280,6 +276,15 @@ class SimulatedRobot:
         if channel is not None:
             self.radio.connect(channel)
         self._step_firmware(0)
+
+    def _make_firmware(self) -> FirmwareRobot | FlashedRobot:
+        """The firmware this robot runs: the host-built core, or the flashed image itself."""
+        latched = self.config.e_stop_latched_at_boot
+        if self.config.flashed:
+            return FlashedRobot(self._firmware_config, e_stop_latched=latched)
+        return FirmwareRobot(
+            self._library, config=self._firmware_config, now_ms=0, e_stop_latched=latched
+        )
 
     def close(self) -> None:
         self.firmware.close()

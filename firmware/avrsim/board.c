@@ -390,4 +390,10 @@ int amz_board_eeprom(amz_board_t* b, unsigned address) {
   return eeprom.ee[address];
 }
 
+int amz_board_set_eeprom(amz_board_t* b, unsigned address, uint8_t value) {
+  if (address > b->avr->e2end) return -1;
+  avr_eeprom_desc_t eeprom = {.ee = &value, .offset = (uint16_t)address, .size = 1};
+  return avr_ioctl(b->avr, AVR_IOCTL_EEPROM_SET, &eeprom) == 0 ? 0 : -1;
+}
+
 avr_t* amz_board_avr(amz_board_t* b) { return b->avr; }

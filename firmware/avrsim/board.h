@@ -59,8 +59,9 @@ void amz_board_set_pin(amz_board_t* board, char port, int bit, int level);
 
 // The motor driver's inputs: PWM duty 0-255 on D9 (OC1A), enable D7, direction D8 (1 = CW).
 void amz_board_motor(const amz_board_t* board, unsigned* duty, int* enable, int* direction);
-// A byte of the EEPROM (-1 outside it).
+// A byte of the EEPROM (-1 outside it), and one written as if before power-up (0, or -1).
 int amz_board_eeprom(amz_board_t* board, unsigned address);
+int amz_board_set_eeprom(amz_board_t* board, unsigned address, uint8_t value);
 
 // The emulated chip itself, for the harness's measurements (simavr's sim_avr.h).
 struct avr_t;

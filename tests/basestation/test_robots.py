@@ -96,3 +96,49 @@ def test_an_agent_limit_above_the_simulated_firmwares_hard_maximum_is_refused(
     config = AgentConfig(token="t" * 32, data_dir=tmp_path, robot="sim", max_velocity_mps=4.5)
     with pytest.raises(ConfigError, match=r"=4.5 is above the robot's hard maximum 4 m/s"):
         build_robot(config)
+
+
+BUILD_ID_HEADER = Path(__file__).resolve().parents[2] / "firmware" / "host" / "build" / "build_id.h"
+
+
+def test_the_flashed_image_answers_the_agent_over_the_emulated_air(tmp_path: Path) -> None:
+    """``sim-flashed``: robot.elf itself, on an emulated ATmega328P, confirms the agent's
+    limits, names its build and answers each command of a second at 50 Hz, driving."""
+    robot = build_robot(
+        AgentConfig(token="t" * 32, data_dir=tmp_path, robot="sim-flashed", max_velocity_mps=1.5)
+    )
+    try:
+        assert robot.limits == RobotLimits(
+            max_velocity_mps=1.5, max_accel_mps2=1.0, hard_max_velocity_mps=4.0
+        )
+        assert robot.identity is not None
+        assert robot.identity.build_id == BUILD_ID_HEADER.read_text().split('"')[1]
+        start_s = time.monotonic()
+        answers = []
+        for tick in range(50):
+            time.sleep(max(0.0, start_s + tick * 0.02 - time.monotonic()))
+            answers.append(
+                robot.exchange(Command(velocity_mps=0.5, direction="cw"), time.monotonic())
+            )
+        assert len(answers) == 50
+        assert answers[-1].velocity_mps > 0.2  # up the firmware's ramp, clockwise
+        assert answers[-1].direction == "cw"
+    finally:
+        robot.close()
+
+
+def test_a_missing_image_or_an_override_it_cannot_take_is_a_clear_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("AMZ_ROBOT_ELF", str(tmp_path / "nowhere.elf"))
+    with pytest.raises(
+        ConfigError, match=r"nowhere\.elf does not exist: run `make -C firmware hex`"
+    ):
+        build_robot(AgentConfig(token="t" * 32, data_dir=tmp_path, robot="sim-flashed"))
+    monkeypatch.delenv("AMZ_ROBOT_ELF")
+    sim = tmp_path / "sim.toml"
+    sim.write_text("[firmware]\ndead_man_ms = 300\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="the flashed image's is compiled in"):
+        build_robot(
+            AgentConfig(token="t" * 32, data_dir=tmp_path, robot="sim-flashed", sim_config=sim)
+        )

@@ -95,6 +95,18 @@ def stack_with_scheduler(tmp_path):
         yield running
 
 
+@pytest.fixture
+def flashed_stack(tmp_path):
+    """The same, with the flashed image as the robot's firmware: robot.elf on an emulated
+    ATmega328P (``AGENT_ROBOT=sim-flashed``, basestation/sim/flashed.py)."""
+    with running_stack(
+        tmp_path / "var",
+        broker_url=settings.CELERY_BROKER_URL,
+        extra_env={"AGENT_ROBOT": "sim-flashed"},
+    ) as running:
+        yield running
+
+
 # What the fault tests need to see their faults through in seconds, not minutes.
 FAULT_ENV = {
     "HEALTH_POLL_INTERVAL_S": "1",
