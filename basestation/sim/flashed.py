@@ -76,7 +76,7 @@ def _board_library() -> ctypes.CDLL:
         "amz_board_destroy": (None, [board]),
         "amz_board_cycle": (ctypes.c_uint64, [board]),
         "amz_board_run_until": (ctypes.c_int, [board, ctypes.c_uint64]),
-        "amz_board_air_in": (ctypes.c_int, [board, u8p, ctypes.c_int]),
+        "amz_board_air_in": (ctypes.c_int, [board, u8p, ctypes.c_int, ctypes.c_int]),
         "amz_board_air_out": (
             ctypes.c_int,
             [board, u8p, ctypes.c_int, ctypes.POINTER(ctypes.c_uint64)],
@@ -177,13 +177,11 @@ class FlashedRobot:
     # --- FirmwareRobot's interface --------------------------------------------------------------
 
     def handle_frame(self, now_ms: int, frame: bytes, rssi_dbm: int) -> bytes:
-        """A frame on the air for the robot (length byte first); returns the answer the image
-        starts to transmit within REPLY_WITHIN_MS, or b"" (RSSI: the board's radio reports
-        its own)."""
-        del rssi_dbm
+        """A frame on the air for the robot (length byte first), received at ``rssi_dbm``;
+        returns the answer the image starts to transmit within REPLY_WITHIN_MS, or b""."""
         self._run_to(now_ms)
         data = (ctypes.c_uint8 * len(frame)).from_buffer_copy(frame)
-        if self._lib.amz_board_air_in(self.board, data, len(frame)) != 0:
+        if self._lib.amz_board_air_in(self.board, data, len(frame), int(rssi_dbm)) != 0:
             return b""  # the board's air already holds sixteen frames: this one is lost
         cycle = self._lib.amz_board_cycle(self.board)
         deadline = cycle + REPLY_WITHIN_MS * CYCLES_PER_MS

@@ -53,6 +53,7 @@ typedef struct {
   uint8_t length;
   uint8_t bytes[AMZ_BOARD_FRAME_BYTES];
   avr_cycle_count_t at;
+  uint8_t rssi_value;  // RegRssiValue while it is received: -2 x dBm
 } frame_t;
 
 typedef struct {
@@ -60,12 +61,14 @@ typedef struct {
   int head, count;
 } frame_queue_t;
 
-static int queue_push(frame_queue_t* q, const uint8_t* bytes, int length, avr_cycle_count_t at) {
+static int queue_push(frame_queue_t* q, const uint8_t* bytes, int length, avr_cycle_count_t at,
+                      uint8_t rssi_value) {
   if (q->count == AIR_QUEUE_FRAMES) return -1;
   frame_t* f = &q->frames[(q->head + q->count) % AIR_QUEUE_FRAMES];
   f->length = (uint8_t)length;
   memcpy(f->bytes, bytes, (size_t)length);
   f->at = at;
+  f->rssi_value = rssi_value;
   ++q->count;
   return 0;
 }
@@ -87,6 +90,7 @@ typedef struct {
   int selected, byte_index, writing;
   uint8_t address;
   int payload_ready;
+  uint8_t rssi_value;         // what RegRssiValue reads: the last frame's strength
   avr_cycle_count_t sent_at;  // PacketSent from this cycle on, while in TX (0: not sending)
   frame_queue_t incoming, outgoing;
   unsigned long sent, delivered;
@@ -108,7 +112,7 @@ static void rf_set_mode(rfm69_t* r, uint8_t mode) {
     // taken the oldest of a full queue loses it, not the newest.
     const double air_s = (r->fifo_len + RF_OVERHEAD_BYTES) * 8.0 / RF_BITRATE_BPS;
     if (r->outgoing.count == AIR_QUEUE_FRAMES) queue_pop(&r->outgoing);
-    queue_push(&r->outgoing, r->fifo, r->fifo_len, r->avr->cycle);
+    queue_push(&r->outgoing, r->fifo, r->fifo_len, r->avr->cycle, 0);
     r->sent_at = r->avr->cycle + (avr_cycle_count_t)(air_s * AMZ_BOARD_F_CPU_HZ) + 1;
     ++r->sent;
   }
@@ -127,7 +131,7 @@ static uint8_t rf_read(rfm69_t* r, uint8_t address) {
       return (uint8_t)((r->fifo_pos < r->fifo_len ? 0x40 : 0) | (r->payload_ready ? 0x04 : 0) |
                        (r->sent_at && r->avr->cycle >= r->sent_at ? 0x08 : 0));
     case RF_RSSIVALUE:
-      return 120;  // -60 dBm
+      return r->rssi_value;
     default:
       return r->reg[address & 0x7F];
   }
@@ -203,6 +207,7 @@ static void rf_deliver(rfm69_t* r) {
   r->fifo_len = frame->length;
   r->fifo_pos = 0;
   r->payload_ready = 1;
+  r->rssi_value = frame->rssi_value;
   ++r->delivered;
 }
 
@@ -211,6 +216,7 @@ static void rf_attach(rfm69_t* r, avr_t* avr) {
   r->avr = avr;
   r->reg[RF_VERSION] = 0x24;
   r->reg[RF_OPMODE] = 0x04;
+  r->rssi_value = 120;  // -60 dBm until a frame says otherwise
   r->spi_in = avr_io_getirq(avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_INPUT);
   avr_register_io_write(avr, SPDR_DATA, rf_spi_byte, r);
   avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 2), rf_select, r);
@@ -326,9 +332,10 @@ void amz_board_reset(amz_board_t* b) {
   uart_keep_sending(b->avr, &b->uart);
 }
 
-int amz_board_air_in(amz_board_t* b, const uint8_t* frame, int length) {
+int amz_board_air_in(amz_board_t* b, const uint8_t* frame, int length, int rssi_dbm) {
   if (length < 1 || length > AMZ_BOARD_FRAME_BYTES) return -1;
-  return queue_push(&b->radio.incoming, frame, length, b->avr->cycle);
+  const int value = -2 * (rssi_dbm > 0 ? 0 : rssi_dbm < -127 ? -127 : rssi_dbm);
+  return queue_push(&b->radio.incoming, frame, length, b->avr->cycle, (uint8_t)value);
 }
 
 int amz_board_air_out(amz_board_t* b, uint8_t* out, int capacity, uint64_t* sent_at) {

@@ -35,10 +35,11 @@ int amz_board_step(amz_board_t* board);
 // Pull the reset pin (RAM is left as it was, the EEPROM kept).
 void amz_board_reset(amz_board_t* board);
 
-// A frame on the air for the robot (length byte first), taken into the radio's FIFO once it
-// listens with its FIFO empty, in the order given. Returns 0, or -1 if it is not 1 to 66
-// bytes or 16 frames already wait.
-int amz_board_air_in(amz_board_t* board, const uint8_t* frame, int length);
+// A frame on the air for the robot (length byte first), received at RSSI_DBM (what the
+// radio's RSSI register then reads), taken into the radio's FIFO once it listens with its
+// FIFO empty, in the order given. Returns 0, or -1 if it is not 1 to 66 bytes or 16 frames
+// already wait.
+int amz_board_air_in(amz_board_t* board, const uint8_t* frame, int length, int rssi_dbm);
 // The oldest frame the image has put on the air, if any: its bytes (length byte first) into
 // OUT, the cycle its transmission began at into SENT_AT; returns its length, 0 if none.
 int amz_board_air_out(amz_board_t* board, uint8_t* out, int capacity, uint64_t* sent_at);

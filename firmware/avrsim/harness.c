@@ -243,7 +243,7 @@ int main(int argc, char** argv) {
     }
     if (with_radio) {
       while (air_next < air_count && (double)avr->cycle >= air[air_next].at_s * F_CPU_HZ) {
-        amz_board_air_in(board, air[air_next].bytes, air[air_next].len);
+        amz_board_air_in(board, air[air_next].bytes, air[air_next].len, -60);
         ++air_next;
       }
       print_sent(board);
