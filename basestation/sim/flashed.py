@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import logging
 import os
 from pathlib import Path
@@ -68,6 +69,12 @@ def _board_library() -> ctypes.CDLL:
         raise FirmwareError(
             f"{path} does not exist: run `make -C firmware avrsim` or set {BOARD_LIBRARY_ENV}"
         )
+    return _load_board_library(path.resolve())
+
+
+@functools.cache
+def _load_board_library(path: Path) -> ctypes.CDLL:
+    """The library with every prototype declared, once per process and path."""
     lib = ctypes.CDLL(str(path))
     board = ctypes.c_void_p
     u8p = ctypes.POINTER(ctypes.c_uint8)
