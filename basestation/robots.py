@@ -114,15 +114,10 @@ def _simulated_spi(config: AgentConfig, rail: Any) -> Any:
     if config.robot in ("sim", "sim-flashed"):
         try:
             sim = SimConfig.load(config.sim_config) if config.sim_config else SimConfig()
+            # The simulated robot drives the rail the agent projects onto: one file for both.
+            sim = replace(sim, rail=rail, flashed=sim.flashed or config.robot == "sim-flashed")
         except SimConfigError as exc:
             raise ConfigError(f"AGENT_SIM_CONFIG: {exc}") from exc
-        if config.robot == "sim-flashed" and sim.firmware:
-            raise ConfigError(
-                "AGENT_SIM_CONFIG: [firmware] overrides the host-built core's configuration; "
-                "the flashed image's is compiled in"
-            )
-        # The simulated robot drives the rail the agent projects onto: one file for both.
-        sim = replace(sim, rail=rail, flashed=sim.flashed or config.robot == "sim-flashed")
         try:
             return make_simulated_spi(SimulatedSpiConfig(sim=sim))
         except FirmwareError as exc:

@@ -103,6 +103,13 @@ class SimConfig:
     # on an emulated ATmega328P (True: basestation/sim/flashed.py; no [firmware] overrides).
     flashed: bool = False
 
+    def __post_init__(self) -> None:
+        if self.flashed and self.firmware:
+            raise SimConfigError(
+                "[firmware] overrides the host-built core's configuration; the flashed "
+                "image's is compiled in (drop one of them)"
+            )
+
     @classmethod
     def from_mapping(
         cls, data: Mapping[str, Any], *, where: str = "config", base_dir: Path | None = None
@@ -138,12 +145,10 @@ class SimConfig:
             kwargs["radio"] = RadioConfig(**_parse(_RADIO, data["radio"], f"{where}: radio"))
         if "firmware" in data:
             kwargs["firmware"] = _parse_firmware(data["firmware"], f"{where}: firmware")
-        if kwargs.get("flashed") and kwargs.get("firmware"):
-            raise SimConfigError(
-                f"{where}: the flashed image's configuration is compiled in; [firmware] "
-                "overrides only the host-built core's (drop one of them)"
-            )
-        return cls(**kwargs)
+        try:
+            return cls(**kwargs)
+        except SimConfigError as exc:
+            raise SimConfigError(f"{where}: {exc}") from exc
 
     @classmethod
     def load(cls, path: Path | str) -> SimConfig:

@@ -120,7 +120,7 @@ def test_an_inline_rail_is_checked_by_the_agents_rules_with_the_same_field_names
         ("rail_file = 'r.json'\n[rail]\nname = 'x'\n", "keep one of them"),
         ("physics = [1, 2\n", "not valid TOML"),
         ("flashed = 'yes'\n", "true or false"),
-        ("flashed = true\n[firmware]\ndead_man_ms = 300\n", "flashed image's configuration"),
+        ("flashed = true\n[firmware]\ndead_man_ms = 300\n", "the flashed image's is compiled in"),
     ],
 )
 def test_a_bad_config_file_names_the_key(tmp_path: Path, text: str, message: str) -> None:
