@@ -127,6 +127,10 @@ class Controls:
             self.waiting.remove(request)
             self.last_answered = request
 
+    @property
+    def answered(self) -> int:
+        return len(self.sent) - len(self.waiting)
+
     def settled_on_a_stop(self) -> None:
         """Poll until no command is on its way (fails at the deadline), and check the last
         one answered was a stop."""
@@ -172,6 +176,8 @@ def test_the_robot_drives_only_while_held_and_ramps_to_a_stand_when_let_go(brows
     _wait_velocity(stack.agent, lambda v: v >= VELOCITY_MPS - 0.05, deadline_s=10)
     expect(page.locator("#hold-state")).to_have_attribute("data-state", "driving")
     expect(hold).to_have_attribute("aria-pressed", "true")
+    # Held until repeated (the drive can reach its speed before the first repeat is answered).
+    _on_page_until(page, lambda: controls.answered >= 2, "the hold was not repeated")
     _release(page, controls, page.mouse.up)
     _stops(stack.agent)
     expect(page.locator("#hold-state")).to_have_text("Stopped.")
@@ -234,6 +240,11 @@ RECORD_READINGS = """() => {
   document.addEventListener("pointerup", at("up"), true);
 }"""
 
+READINGS_SINCE_DOWN = """() => {
+  const down = window.holds.find(([what]) => what === "down")[1];
+  return window.readings.filter(([t]) => t >= down).length;
+}"""
+
 
 def test_the_readout_beside_the_buttons_follows_the_robot_while_held_and_after(browser, stack):
     """Velocity, position, link and stop beside the buttons, from every drive command's answer
@@ -256,7 +267,15 @@ def test_the_readout_beside_the_buttons_follows_the_robot_while_held_and_after(b
     page.mouse.down()
     _wait_velocity(stack.agent, lambda v: v >= VELOCITY_MPS - 0.05, deadline_s=10, page=page)
     expect(page.locator("#hl-velocity")).to_have_text(re.compile(r"^0\.[1-9]\d m/s cw$"))
-    answered_while_held = len(controls.sent) - len(controls.waiting)
+    # Held until repeats were answered too (the drive can reach its speed after two answers),
+    # and each answer was shown before letting go (the page reads it after Playwright sees it).
+    _on_page_until(page, lambda: controls.answered >= 3, "fewer than 3 commands answered")
+    answered_while_held = controls.answered
+    _on_page_until(
+        page,
+        lambda: page.evaluate(READINGS_SINCE_DOWN) >= answered_while_held,
+        "an answered command was not shown beside the buttons",
+    )
     _release(page, controls, page.mouse.up)
     _stops(stack.agent)
     expect(page.locator("#hl-velocity")).to_have_text("0.00 m/s", timeout=STOP_DEADLINE_S * 1000)
