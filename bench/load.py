@@ -213,6 +213,10 @@ def _locust(
     )  # fmt: skip
 
 
+# Rounds tried before "locust made no call" fails the bench, each one duration longer.
+EMPTY_ROUND_ATTEMPTS = 3
+
+
 def _stats(prefix: Path) -> list[dict[str, str]]:
     with open(f"{prefix}_stats.csv", newline="") as f:
         return list(csv.DictReader(f))
@@ -249,17 +253,23 @@ def run(
                     measured: dict[str, dict[str, str]] = {}
                     for mix in mixes:
                         prefix = work / f"w{count}-u{n}-{mix}"
-                        locust = _locust(
-                            port, n, mix, duration_s, tokens_file, nodes, prefix, each_first
-                        )
-                        stats = _stats(prefix)
-                        total = next(s for s in stats if s["Name"] == "Aggregated")
-                        if total["Request Count"] == "0":
+                        for attempt in range(1, EMPTY_ROUND_ATTEMPTS + 1):
+                            # A round that measured nothing (a machine too busy for a short
+                            # smoke round) is run again, longer, before the bench gives up.
+                            round_s = duration_s * attempt
+                            locust = _locust(
+                                port, n, mix, round_s, tokens_file, nodes, prefix, each_first
+                            )
+                            stats = _stats(prefix)
+                            total = next(s for s in stats if s["Name"] == "Aggregated")
+                            if total["Request Count"] != "0":
+                                break
+                        else:
                             # Nothing measured: say what locust and the web server said.
                             raise RuntimeError(
-                                f"locust made no call in {duration_s:g} s ({mix}, {n} users, "
-                                f"{count} web processes; exit {locust.returncode}):\n"
-                                f"{locust.stderr[-3000:]}\n"
+                                f"locust made no call in {EMPTY_ROUND_ATTEMPTS} rounds of up to "
+                                f"{round_s:g} s ({mix}, {n} users, {count} web processes; "
+                                f"exit {locust.returncode}):\n{locust.stderr[-3000:]}\n"
                                 f"web server:\n{(work / 'web.log').read_text()[-2000:]}"
                             )
                         measured[mix] = total
