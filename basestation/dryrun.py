@@ -29,7 +29,12 @@ from typing import Any, Final
 
 from basestation.config import AgentConfig
 from basestation.program import InvalidRunBody, parse_run_body
+from basestation.robot import Robot
+from basestation.robots import radio_robot
 from basestation.runtime import AgentRuntime
+from basestation.sim.clock import FakeClock
+from basestation.sim.config import SimConfig
+from basestation.sim.spi import SimulatedSpiConfig, make_simulated_spi
 
 RUN_ID: Final = "dry-run"
 # Staged this long before its start, as the portal stages a booked run ahead of it.
@@ -39,6 +44,9 @@ BRAKE_S: Final = 5.0
 # The longest program a dry run takes: a model is cheap, but not free.
 MAX_PROGRAM_S: Final = 3600.0
 SAMPLES_PAGE: Final = 5000
+# On the simulated robot: its clock starts this long before the staging, for its GPS to
+# find a fix and its battery filter to fill, as a robot switched on before its run.
+SIM_WARM_UP_S: Final = 3.0
 
 
 class DryRunRefused(ValueError):
@@ -56,9 +64,15 @@ def dry_run(
     max_accel_mps2: float,
     rail_length_m: float = 120.0,
     start_s: float = 1_900_000_000.0,
+    sim: SimConfig | None = None,
 ) -> dict[str, Any]:
     """Run ``segments`` on the kinematic model from ``start_s`` (epoch seconds, simulated);
-    raise :class:`DryRunRefused` for a program the agent would refuse."""
+    raise :class:`DryRunRefused` for a program the agent would refuse.
+
+    With ``sim``, on the simulated robot instead (its firmware core, physics, GPS and radio,
+    on its rail, which replaces ``rail_length_m``), through the agent's own radio driver and
+    link, all on one simulated clock: what a run on the roof would record, worn parts and
+    all (``[physics] wheel_slip``, ...), in seconds of wall time."""
     try:
         program_s = sum(float(s["duration_s"]) for s in segments)
     except (KeyError, TypeError, ValueError) as exc:
@@ -79,16 +93,21 @@ def dry_run(
         problems = "; ".join(f"{field}: {', '.join(m)}" for field, m in sorted(exc.fields.items()))
         raise DryRunRefused(f"the program was refused: {problems}") from exc
 
+    if sim is not None:
+        rail_length_m = sim.rail.length_m
     with tempfile.TemporaryDirectory(prefix="dry-run-") as data_dir:
         config = AgentConfig(
             token=secrets.token_urlsafe(16),
             data_dir=Path(data_dir),
-            robot="simple",
+            robot="simple" if sim is None else "sim",
             max_velocity_mps=max(max_velocity_mps, 0.01),
             max_accel_mps2=max(max_accel_mps2, 0.01),
             rail_length_m=rail_length_m,
         )
-        runtime = AgentRuntime.open(config)
+        clock = FakeClock(start_s - LEAD_S - SIM_WARM_UP_S)
+        robot = None if sim is None else _simulated_robot(config, sim, clock)
+        # The store is deleted with its directory: nothing to keep through a power cut.
+        runtime = AgentRuntime.open(config, robot=robot, durable=False)
         try:
             runtime.store.stage_run(RUN_ID, spec, now_s=start_s - LEAD_S, admit=lambda _: None)
             manager = runtime.manager
@@ -96,7 +115,9 @@ def dry_run(
             period_s = 1.0 / config.control_hz
             ticks = round((LEAD_S + program_s + BRAKE_S) / period_s)
             for k in range(ticks + 1):
-                manager.tick(start_s - LEAD_S + k * period_s)
+                tick_s = start_s - LEAD_S + k * period_s
+                clock.set(max(clock.now_s, tick_s))  # the robot's world moves to the tick
+                manager.tick(tick_s)
             manager.writer.flush()
             record = runtime.store.get_run(RUN_ID)
             samples: list[dict[str, Any]] = []
@@ -115,6 +136,13 @@ def dry_run(
         "control_hz": config.control_hz,
         "samples": samples,
     }
+
+
+def _simulated_robot(config: AgentConfig, sim: SimConfig, clock: FakeClock) -> Robot:
+    """The simulated robot in this process on ``clock``, behind the agent's radio driver."""
+    spi = make_simulated_spi(SimulatedSpiConfig(sim=sim, clock=clock))
+    # The robot's GPS finds its fix while the clock moves to the first tick.
+    return radio_robot(config, spi, sim.rail, clock=clock, sleep=clock.sleep)
 
 
 def main() -> int:

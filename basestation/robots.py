@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import time
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -71,21 +73,36 @@ def build_robot(config: AgentConfig) -> Robot:
         )
     # Imported here: the radio stack is not needed by the simple model (nor on a laptop
     # without spidev).
-    from basestation.radio.link import RadioRobotLink
-    from basestation.radio.rfm69 import RFM69, RadioError, RadioSettings, open_spidev, parse_aes_key
+    from basestation.radio.rfm69 import open_spidev
     from basestation.telemetry.rail import Rail, RailConfigError
 
     try:
         rail = Rail.configured(config.rail_file)
     except RailConfigError as exc:
         raise ConfigError(f"AGENT_RAIL_FILE: {exc}") from exc
-    aes_key = parse_aes_key(config.radio_aes_key) if config.radio_aes_key else None
     if config.robot == "radio":
         spi: Any = open_spidev(config.spi_bus, config.spi_device)
     else:
         spi = _simulated_spi(config, rail)
+    return radio_robot(config, spi, rail)
+
+
+def radio_robot(
+    config: AgentConfig,
+    spi: Any,
+    rail: Any,
+    *,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> RadioRobot:
+    """The robot behind the RFM69 on ``spi``, its limits sent and its firmware asked, with the
+    driver's waits on ``clock``/``sleep`` (a simulator's clock in simulated time)."""
+    from basestation.radio.link import RadioRobotLink
+    from basestation.radio.rfm69 import RFM69, RadioError, RadioSettings, parse_aes_key
+
+    aes_key = parse_aes_key(config.radio_aes_key) if config.radio_aes_key else None
     try:
-        radio = RFM69(spi, RadioSettings(aes_key=aes_key))
+        radio = RFM69(spi, RadioSettings(aes_key=aes_key), clock=clock, sleep=sleep)
         radio.begin()
     except RadioError as exc:
         raise ConfigError(f"the robot's radio did not start: {exc}") from exc

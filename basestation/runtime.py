@@ -47,8 +47,11 @@ class AgentRuntime:
     closed: bool = False
 
     @classmethod
-    def open(cls, config: AgentConfig, *, robot: Robot | None = None) -> AgentRuntime:
-        store = RunStore(config.store_path)
+    def open(
+        cls, config: AgentConfig, *, robot: Robot | None = None, durable: bool = True
+    ) -> AgentRuntime:
+        """``durable=False``: a scratch store (see :class:`RunStore`), for a dry run."""
+        store = RunStore(config.store_path, durable=durable)
         # A run still marked running was cut off by a crash or kill of the previous agent:
         # its samples are kept, its state says why it stopped.
         store.mark_interrupted(now_s=time.time(), reason="agent restarted during run")

@@ -228,8 +228,11 @@ class StoreClosed(Exception):
 
 
 class RunStore:
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, durable: bool = True) -> None:
+        """``durable=False``: commits are not flushed to disk (``synchronous=OFF``), for a
+        scratch store that lives no longer than its process (a dry run's)."""
         self.path = path
+        self._durable = durable
         path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
         # Each connection with the thread it belongs to (see ``close``).
@@ -277,7 +280,7 @@ class RunStore:
                 self.path, isolation_level=None, check_same_thread=False, timeout=10.0
             )
             conn.row_factory = sqlite3.Row
-            conn.execute("PRAGMA synchronous=FULL")
+            conn.execute("PRAGMA synchronous=FULL" if self._durable else "PRAGMA synchronous=OFF")
             conn.execute("PRAGMA foreign_keys=ON")
             conn.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
             self._local.conn = conn

@@ -128,6 +128,18 @@ DRY_RUN_KEEP_S: Final = Tunable(
     "a finished dry run and its samples are deleted this long after it ended (hourly)",
     shown="`2592000` (30 days)",
 )
+SELF_CHECK_LEAD_S: Final = Tunable(
+    "SELF_CHECK_LEAD_S",
+    60.0,
+    "a robot's self-check started without a time is booked in the first free slot starting "
+    "no sooner than this from now",
+)
+SELF_CHECK_LAP_M: Final = Tunable(
+    "SELF_CHECK_LAP_M",
+    0.0,
+    "how far the self-check's lap drives (`0`: once round the rail, as last measured)",
+    positive=False,
+)
 HEALTH_POLL_INTERVAL_S: Final = Tunable(
     "HEALTH_POLL_INTERVAL_S",
     2.0,
@@ -238,6 +250,8 @@ TUNABLES: Final[tuple[Tunable[int] | Tunable[float], ...]] = (
     DRY_RUN_MAX_WAITING,
     DRY_RUN_STALE_S,
     DRY_RUN_KEEP_S,
+    SELF_CHECK_LEAD_S,
+    SELF_CHECK_LAP_M,
     HEALTH_POLL_INTERVAL_S,
     HEALTH_UNREACHABLE_S,
     HEALTH_LOW_BATTERY_V,

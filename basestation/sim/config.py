@@ -241,6 +241,7 @@ _PHYSICS: Final[_Spec] = {
     "short_brake_n_per_mps": ("float", 0.1, 1e5),
     "motor_force_per_amp_n": ("float", 0.01, 1e4),
     "motor_winding_ohm": ("float", 0.0, 100.0),
+    "wheel_slip": ("float", 0.0, 0.9),
 }
 _BATTERY: Final[_Spec] = {
     "batteries": ("int", 1, 20),

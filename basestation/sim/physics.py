@@ -17,6 +17,9 @@ from the firmware's outputs inwards:
   phases (dynamic braking, force proportional to speed, ``short_brake_n_per_mps``).
 - **Body.** ``mass_kg`` with rolling resistance ``rolling_resistance x m x g`` against the
   motion (and holding the robot at rest against smaller forces).
+- **Wheel slip.** A worn or wet drive wheel loses ``wheel_slip`` of its travel on the rail:
+  the controller holds the wheel's speed, the body (and its GPS) moves that share slower, and
+  a wheel sensor counts the wheel's turns (``wheel_m``), not the body's travel. 0 by default.
 - **Battery.** Five 12 V lead-acid batteries in series: open-circuit voltage linear in the
   state of charge, internal resistance sag with the current drawn (electronics + motor power
   + winding losses; braking energy is dissipated, not recovered), discharge by coulomb count.
@@ -45,6 +48,7 @@ class PhysicsConfig:
     short_brake_n_per_mps: float = 140.0
     motor_force_per_amp_n: float = 20.0
     motor_winding_ohm: float = 0.4
+    wheel_slip: float = 0.0  # share of the drive wheel's travel lost on the rail (wear)
 
     @property
     def rolling_force_n(self) -> float:
@@ -127,6 +131,7 @@ class RobotPhysics:
         self.config = config if config is not None else PhysicsConfig()
         self.battery = battery if battery is not None else BatteryConfig()
         self.odometer_m = odometer_m  # unwrapped, signed: + = CW
+        self.wheel_m = 0.0  # the drive wheel's travel, signed (slip makes it run ahead)
         self.velocity_mps = 0.0  # signed, + = CW
         self.accel_mps2 = 0.0
         self.throttle_mps = 0.0  # the filtered throttle as a speed setpoint (magnitude)
@@ -193,8 +198,11 @@ class RobotPhysics:
                 w_new = 0.0  # braking and friction stop the robot; they do not reverse it
         new_velocity = w_new * sign
         self.accel_mps2 = (new_velocity - self.velocity_mps) / dt_s
-        # Trapezoidal position update: exact for constant acceleration over the step.
-        self.odometer_m += 0.5 * (self.velocity_mps + new_velocity) * dt_s
+        # Trapezoidal position update: exact for constant acceleration over the step. The
+        # speed loop holds the wheel's speed; the body keeps (1 - slip) of the wheel's travel.
+        wheel_step_m = 0.5 * (self.velocity_mps + new_velocity) * dt_s
+        self.wheel_m += wheel_step_m
+        self.odometer_m += wheel_step_m * (1.0 - c.wheel_slip)
         self.velocity_mps = new_velocity
         self.force_n = force * sign
         self._battery_step(dt_s, force, w_new, drive_enabled)

@@ -258,7 +258,7 @@ class SimulatedRobot:
         self._tx: list[_Due] = []
         self._order = 0
         self._duty_max = max(1, int(self._firmware_config.duty_max))
-        self._wheel_last_odometer_m = self.physics.odometer_m
+        self._wheel_last_m = self.physics.wheel_m
         self._wheel_pulses_carry_m = 0.0
         self._last_output_duty = 0
         self._last_direction_cw = True
@@ -345,7 +345,7 @@ class SimulatedRobot:
         robot_s = new_ms / 1000.0
         self._next_gps_epoch_s = math.ceil(robot_s / self._gps_period_s) * self._gps_period_s
         self._gps_pending.clear()
-        self._wheel_last_odometer_m = self.physics.odometer_m
+        self._wheel_last_m = self.physics.wheel_m
         self._step_firmware(new_ms)
 
     def step(self, dt_s: float) -> None:
@@ -440,9 +440,10 @@ class SimulatedRobot:
         return max(0, min(int(fw.battery_adc_full_scale) - 1, round(counts)))
 
     def _wheel(self, ms: int) -> None:
-        """A hall sensor counting ``wheel_um_per_pulse`` of travel per pulse, read every 100 ms."""
-        travelled_m = abs(self.physics.odometer_m - self._wheel_last_odometer_m)
-        self._wheel_last_odometer_m = self.physics.odometer_m
+        """A hall sensor counting ``wheel_um_per_pulse`` of the wheel's travel per pulse (the
+        body's too, but for slip), read every 100 ms."""
+        travelled_m = abs(self.physics.wheel_m - self._wheel_last_m)
+        self._wheel_last_m = self.physics.wheel_m
         per_pulse_m = self.config.wheel_um_per_pulse / 1e6
         total_m = self._wheel_pulses_carry_m + travelled_m
         pulses = int(total_m / per_pulse_m)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from core.events.dispatch import handler
 from core.events.models import Event
 from portal.runs import notifications
+from portal.runs.services import self_check
 
 
 @handler("run-owner-mail", types=["run.failed", "run.interrupted"])
@@ -16,3 +17,13 @@ def run_owner_mail(event: Event) -> None:
 @handler("robot-hold-mail", types=["robot.held"])
 def robot_hold_mail(event: Event) -> None:
     notifications.robot_hold_notify(resource_name=event.payload["resource"])
+
+
+@handler("self-check", types=["run.data_ready", "run.failed", "run.cancelled"])
+def self_check_judge(event: Event) -> None:
+    """A self-check's run ended: judge its figures, or say it did not run (a run that ended
+    with samples has its ``run.data_ready``; one that failed without any, none)."""
+    if event.type == "run.data_ready":
+        self_check.self_check_evaluate(run_id=event.payload["run"])
+    else:
+        self_check.self_check_not_run(run_id=event.payload["run"], state=event.type[len("run.") :])

@@ -294,3 +294,65 @@ class MeasurementPoint(models.Model):
 # change. Samples arrive by COPY, which no signal sees: their ingest moves it on itself.
 RUNS = Generation("runs")
 track_changes(RUNS, Run, RunEvent)
+
+
+class SelfCheck(models.Model):
+    """A run of the robot's standard self-check (``portal.runs.self_check``) and its verdict:
+    the figures its samples gave, judged against the limits and the robot's baseline."""
+
+    class State(models.TextChoices):
+        PENDING = "pending", "waiting for its run"
+        PASSED = "passed", "passed"
+        FAILED = "failed", "out of tolerance"
+        NOT_RUN = "not_run", "did not run to its end"
+
+    run = models.OneToOneField(Run, on_delete=models.CASCADE, related_name="self_check")
+    resource = models.ForeignKey(
+        "bookings.Resource", on_delete=models.CASCADE, related_name="self_checks"
+    )
+    # The program's parameters the figures are read with (``self_check.Program``).
+    check_velocity_mps = models.FloatField()
+    accel_mps2 = models.FloatField()
+    lap_m = models.FloatField()
+    state = models.CharField(max_length=8, choices=State.choices, default=State.PENDING)
+    figures = models.JSONField(default=dict, blank=True)
+    # Each figure out of tolerance, as a line an admin can act on.
+    problems = models.JSONField(default=list, blank=True)
+    # The baseline the figures were judged against (none: the limits alone).
+    baseline = models.JSONField(null=True, blank=True)
+    reason = models.TextField(blank=True)  # why it did not run, or was not measured
+    evaluated_at = models.DateTimeField(null=True, blank=True)
+    created_at = models.DateTimeField(auto_now_add=True)
+
+    class Meta:
+        ordering = ["-created_at"]
+        indexes = [models.Index(fields=["resource", "-created_at"], name="selfcheck_resource")]
+        constraints = [
+            models.CheckConstraint(
+                condition=models.Q(check_velocity_mps__gt=0)
+                & models.Q(accel_mps2__gt=0)
+                & models.Q(lap_m__gt=0),
+                name="selfcheck_program_positive",
+            ),
+        ]
+
+    def __str__(self) -> str:
+        return f"self-check {self.pk} of {self.resource_id} ({self.state})"
+
+
+class SelfCheckBaseline(models.Model):
+    """What a robot's self-checks are judged against: its first passing check's figures, or
+    those of a check an admin chose."""
+
+    resource = models.OneToOneField(
+        "bookings.Resource", on_delete=models.CASCADE, related_name="self_check_baseline"
+    )
+    figures = models.JSONField()
+    source = models.ForeignKey(SelfCheck, on_delete=models.SET_NULL, null=True, blank=True)
+    set_by = models.ForeignKey(
+        settings.AUTH_USER_MODEL, on_delete=models.SET_NULL, null=True, blank=True
+    )
+    set_at = models.DateTimeField(auto_now=True)
+
+    def __str__(self) -> str:
+        return f"self-check baseline of {self.resource_id}"

@@ -11,7 +11,7 @@ from django.core.cache import cache
 from django.db.models import QuerySet
 
 from basestation.contract import SAMPLE_FIELDS, CsvWriter
-from bookings.models import PeriodQuerySet, Reservation, ReservationItem
+from bookings.models import PeriodQuerySet, Reservation, ReservationItem, Resource
 from bookings.rules import velocity_limit
 from bookings.selectors import mobiles_bookable, reservations_visible
 from core import sql
@@ -35,32 +35,30 @@ from portal.runs.states import RUN_ACTIVE_STATES, RunState
 def robots_for_programs() -> list[dict[str, Any]]:
     """The robots that may be booked, with the limits booking holds a program to (``None``:
     none) and their rails' lengths as last measured (``None``: never)."""
-    robots = []
-    for robot in mobiles_bookable():
-        limit = velocity_limit(robot)
-        accel = robot.max_accel_mps2
-        if robot.agent_max_accel_mps2 is not None:
-            accel = (
-                robot.agent_max_accel_mps2
-                if accel is None
-                else min(accel, robot.agent_max_accel_mps2)
-            )
-        # The rail is measured by the robot on each run; its latest run says it best.
-        rail_m = (
-            Run.objects.filter(resource=robot, rail_length_m__isnull=False)
-            .order_by("-start_at")
-            .values_list("rail_length_m", flat=True)
-            .first()
+    return [robot_for_programs(robot) for robot in mobiles_bookable()]
+
+
+def robot_for_programs(robot: Resource) -> dict[str, Any]:
+    """One robot's entry of :func:`robots_for_programs`."""
+    limit = velocity_limit(robot)
+    accel = robot.max_accel_mps2
+    if robot.agent_max_accel_mps2 is not None:
+        accel = (
+            robot.agent_max_accel_mps2 if accel is None else min(accel, robot.agent_max_accel_mps2)
         )
-        robots.append(
-            {
-                "name": robot.name,
-                "max_velocity_mps": limit.mps if limit is not None else None,
-                "max_accel_mps2": accel,
-                "rail_length_m": rail_m,
-            }
-        )
-    return robots
+    # The rail is measured by the robot on each run; its latest run says it best.
+    rail_m = (
+        Run.objects.filter(resource=robot, rail_length_m__isnull=False)
+        .order_by("-start_at")
+        .values_list("rail_length_m", flat=True)
+        .first()
+    )
+    return {
+        "name": robot.name,
+        "max_velocity_mps": limit.mps if limit is not None else None,
+        "max_accel_mps2": accel,
+        "rail_length_m": rail_m,
+    }
 
 
 def runs_visible(*, user: User) -> QuerySet[Run]:

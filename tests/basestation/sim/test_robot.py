@@ -24,7 +24,7 @@ from basestation.protocol import (
 )
 from basestation.sim.config import GpsConfig, SimConfig
 from basestation.sim.gps import DEFAULT_FIX_MODELS, GpsNoise, gga_sentence
-from basestation.sim.physics import BatteryConfig
+from basestation.sim.physics import BatteryConfig, PhysicsConfig
 from basestation.sim.robot import SimulatedRobot
 from basestation.sim.scenario import Bench
 from basestation.telemetry.rail import Rail
@@ -245,3 +245,22 @@ def test_a_long_pause_at_rest_is_skipped_not_simulated_tick_by_tick() -> None:
     _, last = bench.telemetry[-1]
     assert last.status & TelemetryStatus.GPS_STALE == 0  # the last second was simulated
     assert last.robot_clock_ms == pytest.approx((bench.now_s - bench.robot.start_s) * 1000, abs=60)
+
+
+def test_a_slipping_wheel_turns_further_than_the_robot_moves_and_its_sensor_counts_the_wheel():
+    """Wear: with ``wheel_slip`` the speed loop holds the wheel's speed, the body (and its
+    GPS) keeps only (1 - slip) of the wheel's travel, and a wheel sensor reports the wheel."""
+    slip = 0.2
+    bench = Bench.create(SimConfig(physics=PhysicsConfig(wheel_slip=slip), wheel_um_per_pulse=1000))
+    physics = bench.robot.physics
+    bench.drive(4.0, 1.0)  # up to speed
+    from_m, from_wheel_m, from_s = physics.odometer_m, physics.wheel_m, bench.now_s
+    bench.drive(4.0, 1.0)
+    assert physics.odometer_m - from_m == pytest.approx(
+        (1 - slip) * (physics.wheel_m - from_wheel_m)
+    )
+    # The wheel ran at the commanded metre a second; the robot made 0.8 of it.
+    wheel_mps = (physics.wheel_m - from_wheel_m) / (bench.now_s - from_s)
+    assert wheel_mps == pytest.approx(1.0, abs=0.02)
+    cruise = [frame.velocity_mm_s for at_s, frame in bench.telemetry if at_s > from_s + 0.1]
+    assert sum(cruise) / len(cruise) == pytest.approx(1000, abs=20)  # the sensor: the wheel's
