@@ -28,7 +28,7 @@ from portal.runs.analysis import (
     passes_at,
     rail_track,
 )
-from portal.runs.models import DryRun, Run, Sample
+from portal.runs.models import DryRun, Run, Sample, SelfCheck, SelfCheckBaseline
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 
 
@@ -425,3 +425,20 @@ def run_samples_json(*, run: Run, chunk_rows: int = 2000) -> Iterator[bytes]:
     if batch:
         yield (("" if first else ",") + ",".join(batch)).encode()
     yield b"]}"
+
+
+# The newest self-checks a robot's page and the API list.
+SELF_CHECKS_LISTED = 100
+
+
+def self_checks_of(robot: Resource) -> list[SelfCheck]:
+    """A robot's self-checks, newest first (at most SELF_CHECKS_LISTED), with their runs."""
+    return list(
+        SelfCheck.objects.filter(resource=robot)
+        .select_related("run", "resource")
+        .order_by("-created_at", "-pk")[:SELF_CHECKS_LISTED]
+    )
+
+
+def self_check_baseline_of(robot: Resource) -> SelfCheckBaseline | None:
+    return SelfCheckBaseline.objects.filter(resource=robot).first()

@@ -1,6 +1,6 @@
 from django.urls import path
 
-from portal.runs.apis import attach, measurements, rail, reservations, robot, runs
+from portal.runs.apis import attach, measurements, rail, reservations, robot, runs, self_checks
 
 urlpatterns = [
     path("runs/", runs.RunListApi.as_view(), name="api-runs"),
@@ -68,6 +68,16 @@ urlpatterns = [
         "resources/<slug:name>/robot/release/",
         robot.RobotReleaseApi.as_view(),
         name="api-robot-release",
+    ),
+    path(
+        "resources/<slug:name>/self-checks/",
+        self_checks.SelfCheckListApi.as_view(),
+        name="api-self-checks",
+    ),
+    path(
+        "self-checks/<int:pk>/baseline/",
+        self_checks.SelfCheckBaselineApi.as_view(),
+        name="api-self-check-baseline",
     ),
     path(
         "resources/<slug:name>/robot/logs/<str:day>/",

@@ -36,7 +36,7 @@ from portal.queue.models import RequestState
 from portal.queue.services import queue_request_submit
 from portal.runs.measurement_files import Points
 from portal.runs.measurements import measurement_add
-from portal.runs.models import DryRun, Run
+from portal.runs.models import DryRun, Run, SelfCheck, SelfCheckBaseline
 from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 from tests.browser.conftest import EVERY_PAGE_PHOTOGRAPHED, SCREENSHOTS, login
@@ -305,6 +305,7 @@ def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
         hours_to=6,
     )
     campaign = _a_campaign(ines.user, [first, second])
+    _self_checks([first, second])
     return {
         "home": "/",
         "experiment": "/experiments/new/",
@@ -327,9 +328,40 @@ def _a_day_on_the_testbed(stack: Stack) -> dict[str, str]:
     }
 
 
+def _self_checks(run_ids: list[int]) -> None:
+    """Two judged self-checks of the robot (a baseline and one held for its battery), on the
+    day's runs: the self-checks page's table and trend. How checks are judged is tested in
+    tests/runs/test_self_check.py; this is what its page shows."""
+    robot = Resource.objects.get(name="mobile-1")
+    figures = {
+        "rtk_share": 1.0, "tracking_error_mps": 0.02, "accel_mps2": 0.47, "lag_s": 0.45,
+        "stop_distance_m": 1.4, "stop_time_s": 2.7, "battery_sag_v": 0.08,
+    }  # fmt: skip
+    judged = {
+        "resource": robot,
+        "check_velocity_mps": 1.0,
+        "accel_mps2": 0.5,
+        "lap_m": 120.0,
+        "evaluated_at": timezone.now(),
+    }
+    passed = SelfCheck.objects.create(
+        run=Run.objects.get(pk=run_ids[0]), state=SelfCheck.State.PASSED, figures=figures, **judged
+    )
+    SelfCheck.objects.create(
+        run=Run.objects.get(pk=run_ids[1]),
+        state=SelfCheck.State.FAILED,
+        figures=dict(figures, battery_sag_v=0.88),
+        problems=["battery sag under load 0.88 V is over 0.50 V"],
+        baseline=figures,
+        **judged,
+    )
+    SelfCheckBaseline.objects.create(resource=robot, figures=figures, source=passed)
+
+
 STAFF_PAGES = {
     "approvals": "/approvals/",
     "robot-console": "/robot/mobile-1/",
+    "robot-self-checks": "/robot/mobile-1/self-checks/",
     "usage": "/usage/",
     "scheduler-link": "/scheduler-link/",
 }

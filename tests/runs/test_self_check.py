@@ -8,6 +8,7 @@ from datetime import timedelta
 
 import pytest
 from django.utils import timezone
+from rest_framework.test import APIClient
 
 from bookings.models import Reservation
 from core.audit.models import AuditEvent
@@ -209,3 +210,64 @@ def test_a_check_whose_run_did_not_finish_is_not_judged_and_holds_nothing(
     self_check_not_run(run_id=other.run_id, state="failed")
     other.refresh_from_db()
     assert (other.state, other.reason) == (SelfCheck.State.NOT_RUN, "its run failed")
+
+
+@pytest.mark.django_db
+def test_the_api_books_lists_and_sets_the_baseline_for_admins_only(
+    robot, staff_verified_client, owner, short_lap
+):
+    url = "/api/v1/resources/mobile-1/self-checks/"
+    booked = staff_verified_client.post(url, {}, format="json")
+    assert booked.status_code == 201, booked.content
+    check = booked.json()
+    assert (check["resource"], check["state"], check["figures"]) == ("mobile-1", "pending", {})
+    listed = staff_verified_client.get(url).json()
+    assert [c["id"] for c in listed["checks"]] == [check["id"]]
+    assert listed["baseline"] is None
+    # Not yet measured: no baseline from it.
+    refused = staff_verified_client.post(f"/api/v1/self-checks/{check['id']}/baseline/")
+    assert refused.status_code == 400
+    assert "every figure measured" in str(refused.json()), refused.json()
+    _ran(SelfCheck.objects.get(pk=check["id"]), None)
+    self_check_evaluate(run_id=check["run"])
+    chosen = staff_verified_client.post(f"/api/v1/self-checks/{check['id']}/baseline/")
+    assert chosen.status_code == 200
+    listed = staff_verified_client.get(url).json()
+    assert listed["baseline_check"] == check["id"]
+    assert listed["checks"][0]["figures"]["rtk_share"] == 1.0
+    # An experimenter reaches none of it.
+    experimenter = APIClient()
+    experimenter.force_authenticate(owner)
+    assert experimenter.get(url).status_code == 403
+    assert experimenter.post(url, {}, format="json").status_code == 403
+    assert SelfCheck.objects.count() == 1
+
+
+@pytest.mark.django_db
+def test_the_page_books_shows_the_figures_and_sets_the_baseline(
+    robot, staff_verified_client, admin_user, short_lap
+):
+    url = "/robot/mobile-1/self-checks/"
+    empty = staff_verified_client.get(url)
+    assert empty.status_code == 200
+    assert b"No self-check yet" in empty.content
+    booked = staff_verified_client.post(url, {"action": "start"}, follow=True)
+    assert b"Self-check booked for" in booked.content
+    healthy = SelfCheck.objects.get()
+    _ran(healthy, None)
+    self_check_evaluate(run_id=healthy.run_id)
+    worn = self_check_book(resource=robot, by=admin_user)
+    _ran(worn, "worn battery")
+    self_check_evaluate(run_id=worn.run_id)
+    page = staff_verified_client.get(url).content.decode()
+    assert page.count('data-state="passed"') == 1
+    assert page.count('data-state="failed"') == 1
+    assert "battery sag under load" in page
+    assert page.count('class="out-of-tolerance"') == 1  # only the sag, in the worn row
+    assert "<strong>baseline</strong>" in page
+    assert "Out of booking" in page
+    chosen = staff_verified_client.post(
+        url, {"action": "baseline", "check": worn.pk}, follow=True
+    ).content.decode()
+    assert f"Check {worn.pk} is now the baseline." in chosen
+    assert SelfCheckBaseline.objects.get().source_id == worn.pk
