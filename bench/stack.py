@@ -28,7 +28,8 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import replace
 from email import message_from_bytes, policy
 from email.message import EmailMessage
 from pathlib import Path
@@ -451,6 +452,7 @@ def running_stack(
     extra_env: dict[str, str] | None = None,
     log_dir: Path | None = None,
     access_log: bool = True,
+    process_env: Mapping[str, Mapping[str, str]] | None = None,
 ) -> Iterator[Stack]:
     """Every process of ``system_processes`` on ``database_url`` (PostgreSQL, migrated) and
     the Redis of ``broker_url``, started and ready.
@@ -458,7 +460,8 @@ def running_stack(
     ``second_robot`` adds a second agent (``mobile-2``, its own token in ``AGENT_TOKENS``);
     ``with_scheduler`` the stand-in scheduler (its test controls on) as ``SCHEDULER_URL``,
     swept every second unless ``extra_env`` says otherwise; ``log_dir`` keeps each process's
-    output in a file there too.
+    output in a file there too; ``process_env`` adds to one process's environment by its
+    name (``{"agent-2": {"AGENT_SIM_CONFIG": ...}}``: a robot of its own kind).
     """
     assert database_url.startswith("postgres"), "the stack runs on PostgreSQL"
     assert broker_url.startswith("redis://"), "the stack runs on Redis"
@@ -513,6 +516,9 @@ def running_stack(
         standin_port=standin_port,
         standin_test_control=True,
     )
+    specs = [
+        replace(spec, env={**spec.env, **(process_env or {}).get(spec.name, {})}) for spec in specs
+    ]
     stack = Stack(specs, env, log_dir=log_dir)
     stack.web = f"http://127.0.0.1:{web_port}"
     stack.streams = f"http://127.0.0.1:{streams_port}"

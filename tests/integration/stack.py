@@ -55,6 +55,7 @@ def running_stack(
     second_robot: bool = False,
     with_scheduler: bool = False,
     extra_env: dict[str, str] | None = None,
+    process_env: dict[str, dict[str, str]] | None = None,
 ) -> Iterator[Stack]:
     """Every process of ``system_processes`` on the test database, started and ready."""
     with processes.running_stack(
@@ -74,6 +75,7 @@ def running_stack(
             **TEST_WEB,
             **(extra_env or {}),
         },
+        process_env=process_env,
     ) as stack:
         yield stack
 
