@@ -48,3 +48,5 @@ class Channel(models.TextChoices):
     CLI = "cli", "with the amazing command"
     # Booked by the queue for its owner, in the first slot that fitted (portal/queue).
     QUEUE = "queue", "by the queue"
+    # A robot's daily self-check, booked for the admin who scheduled it.
+    SCHEDULE = "schedule", "by a daily schedule"

@@ -441,6 +441,10 @@ CELERY_BEAT_SCHEDULE: dict[str, dict[str, Any]] = {
         "task": "portal.runs.tasks.dry_runs_delete_expired",
         "schedule": 3600.0,
     },
+    "self-checks-book-scheduled": {
+        "task": "portal.runs.tasks.self_checks_book_scheduled",
+        "schedule": 300.0,
+    },
     "idempotency-keys-delete-expired": {
         "task": "core.audit.tasks.idempotency_keys_delete_expired",
         "schedule": 3600.0,

@@ -356,3 +356,20 @@ class SelfCheckBaseline(models.Model):
 
     def __str__(self) -> str:
         return f"self-check baseline of {self.resource_id}"
+
+
+class SelfCheckSchedule(models.Model):
+    """A robot's self-check booked every day at ``at``, the testbed's wall-clock time (or in
+    the first free slot after it), for the admin who set it while they stay staff."""
+
+    resource = models.OneToOneField(
+        "bookings.Resource", on_delete=models.CASCADE, related_name="self_check_schedule"
+    )
+    at = models.TimeField()
+    set_by = models.ForeignKey(settings.AUTH_USER_MODEL, on_delete=models.CASCADE)
+    # The last day's time it booked a check for (or found it could not): booked once a day.
+    booked_for = models.DateTimeField(null=True, blank=True)
+    set_at = models.DateTimeField(auto_now=True)
+
+    def __str__(self) -> str:
+        return f"self-check of {self.resource_id} daily at {self.at}"

@@ -28,7 +28,14 @@ from portal.runs.analysis import (
     passes_at,
     rail_track,
 )
-from portal.runs.models import DryRun, Run, Sample, SelfCheck, SelfCheckBaseline
+from portal.runs.models import (
+    DryRun,
+    Run,
+    Sample,
+    SelfCheck,
+    SelfCheckBaseline,
+    SelfCheckSchedule,
+)
 from portal.runs.states import RUN_ACTIVE_STATES, RunState
 
 
@@ -442,3 +449,7 @@ def self_checks_of(robot: Resource) -> list[SelfCheck]:
 
 def self_check_baseline_of(robot: Resource) -> SelfCheckBaseline | None:
     return SelfCheckBaseline.objects.filter(resource=robot).first()
+
+
+def self_check_schedule_of(robot: Resource) -> SelfCheckSchedule | None:
+    return SelfCheckSchedule.objects.filter(resource=robot).select_related("set_by").first()

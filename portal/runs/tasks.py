@@ -16,7 +16,7 @@ from django.utils import timezone
 from basestation.client import AgentError
 from core.health import SWEEP, heartbeat_record
 from core.pending import pending_taken, queue_once
-from portal.runs.services import collection, dry_run, health, staging
+from portal.runs.services import collection, dry_run, health, self_check, staging
 
 logger = logging.getLogger(__name__)
 
@@ -116,6 +116,12 @@ def robots_health_sweep() -> None:
 def dry_runs_delete_expired() -> int:
     """Hourly: dry runs and their samples past ``DRY_RUN_KEEP_S`` are deleted."""
     return dry_run.dry_runs_delete_expired()
+
+
+@shared_task(time_limit=120, soft_time_limit=100)
+def self_checks_book_scheduled() -> int:
+    """Every few minutes: each robot's daily self-check booked half a day ahead."""
+    return len(self_check.self_checks_book_scheduled())
 
 
 @shared_task(time_limit=30, soft_time_limit=25)

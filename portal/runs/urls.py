@@ -75,6 +75,11 @@ urlpatterns = [
         name="api-self-checks",
     ),
     path(
+        "resources/<slug:name>/self-checks/schedule/",
+        self_checks.SelfCheckScheduleApi.as_view(),
+        name="api-self-check-schedule",
+    ),
+    path(
         "self-checks/<int:pk>/baseline/",
         self_checks.SelfCheckBaselineApi.as_view(),
         name="api-self-check-baseline",

@@ -4,6 +4,7 @@ services as the REST API's (``portal.runs.services.self_check``)."""
 
 from __future__ import annotations
 
+from datetime import time
 from typing import Any
 
 from django.contrib import messages
@@ -16,11 +17,19 @@ from bookings.models import Resource
 from core.accounts.models import User
 from core.accounts.staff import staff_required
 from core.audit.services import client_ip
-from core.errors import DomainError
+from core.errors import DomainError, InvalidInput
 from portal.runs.models import SelfCheck
-from portal.runs.selectors import self_check_baseline_of, self_checks_of
+from portal.runs.selectors import (
+    self_check_baseline_of,
+    self_check_schedule_of,
+    self_checks_of,
+)
 from portal.runs.self_check import RULES
-from portal.runs.services.self_check import self_check_baseline_set, self_check_book
+from portal.runs.services.self_check import (
+    self_check_baseline_set,
+    self_check_book,
+    self_check_schedule_set,
+)
 
 
 @staff_required
@@ -30,6 +39,7 @@ def robot_self_checks(request: HttpRequest, name: str) -> HttpResponse:
         return _act(request, robot)
     checks = self_checks_of(robot)
     baseline = self_check_baseline_of(robot)
+    schedule = self_check_schedule_of(robot)
     return render(
         request,
         "web/self_checks.html",
@@ -38,6 +48,7 @@ def robot_self_checks(request: HttpRequest, name: str) -> HttpResponse:
             "checks": checks,
             "rules": RULES,
             "baseline": baseline,
+            "schedule": schedule,
             "rows": [_row(check, baseline.source_id if baseline else None) for check in checks],
             # Oldest first for the trend chart: time along x.
             "trend": {
@@ -77,7 +88,10 @@ def _act(request: HttpRequest, robot: Resource) -> HttpResponse:
     user = request.user
     assert isinstance(user, User)  # staff_required let only a signed-in admin through
     try:
-        if request.POST.get("action") == "baseline":
+        action = request.POST.get("action")
+        if action == "schedule":
+            _schedule(request, robot, user)
+        elif action == "baseline":
             check = get_object_or_404(SelfCheck, pk=request.POST.get("check"), resource=robot)
             self_check_baseline_set(check=check, by=user, ip=client_ip(request))
             messages.success(request, f"Check {check.pk} is now the baseline.")
@@ -90,3 +104,20 @@ def _act(request: HttpRequest, robot: Resource) -> HttpResponse:
     except DomainError as exc:
         messages.error(request, exc.message)
     return redirect("robot-self-checks", name=robot.name)
+
+
+def _schedule(request: HttpRequest, robot: Resource, user: User) -> None:
+    """Set the daily time (``at``, HH:MM) or stop (``stop``)."""
+    at: time | None = None
+    if "stop" not in request.POST:
+        try:
+            at = time.fromisoformat(request.POST.get("at", ""))
+        except ValueError as exc:
+            raise InvalidInput.on_field("at", "Give the time as HH:MM.") from exc
+    self_check_schedule_set(resource=robot, by=user, at=at, ip=client_ip(request))
+    messages.success(
+        request,
+        f"A self-check will be booked every day at {at:%H:%M}."
+        if at
+        else "Daily self-checks stopped.",
+    )

@@ -4,7 +4,8 @@ robot's hold and its baseline."""
 
 from __future__ import annotations
 
-from datetime import timedelta
+from datetime import UTC, datetime, time, timedelta
+from zoneinfo import ZoneInfo
 
 import pytest
 from django.utils import timezone
@@ -14,7 +15,7 @@ from bookings.models import Reservation
 from core.audit.models import AuditEvent
 from core.errors import InvalidInput, NotAllowed
 from core.events.models import Event
-from portal.runs.models import Run, SelfCheck, SelfCheckBaseline
+from portal.runs.models import Run, SelfCheck, SelfCheckBaseline, SelfCheckSchedule
 from portal.runs.self_check import RULES, self_check_figures, self_check_judge, self_check_program
 from portal.runs.services.collection import samples_ingest
 from portal.runs.services.self_check import (
@@ -23,6 +24,8 @@ from portal.runs.services.self_check import (
     self_check_book,
     self_check_evaluate,
     self_check_not_run,
+    self_check_schedule_set,
+    self_checks_book_scheduled,
 )
 from portal.runs.states import RunState
 from tests.factories import MobileResourceFactory, UserFactory
@@ -271,3 +274,79 @@ def test_the_page_books_shows_the_figures_and_sets_the_baseline(
     ).content.decode()
     assert f"Check {worn.pk} is now the baseline." in chosen
     assert SelfCheckBaseline.objects.get().source_id == worn.pk
+
+
+# --- every day --------------------------------------------------------------------------------
+
+LISBON = ZoneInfo("Europe/Lisbon")
+
+
+@pytest.mark.django_db
+def test_a_daily_schedule_books_each_days_check_once_for_the_admin_who_set_it(
+    robot, admin_user, owner, caplog
+):
+    with pytest.raises(NotAllowed):
+        self_check_schedule_set(resource=robot, by=owner, at=time(3, 0))
+    self_check_schedule_set(resource=robot, by=admin_user, at=time(3, 0))
+    assert AuditEvent.objects.filter(action="robot.self_check_schedule").count() == 1
+    evening = datetime(2026, 11, 29, 20, 0, tzinfo=LISBON)
+    # Too early in the day: the night's 03:00 is more than half a day ahead.
+    assert self_checks_book_scheduled(now=evening - timedelta(hours=6)) == []
+    [check] = self_checks_book_scheduled(now=evening)
+    assert check.run.start_at == datetime(2026, 11, 30, 3, 0, tzinfo=LISBON)
+    reservation = Reservation.objects.get(pk=check.run.reservation_id)
+    assert reservation.owner == admin_user
+    created = Event.objects.filter(type="reservation.created").latest("position")
+    assert (created.payload["via"], created.payload["by"]) == ("schedule", admin_user.username)
+    # Once a day: the next pass that evening books nothing, the next evening the next night.
+    assert self_checks_book_scheduled(now=evening + timedelta(minutes=5)) == []
+    [after] = self_checks_book_scheduled(now=evening + timedelta(days=1))
+    assert after.run.start_at == datetime(2026, 12, 1, 3, 0, tzinfo=LISBON)
+    # A slot taken at 03:00: the check goes in the first free slot after it.
+    taken_from = datetime(2026, 12, 2, 2, 30, tzinfo=LISBON)
+    self_check_book(resource=robot, by=admin_user, start_at=taken_from, now=evening)
+    [moved] = self_checks_book_scheduled(now=evening + timedelta(days=2))
+    assert moved.run.start_at >= taken_from + timedelta(minutes=3)
+    # An admin no more: that night is passed over, said in the log, and not tried again.
+    admin_user.is_staff = admin_user.is_superuser = False
+    admin_user.save()
+    assert self_checks_book_scheduled(now=evening + timedelta(days=3)) == []
+    assert "no longer an admin" in caplog.text
+    assert self_checks_book_scheduled(now=evening + timedelta(days=3, minutes=5)) == []
+    admin_user.is_staff = True
+    self_check_schedule_set(resource=robot, by=admin_user, at=None)
+    assert not SelfCheckSchedule.objects.exists()
+
+
+@pytest.mark.django_db
+def test_a_time_the_clock_change_skips_is_booked_an_hour_later_by_the_wall_clock(robot, admin_user):
+    """Lisbon's clocks go from 01:00 to 02:00 on 28 March 2027: 01:30 does not exist that
+    night; the check is booked at 01:30 before the change, which the clock shows as 02:30."""
+    self_check_schedule_set(resource=robot, by=admin_user, at=time(1, 30))
+    [check] = self_checks_book_scheduled(now=datetime(2027, 3, 27, 20, 0, tzinfo=LISBON))
+    assert check.run.start_at == datetime(2027, 3, 28, 1, 30, tzinfo=UTC)
+    assert check.run.start_at.astimezone(LISBON).strftime("%H:%M") == "02:30"
+
+
+@pytest.mark.django_db
+def test_the_schedule_is_set_and_stopped_on_the_api_and_the_page(robot, staff_verified_client):
+    url = "/api/v1/resources/mobile-1/self-checks/schedule/"
+    put = staff_verified_client.put(url, {"at": "03:15"}, format="json")
+    assert put.status_code == 200, put.content
+    assert put.json() == {"at": "03:15", "set_by": "charlie"}
+    listed = staff_verified_client.get("/api/v1/resources/mobile-1/self-checks/").json()
+    assert listed["schedule"] == {"at": "03:15", "set_by": "charlie"}
+    assert staff_verified_client.put(url, {"at": "25:00"}, format="json").status_code == 400
+    assert staff_verified_client.put(url, {"at": None}, format="json").status_code == 204
+    assert not SelfCheckSchedule.objects.exists()
+
+    page = "/robot/mobile-1/self-checks/"
+    shown = staff_verified_client.post(page, {"action": "schedule", "at": "04:45"}, follow=True)
+    assert b"A self-check will be booked every day at 04:45." in shown.content
+    assert SelfCheckSchedule.objects.get().at == time(4, 45)
+    bad = staff_verified_client.post(page, {"action": "schedule", "at": "soon"}, follow=True)
+    assert b"Give the time as HH:MM." in bad.content
+    assert SelfCheckSchedule.objects.get().at == time(4, 45)
+    stopped = staff_verified_client.post(page, {"action": "schedule", "stop": "1"}, follow=True)
+    assert b"Daily self-checks stopped." in stopped.content
+    assert not SelfCheckSchedule.objects.exists()

@@ -17,9 +17,17 @@ from core.audit.services import client_ip
 from core.openapi import ClosedSerializer, errors
 from portal.runs.apis.reservations import request_door
 from portal.runs.models import SelfCheck
-from portal.runs.selectors import self_check_baseline_of, self_checks_of
+from portal.runs.selectors import (
+    self_check_baseline_of,
+    self_check_schedule_of,
+    self_checks_of,
+)
 from portal.runs.self_check import RULES
-from portal.runs.services.self_check import self_check_baseline_set, self_check_book
+from portal.runs.services.self_check import (
+    self_check_baseline_set,
+    self_check_book,
+    self_check_schedule_set,
+)
 
 FIGURES = (
     "The figures by name (null: not measured): "
@@ -55,6 +63,15 @@ class SelfCheckOutput(serializers.ModelSerializer):
         ]  # fmt: skip
 
 
+class SelfCheckScheduleOutput(serializers.Serializer):
+    at = serializers.TimeField(
+        format="%H:%M", help_text="Every day at this time (the testbed's wall clock)."
+    )
+    set_by = serializers.CharField(
+        source="set_by.username", help_text="The admin the daily booking is made for."
+    )
+
+
 class SelfCheckListOutput(serializers.Serializer):
     checks = SelfCheckOutput(many=True, help_text="Newest first, at most 100.")
     baseline = serializers.DictField(
@@ -64,6 +81,15 @@ class SelfCheckListOutput(serializers.Serializer):
     )
     baseline_check = serializers.IntegerField(
         allow_null=True, help_text="The check the baseline came from."
+    )
+    schedule = SelfCheckScheduleOutput(allow_null=True, help_text="Null: booked by hand only.")
+
+
+class SelfCheckScheduleInput(ClosedSerializer):
+    at = serializers.TimeField(
+        allow_null=True,
+        help_text="Book the robot's self-check every day at this time (HH:MM, the testbed's "
+        "wall clock) or in the first free slot after it; null stops.",
     )
 
 
@@ -89,6 +115,7 @@ class SelfCheckListApi(APIView):
                 "checks": SelfCheckOutput(self_checks_of(robot), many=True).data,
                 "baseline": baseline.figures if baseline is not None else None,
                 "baseline_check": baseline.source_id if baseline is not None else None,
+                "schedule": _schedule(robot),
             }
         )
 
@@ -109,6 +136,28 @@ class SelfCheckListApi(APIView):
             ip=client_ip(request),
         )
         return Response(SelfCheckOutput(check).data, status=status.HTTP_201_CREATED)
+
+
+def _schedule(robot: Resource) -> dict[str, str] | None:
+    schedule = self_check_schedule_of(robot)
+    return SelfCheckScheduleOutput(schedule).data if schedule is not None else None
+
+
+class SelfCheckScheduleApi(APIView):
+    permission_classes = [StaffVerified]
+
+    @extend_schema(
+        request=SelfCheckScheduleInput,
+        responses={200: SelfCheckScheduleOutput, 204: None, **errors(400, 404)},
+    )
+    def put(self, request: Request, name: str) -> Response:
+        data = valid_input(SelfCheckScheduleInput, request.data)
+        schedule = self_check_schedule_set(
+            resource=_robot(name), by=request_user(request), at=data["at"], ip=client_ip(request)
+        )
+        if schedule is None:
+            return Response(status=status.HTTP_204_NO_CONTENT)
+        return Response(SelfCheckScheduleOutput(schedule).data)
 
 
 class SelfCheckBaselineApi(APIView):

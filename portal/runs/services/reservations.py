@@ -34,10 +34,12 @@ from bookings.services import reservations as without_run
 from core.accounts.models import User
 from core.errors import Conflict
 from portal.experiments.models import Experiment
+
+# The module, not its task: the tasks import the self-check's service, which books through here.
+from portal.runs import tasks as run_tasks
 from portal.runs.models import Run
 from portal.runs.services.transitions import run_create, run_transition
 from portal.runs.states import Cause, RunState
-from portal.runs.tasks import run_unstage
 
 logger = logging.getLogger(__name__)
 
@@ -263,7 +265,7 @@ def _withdraw_run(reservation: Reservation, *, reason: str, by: User) -> None:
     ):
         return
     if run.state in (RunState.STAGED, RunState.RUNNING):
-        transaction.on_commit(partial(run_unstage.delay, run.pk))
+        transaction.on_commit(partial(run_tasks.run_unstage.delay, run.pk))
 
 
 def reservation_cancel(

@@ -13,8 +13,9 @@ another (:func:`self_check_baseline_set`).
 from __future__ import annotations
 
 import logging
-from datetime import datetime, timedelta
+from datetime import datetime, time, timedelta
 from typing import Final
+from zoneinfo import ZoneInfo
 
 from django.conf import settings
 from django.db import transaction
@@ -26,10 +27,10 @@ from bookings.selectors import resource_first_free
 from bookings.services import resource_hold
 from core.accounts.models import User
 from core.audit.services import audit_record
-from core.errors import Conflict, InvalidInput, NotAllowed
+from core.errors import Conflict, DomainError, InvalidInput, NotAllowed
 from portal.experiments.models import Experiment
 from portal.runs import queries
-from portal.runs.models import Run, SelfCheck, SelfCheckBaseline
+from portal.runs.models import Run, SelfCheck, SelfCheckBaseline, SelfCheckSchedule
 from portal.runs.selectors import robot_for_programs
 from portal.runs.self_check import (
     NotMeasurable,
@@ -38,8 +39,10 @@ from portal.runs.self_check import (
     self_check_judge,
     self_check_program,
 )
+
+# The module: booking with a run imports the tasks, whose beat task books through here.
+from portal.runs.services import reservations as with_run
 from portal.runs.services.dry_run import DEFAULT_MAX_ACCEL_MPS2, DEFAULT_RAIL_LENGTH_M
-from portal.runs.services.reservations import reservation_create
 from portal.runs.states import RunState
 
 logger = logging.getLogger(__name__)
@@ -50,6 +53,8 @@ END_MARGIN_S: Final = 30
 SEARCH_HORIZON: Final = timedelta(days=7)
 # A hold this check made starts with this (an admin's lift, or a passing check, says why).
 HOLD_PREFIX: Final = "self-check: "
+# A schedule books its day's check this long before its time.
+SCHEDULE_AHEAD: Final = timedelta(hours=12)
 
 
 def self_check_plan(resource: Resource) -> Program:
@@ -71,12 +76,14 @@ def self_check_book(
     resource: Resource,
     by: User,
     start_at: datetime | None = None,
+    earliest: datetime | None = None,
     via: Channel = Channel.API,
     ip: str | None = None,
     now: datetime | None = None,
 ) -> SelfCheck:
-    """Book ``resource``'s self-check at ``start_at``, or in its first free slot from a
-    minute on; only admins. Refused as any booking is (a slot taken, a robot held)."""
+    """Book ``resource``'s self-check at ``start_at``, or in its first free slot from
+    ``earliest`` (and at least ``SELF_CHECK_LEAD_S`` from now); only admins. Refused as any
+    booking is (a slot taken, a robot out of booking)."""
     if not by.is_testbed_admin:
         raise NotAllowed("Only admins start a robot's self-check.")
     if not resource.is_mobile:
@@ -87,9 +94,10 @@ def self_check_book(
         seconds=round(sum(float(s["duration_s"]) for s in program.segments) + END_MARGIN_S)
     )
     if start_at is None:
+        soonest = now + timedelta(seconds=settings.SELF_CHECK_LEAD_S)
         slot = resource_first_free(
             resource=resource,
-            earliest=now + timedelta(seconds=settings.SELF_CHECK_LEAD_S),
+            earliest=max(soonest, earliest or soonest),
             length=length,
             horizon=SEARCH_HORIZON,
         )
@@ -99,7 +107,7 @@ def self_check_book(
     title = f"Self-check of {resource.name}"
     with transaction.atomic():
         experiment = Experiment.objects.create(owner=by, title=title, segments=program.segments)
-        reservation = reservation_create(
+        reservation = with_run.reservation_create(
             owner=by,
             resource=resource,
             start_at=start_at,
@@ -223,3 +231,79 @@ def self_check_baseline_set(*, check: SelfCheck, by: User, ip: str | None = None
             check=check.pk,
             figures=check.figures,
         )
+
+
+# --- every day ---------------------------------------------------------------------------------
+
+
+def self_check_schedule_set(
+    *, resource: Resource, by: User, at: time | None, ip: str | None = None
+) -> SelfCheckSchedule | None:
+    """Book ``resource``'s self-check every day at ``at`` (the testbed's wall-clock time), or
+    stop (None); only admins. Audited."""
+    if not by.is_testbed_admin:
+        raise NotAllowed("Only admins schedule a robot's self-check.")
+    if not resource.is_mobile:
+        raise InvalidInput.on_field("resource", f"{resource.name} is not a robot.")
+    with transaction.atomic():
+        schedule: SelfCheckSchedule | None = None
+        if at is None:
+            SelfCheckSchedule.objects.filter(resource=resource).delete()
+        else:
+            schedule, _ = SelfCheckSchedule.objects.update_or_create(
+                resource=resource, defaults={"at": at, "set_by": by}
+            )
+        audit_record(
+            actor=by,
+            action="robot.self_check_schedule",
+            target=resource,
+            ip=ip,
+            at=at.isoformat(timespec="minutes") if at is not None else None,
+        )
+    return schedule
+
+
+def _next_at(schedule: SelfCheckSchedule, now: datetime) -> datetime:
+    """The schedule's next time on the testbed's wall clock from ``now`` (a time in the hour
+    a clock change skips is read before the change: the hour after it)."""
+    zone = ZoneInfo(settings.TIME_ZONE)
+    local = now.astimezone(zone)
+    today = datetime.combine(local.date(), schedule.at, tzinfo=zone)
+    return (
+        today
+        if today >= now
+        else datetime.combine(local.date() + timedelta(days=1), schedule.at, tzinfo=zone)
+    )
+
+
+def self_checks_book_scheduled(*, now: datetime | None = None) -> list[SelfCheck]:
+    """Book the day's check of each schedule whose time comes within SCHEDULE_AHEAD, once per
+    day; what was booked. A schedule acts for the admin who set it (with their second factor)
+    while they keep the staff role; a day's check that cannot be booked (the robot out of
+    booking, no free slot) is logged and that day passed over."""
+    now = now or timezone.now()
+    booked: list[SelfCheck] = []
+    for schedule in SelfCheckSchedule.objects.select_related("resource", "set_by"):
+        due = _next_at(schedule, now)
+        if due - now > SCHEDULE_AHEAD or (schedule.booked_for and due <= schedule.booked_for):
+            continue
+        admin = schedule.set_by
+        try:
+            if not admin.has_staff_role:
+                raise NotAllowed(f"{admin.get_username()}, who set it, is no longer an admin")
+            admin.staff_verified = True  # the schedule is their standing instruction
+            booked.append(
+                self_check_book(
+                    resource=schedule.resource,
+                    by=admin,
+                    earliest=due,
+                    via=Channel.SCHEDULE,
+                    now=now,
+                )
+            )
+        except DomainError as exc:
+            logger.warning(
+                "self-check of %s for %s not booked: %s", schedule.resource.name, due, exc.message
+            )
+        SelfCheckSchedule.objects.filter(pk=schedule.pk).update(booked_for=due)
+    return booked
