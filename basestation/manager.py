@@ -63,6 +63,7 @@ from basestation.store import (
     RunStore,
     Sample,
 )
+from basestation.system import cpu_temp_c
 from basestation.telemetry.battery import BatteryFilter
 from basestation.telemetry.laps import LapCounter
 from basestation.telemetry.rail import Rail
@@ -616,7 +617,14 @@ class RunManager:
         if tally is None or (self._active is not None and self._active.id == tally.run_id):
             return
         self._link_tally = None
-        ended = {"at": format_epoch(now_s), "clock": clock_facts(), "link": tally.to_json_dict()}
+        ended = {
+            "at": format_epoch(now_s),
+            "clock": clock_facts(),
+            "link": tally.to_json_dict(),
+            # The Pi's temperature as the run ends (its heaviest time: the robot's self-check
+            # tracks it over the months).
+            "cpu_temp_c": cpu_temp_c(self.config.cpu_temp_path),
+        }
         run_id = tally.run_id
         self.writer.submit(lambda: self.store.run_provenance_set(run_id, "ended", ended))
 

@@ -172,6 +172,7 @@ def provenance_at_collection(*, agent_run: dict[str, Any], now: datetime) -> dic
         "clock_at_start": None if started is None else clock_clean(started.get("clock")),
         "clock_at_end": clock_clean(ended.get("clock")),
         "link": link_clean(ended.get("link")),
+        "cpu_temp_c_at_end": _number(ended.get("cpu_temp_c")),
     }
 
 

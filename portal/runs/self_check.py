@@ -17,7 +17,10 @@ of the thesis's chapter 4:
 - ``battery_sag_v``: the battery at rest minus its lowest reading while accelerating (a
   battery with a high internal resistance sags under the motor's current);
 - ``rtk_share``: the share of the lap's samples with an RTK-fixed position (the GPS losing its
-  fix near a wall, or its corrections).
+  fix near a wall, or its corrections);
+- ``link_loss_share``: the share of the base station's commands the robot did not answer over
+  the run, and ``cpu_temp_c``: the Pi's temperature as the run ended (both as the base station
+  recorded them: the run's provenance).
 
 Each figure is judged (:func:`self_check_judge`) against a limit that holds for any robot
 (from its own configured acceleration) and against its baseline, the robot's own first
@@ -118,6 +121,8 @@ class Figures:
 
     rtk_share: float
     battery_sag_v: float
+    link_loss_share: float | None = None
+    cpu_temp_c: float | None = None
     tracking_error_mps: float | None = None
     accel_mps2: float | None = None
     lag_s: float | None = None
@@ -138,10 +143,16 @@ class NotMeasurable(ValueError):
 
 
 def self_check_figures(
-    columns: SampleColumns, program: Program, *, rail_length_m: float
+    columns: SampleColumns,
+    program: Program,
+    *,
+    rail_length_m: float,
+    link_loss_pct: float | None = None,
+    cpu_temp_c: float | None = None,
 ) -> Figures:
-    """The check's figures from its run's samples; :class:`NotMeasurable` for a run that
-    did not reach the end of its program."""
+    """The check's figures from its run's samples, and what the base station recorded as the
+    run ended (the link's loss over the run, the Pi's temperature; None: not recorded);
+    :class:`NotMeasurable` for a run that did not reach the end of its program."""
     t = columns.t_s
     starts = _segment_starts(columns, len(program.segments))
     rest = columns.battery_v[columns.segment == 0]
@@ -156,6 +167,8 @@ def self_check_figures(
     measured = Figures(
         rtk_share=float(np.mean(columns.fix_quality[lap] == RTK_FIXED)) if lap.any() else 0.0,
         battery_sag_v=max(0.0, max(sags)),
+        link_loss_share=None if link_loss_pct is None else link_loss_pct / 100.0,
+        cpu_temp_c=cpu_temp_c,
     )
     try:
         return _motion_figures(columns, program, starts, rail_length_m, measured)
@@ -334,6 +347,11 @@ def _absolute_limit(name: str, v_mps: float, a_mps2: float) -> float:
             return v_mps / a_mps2 + 1.0
         case "battery_sag_v":
             return 0.5
+        case "link_loss_share":
+            return 0.05
+        case "cpu_temp_c":
+            # A Raspberry Pi starts to slow itself down at 80 °C.
+            return 75.0
         case "rtk_share":
             return 0.9
     raise KeyError(name)
@@ -349,6 +367,8 @@ RULES: Final[Mapping[str, Rule]] = {
     "stop_distance_m": Rule("stopping distance", "m", True, 0.3),
     "stop_time_s": Rule("stopping time", "s", True, 0.5),
     "battery_sag_v": Rule("battery sag under load", "V", True, 0.3),
+    "link_loss_share": Rule("radio link loss", "", True, 0.05),
+    "cpu_temp_c": Rule("base station CPU temperature", "°C", True, 10.0),
 }
 
 
@@ -399,5 +419,5 @@ def self_check_judge(
 
 def _fmt(value: float, rule: Rule) -> str:
     if not rule.unit:
-        return f"{value:.0%}"
+        return f"{value:.0%}" if value >= 0.1 or value == 0 else f"{value:.1%}"
     return f"{value:.2f} {rule.unit}"

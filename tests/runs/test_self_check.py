@@ -124,13 +124,17 @@ def short_lap(settings):
     settings.SELF_CHECK_LAP_M = rehearsals.RAIL.length_m
 
 
-def _ran(check: SelfCheck, wear: str | None) -> None:
-    """The check's run as if its agent had run it on the (worn) simulated robot."""
+def _ran(check: SelfCheck, wear: str | None, *, loss_pct: float = 0.0, cpu_c: float = 52.0) -> None:
+    """The check's run as if its agent had run it on the (worn) simulated robot, and had
+    recorded the link's loss and the Pi's temperature as it ended."""
     answer = rehearsals.rehearse(wear)
     run = check.run
     assert run.segments == rehearsals.program().segments
+    collected = {"link": {"loss_pct": loss_pct}, "cpu_temp_c_at_end": cpu_c}
     Run.objects.filter(pk=run.pk).update(
-        rail_length_m=answer["rail_length_m"], state=RunState.COLLECTING
+        rail_length_m=answer["rail_length_m"],
+        state=RunState.COLLECTING,
+        provenance={"collected": collected},
     )
     run.refresh_from_db()
     samples_ingest(run=run, samples=answer["samples"])
@@ -350,3 +354,21 @@ def test_the_schedule_is_set_and_stopped_on_the_api_and_the_page(robot, staff_ve
     stopped = staff_verified_client.post(page, {"action": "schedule", "stop": "1"}, follow=True)
     assert b"Daily self-checks stopped." in stopped.content
     assert not SelfCheckSchedule.objects.exists()
+
+
+@pytest.mark.django_db
+def test_a_lossy_link_and_a_hot_base_station_are_figures_of_the_check_too(
+    robot, admin_user, short_lap
+):
+    healthy = self_check_book(resource=robot, by=admin_user)
+    _ran(healthy, None)
+    judged = self_check_evaluate(run_id=healthy.run_id)
+    assert judged.state == SelfCheck.State.PASSED, judged.problems
+    assert (judged.figures["link_loss_share"], judged.figures["cpu_temp_c"]) == (0.0, 52.0)
+    hot = self_check_book(resource=robot, by=admin_user)
+    _ran(hot, None, loss_pct=8.0, cpu_c=66.0)
+    judged = self_check_evaluate(run_id=hot.run_id)
+    assert judged.problems == [
+        "radio link loss 8.0% is over 5.0%",
+        "base station CPU temperature 66.00 °C is beyond its baseline 52.00 °C ± 10.00 °C",
+    ]

@@ -158,10 +158,13 @@ def self_check_evaluate(*, run_id: int, now: datetime | None = None) -> SelfChec
         run = check.run
         baseline = SelfCheckBaseline.objects.filter(resource=check.resource).first()
         try:
+            ended = (run.provenance or {}).get("collected") or {}
             figures = self_check_figures(
                 queries.sample_columns(run),
                 _program_of(check),
                 rail_length_m=run.rail_length_m or DEFAULT_RAIL_LENGTH_M,
+                link_loss_pct=(ended.get("link") or {}).get("loss_pct"),
+                cpu_temp_c=ended.get("cpu_temp_c_at_end"),
             )
         except NotMeasurable as exc:
             check.state, check.reason = SelfCheck.State.NOT_RUN, str(exc)
