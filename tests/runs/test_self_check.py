@@ -159,6 +159,8 @@ def test_only_an_admin_books_a_check_and_it_is_an_ordinary_booking(
     # A second one goes after the first: the same door found the slot taken.
     second = self_check_book(resource=robot, by=admin_user, now=now)
     assert second.run.start_at >= check.run.end_at
+    # Both run the admin's one self-check experiment of the robot, not one each.
+    assert second.run.experiment_id == check.run.experiment_id
     with pytest.raises(InvalidInput):
         self_check_book(
             resource=MobileResourceFactory(name="mobile-2", max_velocity_mps=None), by=admin_user

@@ -106,7 +106,15 @@ def self_check_book(
         start_at = slot[0]
     title = f"Self-check of {resource.name}"
     with transaction.atomic():
-        experiment = Experiment.objects.create(owner=by, title=title, segments=program.segments)
+        # One experiment per admin and robot, its program kept up to date: not one a night.
+        experiment = (
+            Experiment.objects.filter(owner=by, title=title).order_by("-created_at").first()
+        )
+        if experiment is None:
+            experiment = Experiment.objects.create(owner=by, title=title, segments=program.segments)
+        elif experiment.segments != program.segments:
+            experiment.segments = program.segments
+            experiment.save(update_fields=["segments", "updated_at"])
         reservation = with_run.reservation_create(
             owner=by,
             resource=resource,
