@@ -1,8 +1,8 @@
-"""The self-check end to end with real processes: two robots, each behind its own agent, one
-healthy and one whose battery has worn (its internal resistance ten times the new one's).
-Both checks are booked through the one door, staged, driven, collected and judged by the
-workers as any run: the healthy robot passes and its check becomes its baseline, the worn one
-is held with the reason, and the staff are told (``robot.held``)."""
+"""The self-check end to end with real processes: two robots, each behind its own agent, each
+healthy or worn as the simulator can wear (``AGENT_SIM_CONFIG`` for its agent alone). Both
+checks are booked through the one door, staged, driven, collected and judged by the workers
+as any run: a healthy robot passes and its check becomes its baseline; a worn one is held
+with the reason its wear gives, and the staff are told (``robot.held``)."""
 
 from __future__ import annotations
 
@@ -10,78 +10,90 @@ import time
 from datetime import timedelta
 
 import pytest
-from django.conf import settings
 from django.utils import timezone
 
 from bookings.models import Resource
 from core.events.models import Event
 from portal.runs.models import SelfCheck, SelfCheckBaseline
+from portal.runs.self_check import RULES
 from portal.runs.services.self_check import HOLD_PREFIX, self_check_book
 from tests.conftest import staff_verified
 from tests.factories import MobileResourceFactory, UserFactory
 from tests.integration.stack import running_stack
+from tests.runs.rehearsals import WEARS
 
 pytestmark = [pytest.mark.integration, pytest.mark.django_db(transaction=True)]
 
-# The lap of a check in a test: 20 m, not the rail's 120 (the checks run in real time).
-LAP_M = 20
-# A battery string of 1.5 Ω instead of 0.12 Ω: it sags about 0.9 V while the robot
-# accelerates (tests/runs/test_self_check.py shows the figure in simulated time).
-WORN_BATTERY = "[battery]\ninternal_resistance_ohm = 1.5\n"
+# The lap of a check in a test: 10 m, not the rail's 120 (the checks run in real time).
+LAP_M = 10
+# Each wear as a simulator file: the values of tests/runs/rehearsals.py, where the figures
+# they give are shown in simulated time.
+WEAR_FILES = {
+    "wheel slip": "[physics]\nwheel_slip = 0.15\n",
+    "motor lag": "[physics]\nthrottle_time_constant_s = 0.6\n",
+    "worn battery": "[battery]\ninternal_resistance_ohm = 1.5\n",
+    "no RTK fix": '[gps]\nfix = "rtk_float"\n',
+}
+# Two robots a system; None: healthy. Every wear once, and a healthy robot beside two.
+PAIRS = [("worn battery", None), ("wheel slip", "motor lag"), ("no RTK fix", None)]
+ROBOTS = (("mobile-1", "agent"), ("mobile-2", "agent-2"))
 
 
-@pytest.fixture
-def two_robots(tmp_path):
-    worn = tmp_path / "worn-battery.toml"
-    worn.write_text(WORN_BATTERY)
+@pytest.mark.parametrize(("first", "second"), PAIRS, ids=lambda wear: wear or "healthy")
+def test_a_healthy_robot_passes_and_a_worn_one_is_held_with_its_wears_reason(
+    tmp_path, settings, first, second
+):
+    assert set(WEAR_FILES) == set(WEARS)
+    settings.SELF_CHECK_LAP_M = LAP_M
+    wears = dict(zip((name for name, _ in ROBOTS), (first, second), strict=True))
+    process_env = {}
+    for (name, agent), wear in zip(ROBOTS, (first, second), strict=True):
+        if wear is not None:
+            config = tmp_path / f"{name}.toml"
+            config.write_text(WEAR_FILES[wear])
+            process_env[agent] = {"AGENT_SIM_CONFIG": str(config)}
     with running_stack(
         tmp_path / "var",
         broker_url=settings.CELERY_BROKER_URL,
         second_robot=True,
-        process_env={"agent": {"AGENT_SIM_CONFIG": str(worn)}},
-    ) as running:
-        yield running
+        process_env=process_env,
+    ) as stack:
+        judged = _both_checked(stack)
+        logs = "\n".join(p.output() for p in stack["procs"])
+    states = {n: (c.state, c.run.state, c.problems, c.reason) for n, c in judged.items()}
+    for name, wear in wears.items():
+        check = judged[name]
+        print(f"{name} ({wear or 'healthy'}): {check.state} {check.figures}")
+        robot = Resource.objects.get(name=name)
+        if wear is None:
+            assert check.state == SelfCheck.State.PASSED, f"{states}\n{logs}"
+            assert SelfCheckBaseline.objects.get(resource=robot).source_id == check.pk
+            assert robot.hold_reason == ""
+            continue
+        assert check.state == SelfCheck.State.FAILED, f"{states}\n{logs}"
+        label = RULES[WEARS[wear][1]].label
+        assert check.problems[0].startswith(label), check.problems
+        assert robot.hold_reason.startswith(HOLD_PREFIX + label), robot.hold_reason
+        assert Event.objects.filter(type="robot.held", payload__resource=name).count() == 1
+        assert not SelfCheckBaseline.objects.filter(resource=robot).exists()
 
 
-def test_the_healthy_robot_passes_and_the_worn_one_is_held_with_the_reason(two_robots, settings):
-    stack = two_robots
-    settings.SELF_CHECK_LAP_M = LAP_M
+def _both_checked(stack) -> dict[str, SelfCheck]:
+    """Both robots' checks booked together, waited for until judged; by robot."""
     limits = {"max_velocity_mps": 1.0, "max_accel_mps2": 0.5}
-    worn = MobileResourceFactory(name="mobile-1", agent_url=stack.agent_url, **limits)
-    healthy = MobileResourceFactory(
-        name="mobile-2", agent_url=stack.agent2_url, agent_token_name="mobile-2", **limits
-    )
+    robots = [
+        MobileResourceFactory(name="mobile-1", agent_url=stack.agent_url, **limits),
+        MobileResourceFactory(
+            name="mobile-2", agent_url=stack.agent2_url, agent_token_name="mobile-2", **limits
+        ),
+    ]
     admin = staff_verified(UserFactory(username="ada", is_staff=True, is_superuser=True))
     start = timezone.now() + timedelta(seconds=8)
-    checks = {
-        r.name: self_check_book(resource=r, by=admin, start_at=start) for r in (worn, healthy)
-    }
-    program_s = sum(s["duration_s"] for s in checks["mobile-1"].run.segments)
-
+    checks = [self_check_book(resource=r, by=admin, start_at=start) for r in robots]
+    program_s = sum(s["duration_s"] for s in checks[0].run.segments)
     deadline = time.monotonic() + program_s + 120
     while time.monotonic() < deadline:
-        pending = SelfCheck.objects.filter(state=SelfCheck.State.PENDING).count()
-        if not pending:
+        if not SelfCheck.objects.filter(state=SelfCheck.State.PENDING).exists():
             break
         time.sleep(0.5)
-    judged = {c.resource.name: c for c in SelfCheck.objects.select_related("resource", "run")}
-    logs = "\n".join(p.output() for p in stack["procs"])
-    states = {name: (c.state, c.run.state, c.problems, c.reason) for name, c in judged.items()}
-    for name, check in judged.items():
-        print(f"{name}: {check.state} {check.figures}")
-    assert judged["mobile-2"].state == SelfCheck.State.PASSED, f"{states}\n{logs}"
-    assert judged["mobile-1"].state == SelfCheck.State.FAILED, f"{states}\n{logs}"
-
-    # The healthy robot's check is its baseline, and it stays in booking.
-    assert SelfCheckBaseline.objects.get(resource=healthy).source_id == judged["mobile-2"].pk
-    assert Resource.objects.get(pk=healthy.pk).hold_reason == ""
-    assert judged["mobile-2"].figures["rtk_share"] == 1.0
-    # The worn one: only its battery, held with that reason, and the staff told.
-    problems = judged["mobile-1"].problems
-    assert len(problems) == 1, problems
-    assert problems[0].startswith("battery sag under load"), problems
-    hold = Resource.objects.get(pk=worn.pk).hold_reason
-    assert hold.startswith(HOLD_PREFIX + "battery sag under load"), hold
-    told = Event.objects.get(type="robot.held")
-    assert told.payload["resource"] == "mobile-1"
-    assert not SelfCheckBaseline.objects.filter(resource=worn).exists()
+    return {c.resource.name: c for c in SelfCheck.objects.select_related("resource", "run")}
