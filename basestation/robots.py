@@ -22,8 +22,9 @@ logger = logging.getLogger(__name__)
 # A lost config frame or answer is retried this many times before the agent starts without
 # the robot's confirmation (a robot switched off now still has its compiled-in limits).
 CONFIGURE_ATTEMPTS = 3
-# The limits are sent once, at start-up, before any tick: nothing waits on the answer but the
-# start itself, so a robot busy for a moment (or a loaded simulator) gets longer than a tick.
+# The limits are sent, and the firmware asked its build, once, at start-up, before any tick:
+# nothing waits on the answers but the start itself, so a robot busy for a moment (or a loaded
+# simulator) gets longer than a tick.
 CONFIGURE_REPLY_TIMEOUT_S = 0.25
 
 
@@ -150,7 +151,8 @@ def _identify(link: Any) -> RobotIdentity | None:
     """Which firmware the robot runs, for every run's record; None when it does not say."""
     for attempt in range(1, CONFIGURE_ATTEMPTS + 1):
         try:
-            identity: RobotIdentity = link.identify()
+            # As long a wait as the limits': only the start waits on it.
+            identity: RobotIdentity = link.identify(reply_timeout_s=CONFIGURE_REPLY_TIMEOUT_S)
         except RobotLinkError as exc:
             if attempt == CONFIGURE_ATTEMPTS:
                 logger.warning(

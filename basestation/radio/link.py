@@ -278,7 +278,7 @@ class RadioRobotLink:
                 )
         raise RobotLinkError(f"no answer to config {frame.seq}")
 
-    def identify(self) -> RobotIdentity:
+    def identify(self, *, reply_timeout_s: float | None = None) -> RobotIdentity:
         """Ask the robot which firmware it runs (an identify frame) and return its answer:
         the build identifier and the compiled-in configuration. The agent asks once, at
         start-up, and records it with every run. Raises :class:`RobotLinkError` without an
@@ -291,7 +291,8 @@ class RadioRobotLink:
             self._send_errors += 1
             raise RobotLinkError(f"identify {frame.seq} not sent: {exc}") from exc
         self._frames_sent += 1
-        deadline_s = self.clock() + self.reply_timeout_s
+        timeout_s = self.reply_timeout_s if reply_timeout_s is None else reply_timeout_s
+        deadline_s = self.clock() + timeout_s
         while (remaining_s := deadline_s - self.clock()) > 0:
             decoded = self._receive_for_us(remaining_s)
             if decoded is None:
