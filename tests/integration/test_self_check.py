@@ -34,8 +34,12 @@ WEAR_FILES = {
     "worn battery": "[battery]\ninternal_resistance_ohm = 1.5\n",
     "no RTK fix": '[gps]\nfix = "rtk_float"\n',
 }
-# Two robots a system; None: healthy. Every wear once, and a healthy robot beside two.
-PAIRS = [("worn battery", None), ("wheel slip", "motor lag"), ("no RTK fix", None)]
+# Two robots a system; None: healthy. One system: each costs a worker about 100 s and the
+# two real-time robots a third of the machine's two cores meanwhile. Every wear of WEAR_FILES
+# ran here as the pairs ("wheel slip", "motor lag") and ("no RTK fix", None) too, each held
+# with its reason (254 s for the three); the suite keeps one, and each wear's figure through
+# the agent's own code in simulated time (tests/runs/test_self_check.py).
+PAIRS = [("worn battery", None)]
 ROBOTS = (("mobile-1", "agent"), ("mobile-2", "agent-2"))
 
 

@@ -10,9 +10,10 @@ the end checks that every task the workers know is covered.
 from __future__ import annotations
 
 import uuid
-from datetime import timedelta
+from datetime import UTC, datetime, time, timedelta
 
 import pytest
+import time_machine
 from django.core import mail
 from django.utils import timezone
 
@@ -29,9 +30,10 @@ from core.webhooks.services import webhook_create, webhook_test, webhook_update
 from core.webhooks.tasks import webhooks_send
 from portal.celery import app as celery_app
 from portal.runs import tasks
-from portal.runs.models import DryRun, Run, RunEvent, Sample
+from portal.runs.models import DryRun, Run, RunEvent, Sample, SelfCheck
 from portal.runs.services import dry_run, staging
 from portal.runs.services.reservations import reservation_cancel, reservation_create
+from portal.runs.services.self_check import self_check_schedule_set
 from portal.runs.states import RunState
 from tests.core.test_webhooks import Receiver
 from tests.factories import ExperimentFactory, FixedResourceFactory, UserFactory
@@ -49,6 +51,7 @@ COVERED = {
     "portal.runs.tasks.robot_health_check",
     "portal.runs.tasks.dry_run_execute",
     "portal.runs.tasks.dry_runs_delete_expired",
+    "portal.runs.tasks.self_checks_book_scheduled",
     "bookings.tasks.reservations_remind",
     "core.audit.tasks.idempotency_keys_delete_expired",
     "core.events.tasks.events_dispatch_all",
@@ -280,6 +283,15 @@ def test_deleting_expired_dry_runs_twice_deletes_them_once(owner, settings):
                                  ended_at=timezone.now())  # fmt: skip
     twice(tasks.dry_runs_delete_expired)
     assert list(DryRun.objects.values_list("pk", flat=True)) == [kept.pk]
+
+
+@time_machine.travel(datetime(2026, 11, 29, 20, 0, tzinfo=UTC), tick=False)
+def test_booking_the_days_self_checks_twice_books_each_once(admin_user, mobile):
+    self_check_schedule_set(resource=mobile, by=admin_user, at=time(3, 0))
+    twice(tasks.self_checks_book_scheduled)
+    check = SelfCheck.objects.get()
+    assert check.run.start_at == datetime(2026, 11, 30, 3, 0, tzinfo=UTC)  # Lisbon is UTC now
+    assert Reservation.objects.count() == 1
 
 
 def test_allocating_the_queue_twice_books_each_request_once(owner, mobile):

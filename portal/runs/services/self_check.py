@@ -106,15 +106,7 @@ def self_check_book(
         start_at = slot[0]
     title = f"Self-check of {resource.name}"
     with transaction.atomic():
-        # One experiment per admin and robot, its program kept up to date: not one a night.
-        experiment = (
-            Experiment.objects.filter(owner=by, title=title).order_by("-created_at").first()
-        )
-        if experiment is None:
-            experiment = Experiment.objects.create(owner=by, title=title, segments=program.segments)
-        elif experiment.segments != program.segments:
-            experiment.segments = program.segments
-            experiment.save(update_fields=["segments", "updated_at"])
+        experiment = _experiment(by, title, program)
         reservation = with_run.reservation_create(
             owner=by,
             resource=resource,
@@ -135,6 +127,18 @@ def self_check_book(
             lap_m=program.lap_m,
         )
     return check
+
+
+def _experiment(by: User, title: str, program: Program) -> Experiment:
+    """The admin's experiment of the robot's check, its program brought up to date: one per
+    admin and robot, not one a night in their list."""
+    experiment = Experiment.objects.filter(owner=by, title=title).order_by("-created_at").first()
+    if experiment is None:
+        return Experiment.objects.create(owner=by, title=title, segments=program.segments)
+    if experiment.segments != program.segments:
+        experiment.segments = program.segments
+        experiment.save(update_fields=["segments", "updated_at"])
+    return experiment
 
 
 def _program_of(check: SelfCheck) -> Program:
