@@ -7,12 +7,13 @@ with the reason its wear gives, and the staff are told (``robot.held``)."""
 from __future__ import annotations
 
 import time
-from datetime import timedelta
+from datetime import datetime, timedelta
 
 import pytest
 from django.utils import timezone
 
 from bookings.models import Resource
+from bookings.services import resource_set_service
 from core.events.models import Event
 from portal.runs.models import SelfCheck, SelfCheckBaseline
 from portal.runs.self_check import RULES
@@ -63,6 +64,10 @@ def test_a_healthy_robot_passes_and_a_worn_one_is_held_with_its_wears_reason(
         process_env=process_env,
     ) as stack:
         judged = _both_checked(stack)
+        for name, wear in wears.items():
+            if wear is None and _starved(judged[name]):
+                print(f"{name} (healthy) on a starved base station: {judged[name].problems}")
+                judged[name] = _checked_again(stack, name)
         logs = "\n".join(p.output() for p in stack["procs"])
     states = {n: (c.state, c.run.state, c.problems, c.reason) for n, c in judged.items()}
     for name, wear in wears.items():
@@ -82,6 +87,41 @@ def test_a_healthy_robot_passes_and_a_worn_one_is_held_with_its_wears_reason(
         assert not SelfCheckBaseline.objects.filter(resource=robot).exists()
 
 
+def _starved(check: SelfCheck) -> bool:
+    """A healthy robot's check that failed because its base station lost the robot's answers:
+    the agent and its simulated robot share two cores with the whole suite, and on the slower
+    machine a busy minute once left 47 % of the ticks unanswered (no RTK track to measure,
+    link loss over its limit). On the roof that is a real fault; here it is the machine's."""
+    loss = check.figures.get("link_loss_share") or 0.0
+    return check.state == SelfCheck.State.FAILED and loss > 0.05
+
+
+def _checked_again(stack, name: str) -> SelfCheck:
+    """What an operator does after such a check: the robot back in service, a second check."""
+    robot = Resource.objects.get(name=name)
+    admin = staff_verified(UserFactory(username="ada", is_staff=True, is_superuser=True))
+    resource_set_service(
+        resource=robot, by=admin, enabled=True, reason="checked on a starved base station"
+    )
+    check = self_check_book(
+        resource=robot, by=admin, start_at=timezone.now() + timedelta(seconds=8)
+    )
+    _judged_by(check.run.start_at + timedelta(seconds=_program_s(check) + 120))
+    return SelfCheck.objects.select_related("resource", "run").get(pk=check.pk)
+
+
+def _program_s(check: SelfCheck) -> float:
+    return sum(s["duration_s"] for s in check.run.segments)
+
+
+def _judged_by(deadline: datetime) -> None:
+    """Poll until no check waits (a deadline on the wall clock only bounds a hang)."""
+    while timezone.now() < deadline:
+        if not SelfCheck.objects.filter(state=SelfCheck.State.PENDING).exists():
+            return
+        time.sleep(0.5)
+
+
 def _both_checked(stack) -> dict[str, SelfCheck]:
     """Both robots' checks booked together, waited for until judged; by robot."""
     limits = {"max_velocity_mps": 1.0, "max_accel_mps2": 0.5}
@@ -94,10 +134,8 @@ def _both_checked(stack) -> dict[str, SelfCheck]:
     admin = staff_verified(UserFactory(username="ada", is_staff=True, is_superuser=True))
     start = timezone.now() + timedelta(seconds=8)
     checks = [self_check_book(resource=r, by=admin, start_at=start) for r in robots]
-    program_s = sum(s["duration_s"] for s in checks[0].run.segments)
-    deadline = time.monotonic() + program_s + 120
-    while time.monotonic() < deadline:
-        if not SelfCheck.objects.filter(state=SelfCheck.State.PENDING).exists():
-            break
-        time.sleep(0.5)
-    return {c.resource.name: c for c in SelfCheck.objects.select_related("resource", "run")}
+    _judged_by(start + timedelta(seconds=_program_s(checks[0]) + 120))
+    return {
+        c.resource.name: c
+        for c in SelfCheck.objects.select_related("resource", "run").order_by("pk")
+    }
