@@ -13,7 +13,7 @@ from basestation.dryrun import dry_run
 from basestation.sim.config import GpsConfig, SimConfig
 from basestation.sim.physics import BatteryConfig, PhysicsConfig
 from basestation.telemetry.rail import Rail
-from portal.runs.analysis import SampleColumns
+from portal.runs.analysis import SampleColumns, SampleRow
 from portal.runs.self_check import Program, self_check_program
 
 MAX_VELOCITY_MPS = 1.0
@@ -64,20 +64,10 @@ def rehearse(wear: str | None = None) -> dict[str, Any]:
 
 
 def columns(samples: list[dict[str, Any]]) -> SampleColumns:
+    """The agent's samples as the analysis reads them: its ``SampleRow`` columns, ``t_s``
+    from the first sample."""
     t0 = samples[0]["t"]
-    return SampleColumns.from_lists(
-        *(
-            [s["t"] - t0 for s in samples] if name == "t_s" else [s[name] for s in samples]
-            for name in (
-                "seq",
-                "t_s",
-                "segment",
-                "commanded_velocity_mps",
-                "velocity_mps",
-                "direction",
-                "battery_v",
-                "track_m",
-                "fix_quality",
-            )
-        )
+    return SampleColumns.from_rows(
+        SampleRow(*(s["t"] - t0 if name == "t_s" else s[name] for name in SampleRow._fields))
+        for s in samples
     )
